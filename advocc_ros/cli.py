@@ -1,0 +1,46 @@
+"""``advocc``: the command line. Each command group lives in ``advocc_ros.commands.<name>``.
+
+A command module provides ``register(subparsers)``, which adds its parser(s) and sets
+``func(args) -> int`` as the handler. Errors the user can fix (bad files, bad values) are
+printed as one line on stderr with exit code 2; nothing prints a traceback for them.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import logging
+import sys
+
+COMMANDS = ['heatmap', 'perf', 'demo']
+
+
+class UserError(Exception):
+    """An error caused by the user's input; shown without a traceback."""
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog='advocc', description=__doc__.splitlines()[0])
+    parser.add_argument('-v', '--verbose', action='store_true', help='debug logging')
+    sub = parser.add_subparsers(dest='command', required=True)
+    for name in COMMANDS:
+        importlib.import_module(f'advocc_ros.commands.{name}').register(sub)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    logging.basicConfig(level=logging.DEBUG if args.verbose else logging.WARNING,
+                        format='%(levelname)s %(name)s: %(message)s')
+    try:
+        return int(args.func(args) or 0)
+    except (UserError, ValueError, OSError) as exc:
+        print(f'advocc {args.command}: error: {exc}', file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print(f'advocc {args.command}: interrupted', file=sys.stderr)
+        return 130
+
+
+if __name__ == '__main__':
+    sys.exit(main())

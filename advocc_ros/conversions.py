@@ -1,0 +1,173 @@
+"""Translations between ROS messages and core types, in one place.
+
+Every ``*_from_msg`` validates what it reads (finite numbers, sane sizes) and raises
+``SceneError`` / ``RobotError`` with a message naming the field, so nodes can turn it into an
+error response.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from advocc_msgs.msg import CollisionObject, GoalRegion as GoalRegionMsg, Obstacle as ObstacleMsg
+from builtin_interfaces.msg import Duration
+from geometry_msgs.msg import Point, Pose as PoseMsg, Quaternion
+from sensor_msgs.msg import JointState
+from shape_msgs.msg import Mesh, MeshTriangle, SolidPrimitive
+from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
+
+from advocc_ros.robot import RobotModel
+from advocc_ros.scene import (MAX_OBJECTS, GoalRegion, Pose, SceneError, SceneObject, Shape,
+                              make_mesh_shape)
+
+
+def pose_from_msg(msg: PoseMsg, where: str = 'pose') -> Pose:
+    p, o = msg.position, msg.orientation
+    return Pose.from_data({'position': [p.x, p.y, p.z], 'orientation': [o.x, o.y, o.z, o.w]},
+                          where)
+
+
+def pose_to_msg(pose: Pose) -> PoseMsg:
+    x, y, z = pose.position_m
+    qx, qy, qz, qw = pose.quat_xyzw
+    return PoseMsg(position=Point(x=float(x), y=float(y), z=float(z)),
+                   orientation=Quaternion(x=float(qx), y=float(qy), z=float(qz), w=float(qw)))
+
+
+def goal_region_from_msg(msg: GoalRegionMsg, where: str = 'goal_region') -> GoalRegion:
+    return GoalRegion.from_data({
+        'link': msg.link_name or 'panda_hand',
+        'center': {'position': [msg.center.position.x, msg.center.position.y,
+                                msg.center.position.z],
+                   'orientation': [msg.center.orientation.x, msg.center.orientation.y,
+                                   msg.center.orientation.z, msg.center.orientation.w]},
+        'position_tolerance': list(msg.position_tolerance),
+        'orientation_tolerance': list(msg.orientation_tolerance),
+        'tool_offset': {'position': [msg.tool_offset.position.x, msg.tool_offset.position.y,
+                                     msg.tool_offset.position.z],
+                        'orientation': [msg.tool_offset.orientation.x,
+                                        msg.tool_offset.orientation.y,
+                                        msg.tool_offset.orientation.z,
+                                        msg.tool_offset.orientation.w]},
+    }, where)
+
+
+def goal_region_to_msg(goal: GoalRegion, frame: str) -> GoalRegionMsg:
+    msg = GoalRegionMsg()
+    msg.header.frame_id = frame
+    msg.link_name = goal.link
+    msg.center = pose_to_msg(goal.center)
+    msg.tool_offset = pose_to_msg(goal.tool_offset)
+    msg.position_tolerance = [float(v) for v in goal.position_tolerance_m]
+    msg.orientation_tolerance = [float(v) for v in goal.orientation_tolerance_rad]
+    return msg
+
+
+def _shape_from_primitive(prim: SolidPrimitive, pose: Pose, where: str) -> Shape:
+    dims = np.asarray(prim.dimensions, dtype=float)
+    need = {SolidPrimitive.BOX: 3, SolidPrimitive.SPHERE: 1, SolidPrimitive.CYLINDER: 2}
+    if prim.type not in need:
+        raise SceneError(f'{where}.type: only BOX, SPHERE and CYLINDER are supported, '
+                         f'got {prim.type}')
+    if dims.shape != (need[prim.type],) or not np.all(np.isfinite(dims)) or np.any(dims <= 0):
+        raise SceneError(f'{where}.dimensions: expected {need[prim.type]} finite positive '
+                         f'values, got {dims.tolist()}')
+    kind = {SolidPrimitive.BOX: 'box', SolidPrimitive.SPHERE: 'sphere',
+            SolidPrimitive.CYLINDER: 'cylinder'}[prim.type]
+    return Shape(kind, tuple(dims.tolist()), pose)
+
+
+def collision_object_from_msg(msg: CollisionObject, where: str = 'object'
+                              ) -> tuple[int, SceneObject, Pose]:
+    """(operation, object with shapes posed in the message frame, object pose)."""
+    where = f'{where} {msg.id!r}'
+    obj_pose = pose_from_msg(msg.pose, f'{where}.pose')
+    T_obj = obj_pose.to_se3()
+    if len(msg.primitives) != len(msg.primitive_poses):
+        raise SceneError(f'{where}: {len(msg.primitives)} primitives but '
+                         f'{len(msg.primitive_poses)} primitive_poses')
+    if len(msg.meshes) != len(msg.mesh_poses):
+        raise SceneError(f'{where}: {len(msg.meshes)} meshes but {len(msg.mesh_poses)} mesh_poses')
+    shapes = []
+    for i, (prim, pmsg) in enumerate(zip(msg.primitives, msg.primitive_poses)):
+        local = pose_from_msg(pmsg, f'{where}.primitive_poses[{i}]')
+        shapes.append(_shape_from_primitive(
+            prim, Pose.from_se3(T_obj * local.to_se3()), f'{where}.primitives[{i}]'))
+    for i, (mesh, mmsg) in enumerate(zip(msg.meshes, msg.mesh_poses)):
+        local = pose_from_msg(mmsg, f'{where}.mesh_poses[{i}]')
+        vertices = np.array([[v.x, v.y, v.z] for v in mesh.vertices], dtype=float).reshape(-1, 3)
+        faces = np.array([list(t.vertex_indices) for t in mesh.triangles],
+                         dtype=np.int64).reshape(-1, 3)
+        shapes.append(make_mesh_shape(vertices, faces, Pose.from_se3(T_obj * local.to_se3()),
+                                      f'{where}.meshes[{i}]'))
+    if msg.operation in (CollisionObject.ADD, CollisionObject.APPEND) and not shapes:
+        raise SceneError(f'{where}: ADD/APPEND needs at least one primitive or mesh')
+    return msg.operation, SceneObject(msg.id, tuple(shapes)), obj_pose
+
+
+def scene_from_msgs(msgs: list[CollisionObject], where: str = 'scene') -> tuple[SceneObject, ...]:
+    """Objects of a request's scene list (each message must be an ADD)."""
+    if len(msgs) > MAX_OBJECTS:
+        raise SceneError(f'{where}: {len(msgs)} objects, limit {MAX_OBJECTS}')
+    objects = []
+    for i, msg in enumerate(msgs):
+        op, obj, _ = collision_object_from_msg(msg, f'{where}[{i}]')
+        if op != CollisionObject.ADD:
+            raise SceneError(f'{where}[{i}]: only ADD objects can describe a scene')
+        objects.append(obj)
+    return tuple(objects)
+
+
+def collision_object_to_msg(obj: SceneObject, frame: str,
+                            operation: int = CollisionObject.ADD) -> CollisionObject:
+    """Message for ``obj``; shapes are posed relative to an identity object pose."""
+    msg = CollisionObject(id=obj.id, operation=operation)
+    msg.header.frame_id = frame
+    for shape in obj.shapes if operation != CollisionObject.REMOVE else ():
+        if shape.kind == 'mesh':
+            msg.meshes.append(Mesh(
+                triangles=[MeshTriangle(vertex_indices=[int(i) for i in f])
+                           for f in shape.faces],
+                vertices=[Point(x=float(v[0]), y=float(v[1]), z=float(v[2]))
+                          for v in shape.vertices]))
+            msg.mesh_poses.append(pose_to_msg(shape.pose))
+            continue
+        kind = {'box': SolidPrimitive.BOX, 'sphere': SolidPrimitive.SPHERE,
+                'cylinder': SolidPrimitive.CYLINDER}[shape.kind]
+        msg.primitives.append(SolidPrimitive(type=kind, dimensions=list(shape.dims)))
+        msg.primitive_poses.append(pose_to_msg(shape.pose))
+    return msg
+
+
+def q_from_joint_state(robot: RobotModel, msg: JointState, where: str = 'start_state'
+                       ) -> np.ndarray:
+    return robot.q_from_names(list(msg.name), list(msg.position), where)
+
+
+def joint_state_from_q(robot: RobotModel, q: np.ndarray) -> JointState:
+    return JointState(name=list(robot.joint_names), position=[float(v) for v in q])
+
+
+def obstacle_to_msg(obj: SceneObject, covered_mass: float) -> ObstacleMsg:
+    shape = obj.shapes[0]
+    return ObstacleMsg(id=obj.id, pose=pose_to_msg(shape.pose), size=list(shape.dims),
+                       covered_mass=float(covered_mass))
+
+
+def trajectory_to_msg(robot: RobotModel, path: np.ndarray, times_s: np.ndarray | None = None
+                      ) -> JointTrajectory:
+    """Joint trajectory of waypoints ``path`` (N, nq); ``times_s`` default to 0.1 s apart."""
+    msg = JointTrajectory(joint_names=list(robot.joint_names))
+    times_s = np.arange(len(path)) * 0.1 if times_s is None else times_s
+    for q, t in zip(path, times_s):
+        sec = int(t)
+        msg.points.append(JointTrajectoryPoint(
+            positions=[float(v) for v in q],
+            time_from_start=Duration(sec=sec, nanosec=int(round((t - sec) * 1e9)))))
+    return msg
+
+
+def trajectory_from_msg(robot: RobotModel, msg: JointTrajectory) -> np.ndarray:
+    """Waypoints (N, nq) in the robot's joint order."""
+    return np.array([robot.q_from_names(list(msg.joint_names), list(p.positions),
+                                        f'trajectory.points[{i}]')
+                     for i, p in enumerate(msg.points)]).reshape(-1, robot.nq)

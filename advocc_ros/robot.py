@@ -1,0 +1,241 @@
+"""Robot model: kinematics (pinocchio), collision geometry (coal) and link solids.
+
+The arm is reduced to its planning group: every joint outside the group (the Panda's fingers) is
+locked at its reference value with ``pinocchio.buildReducedModel``, so ``q`` is always the arm
+configuration (7 values for the Panda) and nothing downstream has to slice it.
+
+Immutable model objects live here; per-thread scratch (``pinocchio.Data``, ``GeometryData``)
+is created by ``RobotModel.create_data`` / ``CollisionWorld``, the way pinocchio separates
+``model`` from ``model.createData()``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import hashlib
+import logging
+import pathlib
+import xml.etree.ElementTree as ET
+
+import coal
+import numpy as np
+import pinocchio as pin
+import trimesh
+
+log = logging.getLogger(__name__)
+
+
+class RobotError(ValueError):
+    """A robot description that cannot be loaded or a request that does not fit the robot."""
+
+
+def example_robot_data_share() -> pathlib.Path:
+    """Directory that holds ``example-robot-data/robots`` (installed by the PyPI package)."""
+    import cmeel  # noqa: F401  (example-robot-data installs into cmeel's prefix)
+    import site
+
+    for base in site.getsitepackages():
+        share = pathlib.Path(base) / 'cmeel.prefix' / 'share'
+        if (share / 'example-robot-data' / 'robots').is_dir():
+            return share
+    raise RobotError('example-robot-data is not installed (pip install example-robot-data)')
+
+
+@dataclasses.dataclass(frozen=True)
+class RobotSpec:
+    """Where a robot comes from and which part of it is planned for."""
+
+    urdf: str = 'example-robot-data://panda_description/urdf/panda.urdf'
+    """URDF path; ``example-robot-data://`` resolves inside the example-robot-data package."""
+    srdf: str = 'example-robot-data://panda_description/srdf/panda.srdf'
+    """SRDF path: disabled collision pairs, planning group and reference joint values."""
+    group: str = 'arm'
+    """SRDF group whose joints are planned; other joints are locked."""
+    ee_link: str = 'panda_hand'
+    """End-effector link for goal regions, manipulability and corridors."""
+    group_state: str = 'default'
+    """SRDF group state giving the values of locked joints (missing ones: 0)."""
+
+    @classmethod
+    def from_dict(cls, data: dict, where: str = 'robot') -> 'RobotSpec':
+        if not isinstance(data, dict):
+            raise RobotError(f'{where}: expected a mapping, got {type(data).__name__}')
+        fields = {f.name for f in dataclasses.fields(cls)}
+        unknown = set(data) - fields
+        if unknown:
+            raise RobotError(f'{where}: unknown field(s) {sorted(unknown)}; known: {sorted(fields)}')
+        for key, value in data.items():
+            if not isinstance(value, str):
+                raise RobotError(f'{where}.{key}: expected a string, got {value!r}')
+        return cls(**data)
+
+
+def resolve_path(path: str) -> pathlib.Path:
+    prefix = 'example-robot-data://'
+    if path.startswith(prefix):
+        return example_robot_data_share() / 'example-robot-data' / 'robots' / path[len(prefix):]
+    return pathlib.Path(path).expanduser()
+
+
+def _srdf_group(srdf: ET.Element, name: str) -> list[str]:
+    """Joint names of an SRDF group, following nested groups and chains are not supported."""
+    for group in srdf.iter('group'):
+        if group.get('name') == name:
+            joints = [j.get('name') for j in group.findall('joint')]
+            for sub in group.findall('group'):
+                joints += _srdf_group(srdf, sub.get('name'))
+            return joints
+    return []
+
+
+def _srdf_state(srdf: ET.Element, name: str) -> dict[str, float]:
+    for state in srdf.iter('group_state'):
+        if state.get('name') == name:
+            return {j.get('name'): float(j.get('value')) for j in state.findall('joint')}
+    return {}
+
+
+def _geometry_trimesh(geom: pin.GeometryObject) -> trimesh.Trimesh:
+    """Solid of one collision geometry, in the geometry's own frame."""
+    shape = geom.geometry
+    if isinstance(shape, coal.Box):
+        return trimesh.creation.box(extents=2.0 * np.asarray(shape.halfSide))
+    if isinstance(shape, coal.Sphere):
+        return trimesh.creation.icosphere(subdivisions=2, radius=shape.radius)
+    if isinstance(shape, coal.Cylinder):
+        return trimesh.creation.cylinder(radius=shape.radius, height=2.0 * shape.halfLength)
+    if isinstance(shape, coal.Capsule):
+        return trimesh.creation.capsule(radius=shape.radius, height=2.0 * shape.halfLength)
+    if geom.meshPath and pathlib.Path(geom.meshPath).is_file():
+        mesh = trimesh.load_mesh(geom.meshPath, force='mesh')
+        mesh.apply_scale(np.asarray(geom.meshScale))
+        return mesh
+    raise RobotError(f'collision geometry {geom.name!r}: unsupported shape {type(shape).__name__}')
+
+
+class RobotModel:
+    """Reduced arm model with collision geometry; immutable after construction."""
+
+    def __init__(self, spec: RobotSpec = RobotSpec()):
+        self.spec = spec
+        urdf = resolve_path(spec.urdf)
+        srdf = resolve_path(spec.srdf)
+        for label, path in (('URDF', urdf), ('SRDF', srdf)):
+            if not path.is_file():
+                raise RobotError(f'{label} not found: {path}')
+        try:
+            srdf_xml = ET.parse(srdf).getroot()
+        except ET.ParseError as exc:
+            raise RobotError(f'{srdf}: not valid XML ({exc})') from exc
+        package_dirs = [str(example_robot_data_share())]
+        try:
+            full = pin.buildModelFromUrdf(str(urdf))
+            full_geom = pin.buildGeomFromUrdf(
+                full, str(urdf), pin.GeometryType.COLLISION, package_dirs=package_dirs)
+        except (RuntimeError, ValueError) as exc:
+            raise RobotError(f'{urdf}: pinocchio could not load it ({exc})') from exc
+
+        group = _srdf_group(srdf_xml, spec.group)
+        if not group:
+            raise RobotError(f'{srdf}: no group named {spec.group!r}')
+        state = _srdf_state(srdf_xml, spec.group_state)
+        lock_ids, q_ref = [], pin.neutral(full)
+        for jid in range(1, full.njoints):
+            name = full.names[jid]
+            if name not in group:
+                lock_ids.append(jid)
+            if name in state and full.joints[jid].nq == 1:
+                q_ref[full.joints[jid].idx_q] = state[name]
+        missing = [j for j in group if not full.existJointName(j)]
+        if missing:
+            raise RobotError(f'{srdf}: group {spec.group!r} names joints not in the URDF: {missing}')
+        self.model, self.collision_model = pin.buildReducedModel(full, full_geom, lock_ids, q_ref)
+        if self.model.nq != self.model.nv:
+            raise RobotError('continuous/multi-DoF joints in the planning group are not supported')
+        self.joint_names: tuple[str, ...] = tuple(self.model.names[1:])
+        self.lower = np.array(self.model.lowerPositionLimit, dtype=float)
+        self.upper = np.array(self.model.upperPositionLimit, dtype=float)
+        if not np.all(np.isfinite(self.lower) & np.isfinite(self.upper)):
+            raise RobotError('every planned joint needs finite position limits')
+        if not self.model.existFrame(spec.ee_link):
+            raise RobotError(f'end-effector link {spec.ee_link!r} is not in {urdf}')
+        self.ee_frame = self.model.getFrameId(spec.ee_link)
+
+        self.collision_model.addAllCollisionPairs()
+        pin.removeCollisionPairs(self.model, self.collision_model, str(srdf))
+        # Pairs on the same joint never move relative to each other (fingers locked on the hand).
+        self.self_pairs = [
+            (p.first, p.second) for p in self.collision_model.collisionPairs
+            if self.collision_model.geometryObjects[p.first].parentJoint
+            != self.collision_model.geometryObjects[p.second].parentJoint]
+        self.link_names: tuple[str, ...] = tuple(
+            g.name for g in self.collision_model.geometryObjects)
+        self.hash = hashlib.sha256(
+            urdf.read_bytes() + srdf.read_bytes()
+            + repr((spec.group, spec.ee_link, spec.group_state)).encode()).hexdigest()[:16]
+        log.debug('robot %s: %d joints, %d geometries, %d self pairs', urdf.name,
+                  self.model.nq, len(self.link_names), len(self.self_pairs))
+
+    @property
+    def nq(self) -> int:
+        return self.model.nq
+
+    def create_data(self) -> pin.Data:
+        return self.model.createData()
+
+    def check_q(self, q: np.ndarray, what: str = 'q') -> np.ndarray:
+        """Return ``q`` as a float array of the right size, or raise a clear error."""
+        q = np.asarray(q, dtype=float)
+        if q.shape != (self.nq,):
+            raise RobotError(f'{what}: expected {self.nq} joint values, got shape {q.shape}')
+        if not np.all(np.isfinite(q)):
+            raise RobotError(f'{what}: non-finite joint values {q.tolist()}')
+        return q
+
+    def q_from_names(self, names: list[str], positions: list[float], what: str = 'joint state'
+                     ) -> np.ndarray:
+        """Arm configuration from a (name, position) joint state; extra joints are ignored."""
+        if len(names) != len(positions):
+            raise RobotError(f'{what}: {len(names)} names but {len(positions)} positions')
+        lookup = dict(zip(names, positions))
+        missing = [j for j in self.joint_names if j not in lookup]
+        if missing:
+            raise RobotError(f'{what}: missing joints {missing} (robot joints: '
+                             f'{list(self.joint_names)})')
+        return self.check_q(np.array([lookup[j] for j in self.joint_names]), what)
+
+    def within_limits(self, q: np.ndarray) -> bool:
+        return bool(np.all(q >= self.lower - 1e-9) and np.all(q <= self.upper + 1e-9))
+
+    def sample_q(self, rng: np.random.Generator, n: int) -> np.ndarray:
+        """``n`` configurations uniform within joint limits, shape (n, nq)."""
+        return rng.uniform(self.lower, self.upper, size=(n, self.nq))
+
+    def ee_pose(self, q: np.ndarray, data: pin.Data | None = None) -> pin.SE3:
+        """``T_base_ee`` of the end-effector link."""
+        data = data or self.create_data()
+        pin.framesForwardKinematics(self.model, data, q)
+        return data.oMf[self.ee_frame].copy()
+
+    def ee_jacobian(self, q: np.ndarray, data: pin.Data | None = None) -> np.ndarray:
+        """6 x nq geometric Jacobian of the end-effector, in the base-aligned local frame."""
+        data = data or self.create_data()
+        return pin.computeFrameJacobian(self.model, data, q, self.ee_frame,
+                                        pin.LOCAL_WORLD_ALIGNED)
+
+    def manipulability(self, q: np.ndarray, data: pin.Data | None = None) -> float:
+        """Yoshikawa index ``sqrt(det(J J^T))`` of the 6 x nq end-effector Jacobian."""
+        jac = self.ee_jacobian(q, data)
+        return float(np.sqrt(max(np.linalg.det(jac @ jac.T), 0.0)))
+
+    @functools.cached_property
+    def link_meshes(self) -> tuple[trimesh.Trimesh, ...]:
+        """Solid of each collision geometry in its own frame (used for voxelization)."""
+        return tuple(_geometry_trimesh(g) for g in self.collision_model.geometryObjects)
+
+
+@functools.lru_cache(maxsize=4)
+def load_robot(spec: RobotSpec = RobotSpec()) -> RobotModel:
+    """Cached ``RobotModel`` (loading meshes takes ~0.1 s)."""
+    return RobotModel(spec)

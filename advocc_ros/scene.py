@@ -1,0 +1,475 @@
+"""Scenes: collision objects, start configuration and goal region, and their YAML files.
+
+Everything is expressed in the robot base frame, in metres; quaternions are ``[x, y, z, w]`` as in
+ROS messages. A scene file is our own YAML (see ``config/scenes/table_pick.yaml``); the loader
+names the file and the field of anything malformed.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import json
+import pathlib
+from typing import Any
+
+import numpy as np
+import pinocchio as pin
+import trimesh
+import yaml
+
+from advocc_ros.robot import RobotSpec
+
+SHAPES = ('box', 'sphere', 'cylinder', 'mesh')
+MAX_OBJECTS = 1000
+MAX_MESH_VERTICES = 200_000
+
+
+class SceneError(ValueError):
+    """A malformed scene, goal region or obstacles file; the message names file and field."""
+
+
+def _finite(values, where: str, n: int | None = None, positive: bool = False,
+            nonneg: bool = False) -> np.ndarray:
+    try:
+        arr = np.asarray(values, dtype=float)
+    except (TypeError, ValueError):
+        raise SceneError(f'{where}: expected numbers, got {values!r}') from None
+    if n is not None and arr.shape != (n,):
+        raise SceneError(f'{where}: expected {n} numbers, got {values!r}')
+    if not np.all(np.isfinite(arr)):
+        raise SceneError(f'{where}: values must be finite, got {values!r}')
+    if positive and not np.all(arr > 0):
+        raise SceneError(f'{where}: values must be > 0, got {values!r}')
+    if nonneg and not np.all(arr >= 0):
+        raise SceneError(f'{where}: values must be >= 0, got {values!r}')
+    return arr
+
+
+@dataclasses.dataclass(frozen=True)
+class Pose:
+    """Rigid pose: ``position_m`` (3,) and unit quaternion ``quat_xyzw`` (4,)."""
+
+    position_m: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    quat_xyzw: tuple[float, float, float, float] = (0.0, 0.0, 0.0, 1.0)
+
+    @classmethod
+    def from_data(cls, data: Any, where: str) -> 'Pose':
+        if data is None:
+            return cls()
+        if not isinstance(data, dict):
+            raise SceneError(f'{where}: expected a mapping with position/orientation')
+        unknown = set(data) - {'position', 'orientation'}
+        if unknown:
+            raise SceneError(f'{where}: unknown field(s) {sorted(unknown)}')
+        pos = _finite(data.get('position', [0, 0, 0]), f'{where}.position', 3)
+        quat = _finite(data.get('orientation', [0, 0, 0, 1]), f'{where}.orientation', 4)
+        norm = np.linalg.norm(quat)
+        if norm < 1e-6:
+            raise SceneError(f'{where}.orientation: zero quaternion')
+        return cls(tuple(pos.tolist()), tuple((quat / norm).tolist()))
+
+    @classmethod
+    def from_se3(cls, T: pin.SE3) -> 'Pose':
+        quat = pin.Quaternion(T.rotation).coeffs()  # x, y, z, w
+        return cls(tuple(T.translation.tolist()), tuple(np.asarray(quat).tolist()))
+
+    def to_se3(self) -> pin.SE3:
+        x, y, z, w = self.quat_xyzw
+        return pin.SE3(pin.Quaternion(w, x, y, z).normalized().matrix(),
+                       np.array(self.position_m))
+
+    def to_data(self) -> dict:
+        return {'position': [float(v) for v in self.position_m],
+                'orientation': [float(v) for v in self.quat_xyzw]}
+
+
+@dataclasses.dataclass(frozen=True)
+class Shape:
+    """One solid: a primitive or a triangle mesh, posed in the base frame."""
+
+    kind: str
+    """box | sphere | cylinder | mesh"""
+    dims: tuple[float, ...] = ()
+    """box: (x, y, z) edge lengths; sphere: (radius,); cylinder: (height, radius) as in
+    shape_msgs/SolidPrimitive; mesh: ()."""
+    pose: Pose = Pose()
+    vertices: np.ndarray | None = dataclasses.field(default=None, compare=False, repr=False)
+    """mesh only: (V, 3) vertices in the shape frame [m]."""
+    faces: np.ndarray | None = dataclasses.field(default=None, compare=False, repr=False)
+    """mesh only: (F, 3) vertex indices."""
+
+    def trimesh(self) -> trimesh.Trimesh:
+        """Solid of the shape in the base frame."""
+        if self.kind == 'box':
+            mesh = trimesh.creation.box(extents=self.dims)
+        elif self.kind == 'sphere':
+            mesh = trimesh.creation.icosphere(subdivisions=3, radius=self.dims[0])
+        elif self.kind == 'cylinder':
+            mesh = trimesh.creation.cylinder(radius=self.dims[1], height=self.dims[0],
+                                             sections=32)
+        else:
+            mesh = trimesh.Trimesh(self.vertices, self.faces, process=False)
+        mesh.apply_transform(self.pose.to_se3().homogeneous)
+        return mesh
+
+    def fingerprint(self) -> list:
+        data = [self.kind, [round(d, 9) for d in self.dims], self.pose.to_data()]
+        if self.kind == 'mesh':
+            data.append(hashlib.sha256(np.ascontiguousarray(self.vertices).tobytes()
+                                       + np.ascontiguousarray(self.faces).tobytes()).hexdigest())
+        return data
+
+
+@dataclasses.dataclass(frozen=True)
+class SceneObject:
+    """A named collision object made of one or more shapes (like a MoveIt CollisionObject)."""
+
+    id: str
+    shapes: tuple[Shape, ...]
+
+
+def make_box(obj_id: str, center_m, size_m) -> SceneObject:
+    """Axis-aligned box object centred at ``center_m`` with edge lengths ``size_m``."""
+    pose = Pose(tuple(float(v) for v in center_m))
+    return SceneObject(obj_id, (Shape('box', tuple(float(v) for v in size_m), pose),))
+
+
+def _rotation_error(R_center: np.ndarray, R: np.ndarray) -> np.ndarray:
+    """Rotation vector of ``R`` relative to ``R_center`` (the MoveIt ROTATION_VECTOR form)."""
+    return pin.log3(R_center.T @ R)
+
+
+@dataclasses.dataclass(frozen=True)
+class GoalRegion:
+    """Tolerance box around an end-effector pose (paper §III-A, SPEC §1).
+
+    A pose ``T_base_tool`` is inside when its position, expressed in the centre's frame, lies in
+    the box ``|p| <= position_tolerance_m`` and the rotation vector of ``R_center^T R`` lies
+    within ``orientation_tolerance_rad`` per axis (MoveIt's ``absolute_*_axis_tolerance`` with
+    the rotation-vector parameterization).
+    """
+
+    center: Pose
+    position_tolerance_m: tuple[float, float, float] = (0.02, 0.02, 0.02)
+    orientation_tolerance_rad: tuple[float, float, float] = (0.1, 0.1, 0.1)
+    link: str = 'panda_hand'
+    tool_offset: Pose = Pose()
+    """Pose of the tool point in ``link``; the region constrains the tool point."""
+
+    def __post_init__(self):
+        _finite(self.position_tolerance_m, 'goal.position_tolerance', 3, nonneg=True)
+        _finite(self.orientation_tolerance_rad, 'goal.orientation_tolerance', 3, nonneg=True)
+        if not self.link:
+            raise SceneError('goal.link: empty link name')
+
+    @classmethod
+    def from_data(cls, data: Any, where: str = 'goal') -> 'GoalRegion':
+        if not isinstance(data, dict):
+            raise SceneError(f'{where}: expected a mapping')
+        known = {'link', 'center', 'position_tolerance', 'orientation_tolerance', 'tool_offset'}
+        unknown = set(data) - known
+        if unknown:
+            raise SceneError(f'{where}: unknown field(s) {sorted(unknown)}; known: {sorted(known)}')
+        if 'center' not in data:
+            raise SceneError(f'{where}.center: missing')
+        link = data.get('link', 'panda_hand')
+        if not isinstance(link, str) or not link:
+            raise SceneError(f'{where}.link: expected a link name, got {link!r}')
+        return cls(
+            center=Pose.from_data(data['center'], f'{where}.center'),
+            position_tolerance_m=tuple(_finite(
+                data.get('position_tolerance', [0.02] * 3), f'{where}.position_tolerance', 3,
+                nonneg=True).tolist()),
+            orientation_tolerance_rad=tuple(_finite(
+                data.get('orientation_tolerance', [0.1] * 3), f'{where}.orientation_tolerance',
+                3, nonneg=True).tolist()),
+            link=link,
+            tool_offset=Pose.from_data(data.get('tool_offset'), f'{where}.tool_offset'))
+
+    def to_data(self) -> dict:
+        return {'link': self.link, 'center': self.center.to_data(),
+                'position_tolerance': list(self.position_tolerance_m),
+                'orientation_tolerance': list(self.orientation_tolerance_rad),
+                'tool_offset': self.tool_offset.to_data()}
+
+    def error(self, T_base_tool: pin.SE3) -> tuple[np.ndarray, np.ndarray]:
+        """(position error in the centre frame [m], rotation-vector error [rad])."""
+        T_c = self.center.to_se3()
+        p_local = T_c.rotation.T @ (T_base_tool.translation - T_c.translation)
+        return p_local, _rotation_error(T_c.rotation, T_base_tool.rotation)
+
+    def contains(self, T_base_tool: pin.SE3, slack: float = 1e-6) -> bool:
+        p_err, r_err = self.error(T_base_tool)
+        return bool(np.all(np.abs(p_err) <= np.asarray(self.position_tolerance_m) + slack)
+                    and np.all(np.abs(r_err) <= np.asarray(self.orientation_tolerance_rad)
+                               + slack))
+
+    def box_corners_m(self) -> np.ndarray:
+        """(8, 3) corners of the position box in the base frame."""
+        T_c = self.center.to_se3()
+        signs = np.array([[i, j, k] for i in (-1, 1) for j in (-1, 1) for k in (-1, 1)], float)
+        local = signs * np.asarray(self.position_tolerance_m)
+        return local @ T_c.rotation.T + T_c.translation
+
+
+@dataclasses.dataclass(frozen=True)
+class Scene:
+    """A planning task: static objects E, start configuration and goal region."""
+
+    objects: tuple[SceneObject, ...] = ()
+    start: dict[str, float] | None = None
+    """Start joint values by joint name (``None``: no start given)."""
+    goal: GoalRegion | None = None
+    robot: RobotSpec = RobotSpec()
+    name: str = 'scene'
+    frame: str = 'panda_link0'
+
+    @property
+    def shapes(self) -> list[Shape]:
+        return [s for o in self.objects for s in o.shapes]
+
+    def with_objects(self, extra: tuple[SceneObject, ...] | list[SceneObject]) -> 'Scene':
+        ids = {o.id for o in self.objects}
+        clash = [o.id for o in extra if o.id in ids]
+        if clash:
+            raise SceneError(f'object ids already in the scene: {clash}')
+        return dataclasses.replace(self, objects=self.objects + tuple(extra))
+
+    def without_objects(self) -> 'Scene':
+        return dataclasses.replace(self, objects=())
+
+    def objects_hash(self) -> str:
+        """Hash of the geometry only (not start/goal): what a scene-conditioned heatmap saw."""
+        data = sorted([o.id, [s.fingerprint() for s in o.shapes]] for o in self.objects)
+        return hashlib.sha256(json.dumps(data, sort_keys=True).encode()).hexdigest()[:16]
+
+    def to_data(self) -> dict:
+        data: dict[str, Any] = {'name': self.name, 'frame': self.frame,
+                                'robot': dataclasses.asdict(self.robot)}
+        if self.start is not None:
+            data['start'] = {k: float(v) for k, v in self.start.items()}
+        if self.goal is not None:
+            data['goal'] = self.goal.to_data()
+        data['objects'] = objects_to_data(self.objects)
+        return data
+
+
+def objects_to_data(objects) -> list[dict]:
+    out = []
+    for obj in objects:
+        for k, shape in enumerate(obj.shapes):
+            entry: dict[str, Any] = {'id': obj.id if len(obj.shapes) == 1 else f'{obj.id}#{k}',
+                                     'type': shape.kind, 'pose': shape.pose.to_data()}
+            if shape.kind == 'box':
+                entry['size'] = [float(v) for v in shape.dims]
+            elif shape.kind == 'sphere':
+                entry['radius'] = float(shape.dims[0])
+            elif shape.kind == 'cylinder':
+                entry['height'], entry['radius'] = float(shape.dims[0]), float(shape.dims[1])
+            else:
+                entry['vertices'] = np.asarray(shape.vertices).tolist()
+                entry['faces'] = np.asarray(shape.faces).tolist()
+            out.append(entry)
+    return out
+
+
+def _shape_from_data(entry: dict, where: str, base_dir: pathlib.Path | None) -> Shape:
+    kind = entry.get('type')
+    if kind not in SHAPES:
+        raise SceneError(f'{where}.type: expected one of {list(SHAPES)}, got {kind!r}')
+    allowed = {'id', 'type', 'pose', 'size', 'radius', 'height', 'file', 'scale', 'vertices',
+               'faces'}
+    unknown = set(entry) - allowed
+    if unknown:
+        raise SceneError(f'{where}: unknown field(s) {sorted(unknown)}')
+    pose = Pose.from_data(entry.get('pose'), f'{where}.pose')
+    if kind == 'box':
+        if 'size' not in entry:
+            raise SceneError(f'{where}.size: missing (box edge lengths [x, y, z])')
+        dims = _finite(entry['size'], f'{where}.size', 3, positive=True)
+        return Shape('box', tuple(dims.tolist()), pose)
+    if kind == 'sphere':
+        if 'radius' not in entry:
+            raise SceneError(f'{where}.radius: missing')
+        return Shape('sphere', tuple(_finite([entry['radius']], f'{where}.radius', 1,
+                                             positive=True).tolist()), pose)
+    if kind == 'cylinder':
+        for key in ('height', 'radius'):
+            if key not in entry:
+                raise SceneError(f'{where}.{key}: missing')
+        h = _finite([entry['height']], f'{where}.height', 1, positive=True)[0]
+        r = _finite([entry['radius']], f'{where}.radius', 1, positive=True)[0]
+        return Shape('cylinder', (float(h), float(r)), pose)
+    return _mesh_shape(entry, where, base_dir, pose)
+
+
+def _mesh_shape(entry: dict, where: str, base_dir: pathlib.Path | None, pose: Pose) -> Shape:
+    scale = _finite(entry.get('scale', [1, 1, 1]), f'{where}.scale', 3, positive=True)
+    if 'file' in entry:
+        path = pathlib.Path(str(entry['file']))
+        if not path.is_absolute() and base_dir is not None:
+            path = base_dir / path
+        if path.suffix.lower() not in ('.stl', '.obj', '.ply'):
+            raise SceneError(f'{where}.file: {path} is not an STL, OBJ or PLY file')
+        if not path.is_file():
+            raise SceneError(f'{where}.file: {path} not found')
+        try:
+            mesh = trimesh.load_mesh(str(path), force='mesh')
+        except Exception as exc:  # trimesh raises many types on bad files
+            raise SceneError(f'{where}.file: {path} could not be read ({exc})') from exc
+        vertices, faces = np.asarray(mesh.vertices, float), np.asarray(mesh.faces, np.int64)
+    elif 'vertices' in entry and 'faces' in entry:
+        vertices = _finite(entry['vertices'], f'{where}.vertices')
+        try:
+            faces = np.asarray(entry['faces'], dtype=np.int64)
+        except (TypeError, ValueError):
+            raise SceneError(f'{where}.faces: expected integer triples') from None
+    else:
+        raise SceneError(f'{where}: a mesh needs file, or vertices and faces')
+    return make_mesh_shape(vertices * scale, faces, pose, where)
+
+
+def make_mesh_shape(vertices, faces, pose: Pose, where: str = 'mesh') -> Shape:
+    """Validated mesh shape (bounded size, indices in range, non-degenerate)."""
+    vertices = np.asarray(vertices, dtype=float)
+    faces = np.asarray(faces)
+    if vertices.ndim != 2 or vertices.shape[1] != 3 or len(vertices) < 4:
+        raise SceneError(f'{where}.vertices: expected at least 4 points (V, 3)')
+    if len(vertices) > MAX_MESH_VERTICES:
+        raise SceneError(f'{where}.vertices: {len(vertices)} vertices, limit {MAX_MESH_VERTICES}')
+    if not np.all(np.isfinite(vertices)):
+        raise SceneError(f'{where}.vertices: non-finite values')
+    if faces.ndim != 2 or faces.shape[1] != 3 or len(faces) < 4:
+        raise SceneError(f'{where}.faces: expected at least 4 triangles (F, 3)')
+    if not np.issubdtype(faces.dtype, np.integer) or faces.min() < 0 \
+            or faces.max() >= len(vertices):
+        raise SceneError(f'{where}.faces: vertex indices out of range 0..{len(vertices) - 1}')
+    if np.ptp(vertices, axis=0).min() <= 0:
+        raise SceneError(f'{where}.vertices: the mesh is flat (zero volume)')
+    return Shape('mesh', (), pose, vertices, faces.astype(np.int64))
+
+
+def objects_from_data(entries: Any, where: str, base_dir: pathlib.Path | None = None
+                      ) -> tuple[SceneObject, ...]:
+    if entries is None:
+        return ()
+    if not isinstance(entries, list):
+        raise SceneError(f'{where}: expected a list of objects')
+    if len(entries) > MAX_OBJECTS:
+        raise SceneError(f'{where}: {len(entries)} objects, limit {MAX_OBJECTS}')
+    objects, seen = [], set()
+    for i, entry in enumerate(entries):
+        w = f'{where}[{i}]'
+        if not isinstance(entry, dict):
+            raise SceneError(f'{w}: expected a mapping')
+        obj_id = entry.get('id', f'object_{i}')
+        if not isinstance(obj_id, str) or not obj_id:
+            raise SceneError(f'{w}.id: expected a non-empty string, got {obj_id!r}')
+        if obj_id in seen:
+            raise SceneError(f'{w}.id: duplicate id {obj_id!r}')
+        seen.add(obj_id)
+        objects.append(SceneObject(obj_id, (_shape_from_data(entry, w, base_dir),)))
+    return tuple(objects)
+
+
+def _start_from_data(data: Any, where: str) -> dict[str, float]:
+    if not isinstance(data, dict) or not data:
+        raise SceneError(f'{where}: expected a mapping joint_name: position')
+    out = {}
+    for name, value in data.items():
+        out[str(name)] = float(_finite([value], f'{where}.{name}', 1)[0])
+    return out
+
+
+def read_yaml(path: str | pathlib.Path) -> Any:
+    """``yaml.safe_load`` of a file, with errors that name the file."""
+    path = pathlib.Path(path)
+    try:
+        text = path.read_text()
+    except (OSError, UnicodeDecodeError) as exc:
+        raise SceneError(f'{path}: cannot read ({exc})') from exc
+    try:
+        return yaml.safe_load(text)
+    except yaml.YAMLError as exc:
+        raise SceneError(f'{path}: malformed YAML ({exc})') from exc
+
+
+def scene_from_data(data: Any, where: str, base_dir: pathlib.Path | None = None) -> Scene:
+    if not isinstance(data, dict):
+        raise SceneError(f'{where}: expected a mapping at the top level')
+    known = {'name', 'frame', 'robot', 'start', 'goal', 'objects', 'description'}
+    unknown = set(data) - known
+    if unknown:
+        raise SceneError(f'{where}: unknown field(s) {sorted(unknown)}; known: {sorted(known)}')
+    try:
+        robot = RobotSpec.from_dict(data.get('robot', {}), f'{where}.robot')
+    except ValueError as exc:
+        raise SceneError(str(exc)) from None
+    return Scene(
+        objects=objects_from_data(data.get('objects'), f'{where}.objects', base_dir),
+        start=_start_from_data(data['start'], f'{where}.start') if 'start' in data else None,
+        goal=GoalRegion.from_data(data['goal'], f'{where}.goal') if 'goal' in data else None,
+        robot=robot,
+        name=str(data.get('name', pathlib.Path(where).stem)),
+        frame=str(data.get('frame', 'panda_link0')))
+
+
+def load_scene(path: str | pathlib.Path) -> Scene:
+    """Load one of our scene YAML files; errors name the file and the field."""
+    path = pathlib.Path(path)
+    return scene_from_data(read_yaml(path), str(path), path.parent)
+
+
+def save_yaml_atomic(path: str | pathlib.Path, data: Any) -> None:
+    """Write YAML so that a crash leaves either the old or the new file, never half of one."""
+    from advocc_ros.fileio import atomic_write_text
+    atomic_write_text(path, yaml.safe_dump(data, sort_keys=False))
+
+
+def rpy_to_quat_xyzw(roll: float, pitch: float, yaw: float) -> tuple[float, float, float, float]:
+    """Quaternion of fixed-axis roll/pitch/yaw angles [rad] (URDF convention)."""
+    q = pin.Quaternion(pin.rpy.rpyToMatrix(roll, pitch, yaw)).coeffs()
+    return tuple(float(v) for v in q)
+
+
+class Operation:
+    """Collision-object operations, with the values of moveit_msgs/CollisionObject."""
+
+    ADD, REMOVE, APPEND, MOVE = 0, 1, 2, 3
+
+
+def apply_operation(objects: dict[str, SceneObject], operation: int, obj: SceneObject,
+                    new_pose: Pose | None = None) -> dict[str, SceneObject]:
+    """A new id -> object mapping after one MoveIt-style collision-object operation.
+
+    ADD replaces an object of the same id; REMOVE with an empty id clears all objects; APPEND
+    adds shapes to an object (creating it if missing); MOVE re-poses every shape of the object
+    by the motion that takes its first shape to ``new_pose`` (shapes keep their relative poses).
+    """
+    objects = dict(objects)
+    if operation == Operation.ADD:
+        objects[obj.id] = obj
+    elif operation == Operation.REMOVE:
+        if not obj.id:
+            objects.clear()
+        elif obj.id not in objects:
+            raise SceneError(f'REMOVE: no object with id {obj.id!r}')
+        else:
+            del objects[obj.id]
+    elif operation == Operation.APPEND:
+        old = objects.get(obj.id)
+        objects[obj.id] = SceneObject(obj.id, (old.shapes if old else ()) + obj.shapes)
+    elif operation == Operation.MOVE:
+        if obj.id not in objects:
+            raise SceneError(f'MOVE: no object with id {obj.id!r}')
+        if new_pose is None:
+            raise SceneError('MOVE: a new pose is needed')
+        old = objects[obj.id]
+        delta = new_pose.to_se3() * old.shapes[0].pose.to_se3().inverse()
+        objects[obj.id] = SceneObject(obj.id, tuple(
+            dataclasses.replace(s, pose=Pose.from_se3(delta * s.pose.to_se3()))
+            for s in old.shapes))
+    else:
+        raise SceneError(f'unknown collision-object operation {operation}')
+    return objects
