@@ -1,0 +1,130 @@
+"""Voxel grids and solid-volume rasterization.
+
+A voxel is *occupied* by a solid when the voxel's centre lies inside the solid. Primitives are
+tested analytically; meshes (robot links, sensed reconstructions) through a fine boolean
+look-up table built once with trimesh (surface voxelization + fill), so each test is an array
+index, and a batch of thousands of configurations is a few numpy operations.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import trimesh
+
+from advocc_ros.scene import Shape
+
+
+@dataclasses.dataclass(frozen=True)
+class VoxelGrid:
+    """Axis-aligned grid in the robot base frame.
+
+    Voxel ``(i, j, k)`` spans ``origin_m + [i, j, k] * voxel_m`` to ``... + voxel_m``; its
+    centre is ``origin_m + ([i, j, k] + 0.5) * voxel_m``.
+    """
+
+    origin_m: tuple[float, float, float]
+    voxel_m: float
+    shape: tuple[int, int, int]
+
+    def __post_init__(self):
+        if not (np.isfinite(self.voxel_m) and self.voxel_m > 0):
+            raise ValueError(f'voxel size must be a positive number, got {self.voxel_m}')
+        if len(self.shape) != 3 or min(self.shape) < 1:
+            raise ValueError(f'grid shape must be 3 positive integers, got {self.shape}')
+
+    @property
+    def size(self) -> int:
+        return int(np.prod(self.shape))
+
+    @property
+    def upper_m(self) -> np.ndarray:
+        return np.asarray(self.origin_m) + np.asarray(self.shape) * self.voxel_m
+
+    def centers(self, index: np.ndarray) -> np.ndarray:
+        """Centres [m] of integer voxel indices (..., 3)."""
+        return np.asarray(self.origin_m) + (np.asarray(index) + 0.5) * self.voxel_m
+
+    def index_of(self, points_m: np.ndarray) -> np.ndarray:
+        """Integer index (..., 3) of the voxel containing each point (may be out of range)."""
+        return np.floor((np.asarray(points_m) - self.origin_m) / self.voxel_m).astype(np.int64)
+
+    def in_bounds(self, index: np.ndarray) -> np.ndarray:
+        return np.all((index >= 0) & (index < np.asarray(self.shape)), axis=-1)
+
+    def all_centers(self) -> np.ndarray:
+        """Centres of every voxel, shape (*shape, 3)."""
+        axes = [self.origin_m[a] + (np.arange(self.shape[a]) + 0.5) * self.voxel_m
+                for a in range(3)]
+        return np.stack(np.meshgrid(*axes, indexing='ij'), axis=-1)
+
+    def to_data(self) -> dict:
+        return {'origin_m': list(self.origin_m), 'voxel_m': self.voxel_m,
+                'shape': list(self.shape)}
+
+
+@dataclasses.dataclass(frozen=True)
+class SolidLUT:
+    """Boolean occupancy of one solid in its own frame at a fine pitch."""
+
+    origin_m: np.ndarray
+    """(3,) corner of the LUT in the solid's frame."""
+    pitch_m: float
+    filled: np.ndarray
+    """(nx, ny, nz) bool."""
+    half_diagonal_m: float
+    """Radius of a sphere around ``center_m`` containing the solid."""
+    center_m: np.ndarray
+    """(3,) centre of the solid's bounding box, in its own frame."""
+
+    @classmethod
+    def from_mesh(cls, mesh: trimesh.Trimesh, pitch_m: float) -> 'SolidLUT':
+        vox = mesh.voxelized(pitch_m).fill()
+        # trimesh's voxel centres sit at transform @ index; the cell corner is half a pitch off.
+        origin = np.asarray(vox.transform[:3, 3]) - 0.5 * pitch_m
+        lo, hi = mesh.bounds
+        return cls(origin, pitch_m, np.asarray(vox.matrix, dtype=bool),
+                   float(np.linalg.norm(hi - lo) / 2), (lo + hi) / 2)
+
+    def contains(self, points_local: np.ndarray) -> np.ndarray:
+        idx = np.floor((points_local - self.origin_m) / self.pitch_m).astype(np.int64)
+        ok = np.all((idx >= 0) & (idx < self.filled.shape), axis=-1)
+        out = np.zeros(points_local.shape[:-1], dtype=bool)
+        sel = idx[ok]
+        out[ok] = self.filled[sel[:, 0], sel[:, 1], sel[:, 2]]
+        return out
+
+
+def points_in_shape(shape: Shape, points_m: np.ndarray, lut_pitch_m: float = 0.005
+                    ) -> np.ndarray:
+    """Which points (..., 3) in the base frame lie inside ``shape``."""
+    T = shape.pose.to_se3()
+    local = (np.asarray(points_m) - T.translation) @ T.rotation
+    if shape.kind == 'box':
+        return np.all(np.abs(local) <= np.asarray(shape.dims) / 2, axis=-1)
+    if shape.kind == 'sphere':
+        return np.linalg.norm(local, axis=-1) <= shape.dims[0]
+    if shape.kind == 'cylinder':
+        height, radius = shape.dims
+        return (np.abs(local[..., 2]) <= height / 2) & \
+            (np.linalg.norm(local[..., :2], axis=-1) <= radius)
+    mesh = trimesh.Trimesh(shape.vertices, shape.faces, process=False)
+    return SolidLUT.from_mesh(mesh, lut_pitch_m).contains(local)
+
+
+def occupied_mask(grid: VoxelGrid, shapes: list[Shape]) -> np.ndarray:
+    """Boolean grid of voxels whose centre is inside any shape."""
+    mask = np.zeros(grid.shape, dtype=bool)
+    for shape in shapes:
+        lo, hi = shape.trimesh().bounds
+        i0 = np.clip(grid.index_of(lo), 0, grid.shape)
+        i1 = np.clip(grid.index_of(hi) + 1, 0, grid.shape)
+        if np.any(i1 <= i0):
+            continue
+        idx = np.stack(np.meshgrid(*[np.arange(i0[a], i1[a]) for a in range(3)],
+                                   indexing='ij'), axis=-1)
+        inside = points_in_shape(shape, grid.centers(idx))
+        sub = mask[i0[0]:i1[0], i0[1]:i1[1], i0[2]:i1[2]]
+        sub |= inside
+    return mask
