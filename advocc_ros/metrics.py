@@ -1,0 +1,284 @@
+"""The paper's victim metrics (§V, SPEC §4): PSR, SMR, CMR, JDS, PT, and their aggregation.
+
+Per trial (``TrialRecord``), on a successful trajectory ``path`` (N, nq) from ``q_init``:
+
+- SMR: minimum Yoshikawa manipulability ``sqrt(det(J J^T))`` (6 x nq end-effector Jacobian)
+  along the trajectory densely interpolated at ``smr_step_rad`` (0.01 rad joint space, finer
+  than the 0.05 rad waypoint spacing so a dip between waypoints is not missed).
+- CMR: minimum over the waypoints of an estimated joint-space distance to the invalid set: from
+  each waypoint, ``cmr_directions`` random unit directions (Gaussian, normalised; fresh per
+  waypoint), both signs, are marched outwards on a grid of ``cmr_coarse_step_rad`` up to
+  ``cmr_range_rad``; the first invalid grid point and the free one before it bracket the
+  boundary, which bisection narrows to ``cmr_resolution_rad``. Leaving the joint limits counts
+  as collision (the limits bound the valid set exactly like obstacles do for OMPL); set
+  ``cmr_limits_as_collision=False`` to stop rays at the limits instead. A trajectory with no
+  invalid configuration within range scores ``cmr_range_rad`` (a lower bound).
+  Only the minimum is needed, so all rays of all waypoints advance one grid level at a time in
+  one batched collision call and the search stops at the first level where any ray is invalid:
+  rays that first fail at a later level cannot beat the bracketed ones.
+- JDS: mean over the waypoints of ``||q_i - q_init||`` (radians, Euclidean in joint space).
+- PT: planning time [s]; a failed trial counts the full budget.
+
+Table rows (``aggregate``): PSR = successes / trials; SMR and CMR are reported x10^-2 (i.e. the
+raw value times 100), SMR/CMR/JDS averaged over successful trials, PT over all trials; SMR, CMR
+and JDS are ``None`` ("N/A") when PSR = 0.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+import math
+from typing import Any, Iterable
+
+import numpy as np
+import pinocchio as pin
+
+from advocc_ros.collision import CollisionWorld
+from advocc_ros.robot import RobotModel
+
+log = logging.getLogger(__name__)
+
+
+@dataclasses.dataclass(frozen=True)
+class MetricsConfig:
+    """Resolution of the trajectory metrics."""
+
+    smr_step_rad: float = 0.01
+    """Joint-space interpolation step for the manipulability minimum [rad]."""
+    cmr_directions: int = 16
+    """Random unit directions per waypoint (each searched with both signs)."""
+    cmr_range_rad: float = 0.5
+    """Search range along each ray [rad]; clearances beyond it are reported as the range."""
+    cmr_coarse_step_rad: float = 0.02
+    """Grid step of the outward march that brackets the boundary [rad]."""
+    cmr_resolution_rad: float = 1e-3
+    """Bisection stops when the bracket is at most this wide [rad]."""
+    cmr_limits_as_collision: bool = True
+    """Leaving the joint limits counts as collision (False: rays end at the limits)."""
+    threads: int = 1
+    """Threads of the batched collision calls."""
+
+
+@dataclasses.dataclass
+class TrialRecord:
+    """One plan request of an evaluation and its trajectory metrics (raw units)."""
+
+    trial: int
+    seed: int
+    success: bool
+    status: str
+    planning_time_s: float
+    message: str = ''
+    min_manipulability: float | None = None
+    """SMR of this trial, raw (not x10^-2)."""
+    min_clearance_rad: float | None = None
+    """CMR of this trial, raw [rad] (not x10^-2)."""
+    jds_rad: float | None = None
+    waypoints: int = 0
+
+    def to_data(self) -> dict:
+        return dataclasses.asdict(self)
+
+
+def densify(path: np.ndarray, step_rad: float) -> np.ndarray:
+    """Path (N, nq) linearly interpolated so consecutive points are <= ``step_rad`` apart."""
+    path = np.asarray(path, dtype=float)
+    if len(path) < 2:
+        return path
+    out = [path[:1]]
+    for a, b in zip(path[:-1], path[1:]):
+        n = max(1, int(math.ceil(np.linalg.norm(b - a) / step_rad)))
+        s = np.arange(1, n + 1)[:, None] / n
+        out.append(a + s * (b - a))
+    return np.concatenate(out)
+
+
+def min_manipulability(robot: RobotModel, path: np.ndarray, step_rad: float = 0.01) -> float:
+    """SMR (raw): minimum Yoshikawa index along the densely interpolated path."""
+    data = robot.create_data()
+    best = math.inf
+    for q in densify(path, step_rad):
+        jac = pin.computeFrameJacobian(robot.model, data, q, robot.ee_frame,
+                                       pin.LOCAL_WORLD_ALIGNED)
+        best = min(best, math.sqrt(max(np.linalg.det(jac @ jac.T), 0.0)))
+    return float(best)
+
+
+def joint_deviation(path: np.ndarray, q_init: np.ndarray) -> float:
+    """JDS: mean ``||q_i - q_init||`` over the waypoints."""
+    path = np.asarray(path, dtype=float)
+    return float(np.mean(np.linalg.norm(path - np.asarray(q_init, float), axis=1)))
+
+
+def random_directions(rng: np.random.Generator, n_waypoints: int, n_directions: int, nq: int
+                      ) -> np.ndarray:
+    """Rays of the CMR search, (n_waypoints, 2 * n_directions, nq): unit directions, both signs."""
+    u = rng.standard_normal((n_waypoints, n_directions, nq))
+    u /= np.linalg.norm(u, axis=2, keepdims=True)
+    return np.concatenate([u, -u], axis=1)
+
+
+def _limit_distance(origins: np.ndarray, dirs: np.ndarray, lower, upper) -> np.ndarray:
+    """Distance along each ray to the joint-limit box, (R,)."""
+    with np.errstate(divide='ignore', invalid='ignore'):
+        t_up = np.where(dirs > 0, (upper - origins) / dirs, np.inf)
+        t_lo = np.where(dirs < 0, (lower - origins) / dirs, np.inf)
+    return np.maximum(np.minimum(t_up, t_lo).min(axis=1), 0.0)
+
+
+def min_clearance(world: CollisionWorld, path: np.ndarray, config: MetricsConfig = MetricsConfig(),
+                  rng: np.random.Generator | None = None, directions: np.ndarray | None = None
+                  ) -> float:
+    """CMR (raw, rad): randomized bidirectional bisection estimate (see the module docstring).
+
+    ``directions`` (n_waypoints, n_rays, nq) overrides the random rays (tests use it to compare
+    with a brute-force line search).
+    """
+    robot = world.robot
+    path = np.asarray(path, dtype=float)
+    if directions is None:
+        rng = rng if rng is not None else np.random.default_rng(0)
+        directions = random_directions(rng, len(path), config.cmr_directions, robot.nq)
+    n_rays = directions.shape[1]
+    origins = np.repeat(path, n_rays, axis=0)
+    dirs = directions.reshape(-1, robot.nq)
+    t_lim = _limit_distance(origins, dirs, robot.lower, robot.upper)
+    t_end = np.full(len(dirs), config.cmr_range_rad)
+    if not config.cmr_limits_as_collision:
+        t_end = np.minimum(t_end, t_lim)
+        t_lim = np.full(len(dirs), np.inf)
+
+    def invalid(idx: np.ndarray, t: np.ndarray) -> np.ndarray:
+        """Whether ray ``idx`` is invalid at distance ``t`` (beyond the limits or colliding)."""
+        bad = t >= t_lim[idx]
+        check = ~bad
+        if np.any(check):
+            Q = origins[idx[check]] + t[check, None] * dirs[idx[check]]
+            bad[check] = world.collisions_batch(Q, config.threads)
+        return bad
+
+    if world.collisions_batch(path, config.threads).any():
+        return 0.0
+    h = config.cmr_coarse_step_rad
+    levels = np.append(np.arange(h, config.cmr_range_rad, h), config.cmr_range_rad)
+    lo_t = 0.0
+    for t in levels:
+        idx = np.flatnonzero(t_end >= t - 1e-12)
+        if len(idx) == 0:
+            break
+        hit = invalid(idx, np.full(len(idx), t))
+        if hit.any():
+            idx = idx[hit]
+            lo = np.full(len(idx), lo_t)
+            hi = np.full(len(idx), t)
+            while (hi - lo).max() > config.cmr_resolution_rad:
+                mid = 0.5 * (lo + hi)
+                bad = invalid(idx, mid)
+                hi = np.where(bad, mid, hi)
+                lo = np.where(bad, lo, mid)
+            return float(hi.min())
+        lo_t = t
+    return float(config.cmr_range_rad)
+
+
+def trial_metrics(robot: RobotModel, world: CollisionWorld, path: np.ndarray,
+                  q_init: np.ndarray, config: MetricsConfig = MetricsConfig(),
+                  rng: np.random.Generator | None = None) -> dict[str, float]:
+    """SMR, CMR, JDS (raw units) of one successful trajectory."""
+    return {'min_manipulability': min_manipulability(robot, path, config.smr_step_rad),
+            'min_clearance_rad': min_clearance(world, path, config, rng),
+            'jds_rad': joint_deviation(path, q_init)}
+
+
+def _mean(values: list[float]) -> float | None:
+    return float(np.mean(values)) if values else None
+
+
+def aggregate(records: Iterable[TrialRecord | dict], time_budget_s: float) -> dict[str, Any]:
+    """Table row of one (scene, planner, attack, budget) from per-trial records.
+
+    ``smr`` and ``cmr`` are x10^-2 (raw x 100); ``None`` means N/A (PSR = 0).
+    """
+    rows = [r.to_data() if isinstance(r, TrialRecord) else dict(r) for r in records]
+    ok = [r for r in rows if r['success']]
+    n = len(rows)
+    smr = _mean([r['min_manipulability'] for r in ok])
+    cmr = _mean([r['min_clearance_rad'] for r in ok])
+    return {
+        'trials': n,
+        'successes': len(ok),
+        'psr': len(ok) / n if n else None,
+        'smr': None if smr is None else 100.0 * smr,
+        'cmr': None if cmr is None else 100.0 * cmr,
+        'jds': _mean([r['jds_rad'] for r in ok]),
+        'pt': _mean([r['planning_time_s'] if r['success'] else time_budget_s for r in rows]),
+        'time_budget_s': time_budget_s,
+    }
+
+
+def format_value(value: float | None, digits: int = 3) -> str:
+    """A table cell: ``N/A`` for undefined metrics."""
+    return 'N/A' if value is None else f'{value:.{digits}f}'
+
+
+def evaluate_planner(scene, planner_id: str, trials: int, time_budget_s: float = 5.0,
+                     seed: int = 0, workers: int = 1, planning_config=None,
+                     metrics_config: MetricsConfig = MetricsConfig(), progress=None
+                     ) -> dict[str, Any]:
+    """Run ``trials`` plan requests in ``scene`` and return the table row plus the records.
+
+    ``workers`` planner processes serve the trials in parallel (one ``Planner`` and one
+    ``CollisionWorld`` per thread); trial ``k`` uses seed ``seed + k``. ``progress(record)`` is
+    called after each trial.
+    """
+    import concurrent.futures
+    import queue
+    import threading
+
+    from advocc_ros.planning import Planner, PlanningConfig, start_configuration
+    from advocc_ros.robot import load_robot
+
+    if scene.goal is None:
+        raise ValueError(f'scene {scene.name!r} has no goal region')
+    planning_config = planning_config or PlanningConfig()
+    robot = load_robot(scene.robot)
+    q_init = start_configuration(scene, robot)
+    workers = max(1, min(int(workers), trials))
+    planners: queue.Queue = queue.Queue()
+    local = threading.local()
+    started = []
+    try:
+        for _ in range(workers):
+            planner = Planner(scene, planning_config).start()
+            started.append(planner)
+            planners.put(planner)
+
+        def run(k: int) -> TrialRecord:
+            planner = planners.get()
+            try:
+                res = planner.plan(q_init, scene.goal, planner_id, time_budget_s, seed + k)
+            finally:
+                planners.put(planner)
+            rec = TrialRecord(k, seed + k, res.success, res.status.name,
+                              float(res.planning_time_s), res.message,
+                              waypoints=len(res.path))
+            if res.success:
+                if not hasattr(local, 'world'):
+                    local.world = CollisionWorld(robot, scene.shapes)
+                for key, value in trial_metrics(robot, local.world, res.path, q_init,
+                                                metrics_config,
+                                                np.random.default_rng(seed + k)).items():
+                    setattr(rec, key, value)
+            if progress:
+                progress(rec)
+            return rec
+
+        with concurrent.futures.ThreadPoolExecutor(workers) as pool:
+            records = list(pool.map(run, range(trials)))
+    finally:
+        for planner in started:
+            planner.close()
+    row = aggregate(records, time_budget_s)
+    return dict(row, scene=scene.name, planner=planner_id, seed=seed,
+                records=[r.to_data() for r in records])
