@@ -21,6 +21,7 @@ RUNTIME = [
     'matplotlib==3.11.2',
     'tqdm==4.70.1',
     'cmaes==0.13.1',
+    'numba==0.68.1',
 ]
 # Wheels needed to build the interface package msg_defs/ (advocc_msgs) with cmake.
 BUILD = [

@@ -11,6 +11,8 @@ It owns scratch data, so use one per thread (or per process).
 
 from __future__ import annotations
 
+import warnings
+
 import coal
 import numpy as np
 import pinocchio as pin
@@ -59,18 +61,20 @@ class CollisionWorld:
             obj = pin.GeometryObject(f'scene/{i}', 0, 0, shape.pose.to_se3(), coal_geometry(shape))
             self.geom_model.addGeometryObject(obj)
         self.geom_model.removeAllCollisionPairs()
-        for a, b in robot.self_pairs:
-            self.geom_model.addCollisionPair(pin.CollisionPair(a, b))
-        scene_pairs = [pin.CollisionPair(link, self.n_links + k)
-                       for link in range(self.n_links) for k in range(len(self.shapes))]
         # Distances use a copy holding only (link, scene) pairs, so one C++ call suffices.
         self.dist_model = self.geom_model.copy()
-        for pair in scene_pairs:
-            self.geom_model.addCollisionPair(pair)
-            self.dist_model.addCollisionPair(pair)
+        for a, b in robot.self_pairs:
+            self.geom_model.addCollisionPair(pin.CollisionPair(a, b))
+        for link in range(self.n_links):
+            for k in range(len(self.shapes)):
+                pair = pin.CollisionPair(link, self.n_links + k)
+                self.geom_model.addCollisionPair(pair)
+                self.dist_model.addCollisionPair(pair)
         self.geom_data = self.geom_model.createData()
         self.dist_data = self.dist_model.createData()
+        _no_warm_start(self.dist_data.distanceRequests)
         self._pool: pin.GeometryPool | None = None
+        self._margin_pool: tuple[float, pin.GeometryPool] | None = None
 
     def in_collision(self, q: np.ndarray) -> bool:
         """Self or scene collision at ``q`` (joint limits not checked)."""
@@ -86,6 +90,21 @@ class CollisionWorld:
             self._pool = pin.GeometryPool(self.model, self.geom_model, max(threads, 1))
         return np.asarray(pin.computeCollisionsInParallel(
             max(threads, 1), self._pool, np.asfortranarray(Q.T), True, False), dtype=bool)
+
+    def near_scene_batch(self, Q: np.ndarray, margin_m: float, threads: int = 1) -> np.ndarray:
+        """Which configurations ``Q`` (N, nq) bring a link within ``margin_m`` of the scene."""
+        if not self.shapes:
+            return np.zeros(len(Q), dtype=bool)
+        if self._margin_pool is None or self._margin_pool[0] != margin_m:
+            pool = pin.GeometryPool(self.model, self.dist_model, max(threads, 1))
+            for data in pool.getGeometryDatas():
+                _no_warm_start(data.collisionRequests)
+                for req in data.collisionRequests:
+                    req.security_margin = margin_m
+            self._margin_pool = (margin_m, pool)
+        return np.asarray(pin.computeCollisionsInParallel(
+            max(threads, 1), self._margin_pool[1], np.asfortranarray(Q.T), True, False),
+            dtype=bool)
 
     def scene_distance(self, q: np.ndarray) -> float:
         """Minimum distance between robot links and scene shapes [m]; ``inf`` if no scene."""
@@ -120,6 +139,17 @@ class CollisionWorld:
             if coal.distance(geom, tf, other, _coal_tf(oMg), req, res) < margin_m:
                 return True
         return False
+
+
+def _no_warm_start(requests) -> None:
+    """Start every GJK from the default guess: pinocchio enables warm starts from the previous
+    query, which makes distances (to ~1e-5 m) depend on the order configurations were checked
+    in, and heatmaps built in shards or by several workers differ from a serial build."""
+    with warnings.catch_warnings():
+        warnings.simplefilter('ignore', DeprecationWarning)
+        for req in requests:
+            req.enable_cached_gjk_guess = False
+            req.gjk_initial_guess = coal.GJKInitialGuess.DefaultGuess
 
 
 def _coal_tf(T: pin.SE3) -> coal.Transform3s:

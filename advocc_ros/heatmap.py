@@ -31,6 +31,7 @@ import time
 import zipfile
 from typing import Callable
 
+import numba
 import numpy as np
 
 from advocc_ros.collision import CollisionWorld
@@ -187,7 +188,7 @@ def merge_heatmaps(shards: list[Heatmap]) -> Heatmap:
         raise HeatmapError('nothing to merge')
     first = shards[0]
     keys = ('robot_hash', 'scene_hash', 'params')
-    seeds: list = []
+    seeds: list[str] = []
     for i, shard in enumerate(shards):
         if shard.grid != first.grid:
             raise HeatmapError(f'shard {i}: grid {shard.grid} differs from {first.grid}')
@@ -198,8 +199,9 @@ def merge_heatmaps(shards: list[Heatmap]) -> Heatmap:
         if not np.array_equal(shard.free, first.free):
             raise HeatmapError(f'shard {i}: free-voxel masks differ')
         seeds += shard.meta.get('seeds', [])
-    if len(set(map(json.dumps, seeds))) != len(seeds):
-        raise HeatmapError(f'shards share seeds {seeds}: their samples would be counted twice')
+    if len(set(seeds)) != len(seeds):
+        raise HeatmapError(f'shards share seeds {seeds}: their samples would be counted '
+                           'twice')
     meta = dict(first.meta)
     meta.update(
         seeds=seeds,
@@ -235,103 +237,147 @@ def workspace_grid(robot: RobotModel, voxel_m: float, margin_m: float) -> VoxelG
     return VoxelGrid(tuple(float(v) for v in lo), float(voxel_m), shape)
 
 
-class _Rasterizer:
-    """Voxel indices occupied by the robot's links for a batch of configurations.
+@numba.njit(cache=True, nogil=True)
+def _accumulate(H, stamp, free, grid_origin, voxel, grid_shape, R, t, weights, sample0,
+                lut_data, lut_offset, lut_shape, lut_origin, lut_pitch, box_lo, box_hi):
+    """Add ``weights[s]`` to every free voxel whose centre is inside a link at sample ``s``.
 
-    Each link gets a fixed cube window of voxels around its bounding sphere. The window's voxel
-    centres form a lattice, so their coordinates in the link's look-up table are
-    ``g0 + a U + b V + c W`` (a, b, c = 0..w-1): three broadcast additions instead of a matrix
-    product per point. The table is padded with one empty cell on every side, so clipping the
-    indices replaces the bounds test.
+    R (n, L, 3, 3), t (n, L, 3): ``T_base_link`` per sample and link. Each link is scanned
+    over the voxels of its rotated bounding box only; a voxel is counted once per sample even
+    where links overlap (``stamp`` remembers the last sample that added to it).
     """
+    nx, ny, nz = grid_shape[0], grid_shape[1], grid_shape[2]
+    for s in range(R.shape[0]):
+        sid = sample0 + s
+        w = weights[s]
+        for li in range(R.shape[1]):
+            r = R[s, li]
+            lo = np.empty(3, np.int64)
+            hi = np.empty(3, np.int64)
+            for a in range(3):
+                c = t[s, li, a]
+                e = 0.0
+                for b in range(3):
+                    mid = 0.5 * (box_lo[li, b] + box_hi[li, b])
+                    c += r[a, b] * mid
+                    e += abs(r[a, b]) * 0.5 * (box_hi[li, b] - box_lo[li, b])
+                # voxel centres origin + (i + 0.5) voxel inside [c - e, c + e]
+                lo[a] = max(0, int(np.ceil((c - e - grid_origin[a]) / voxel - 0.5)))
+                hi[a] = min(grid_shape[a] - 1, int(np.floor((c + e - grid_origin[a]) / voxel
+                                                           - 0.5)))
+            sx, sy, sz = lut_shape[li, 0], lut_shape[li, 1], lut_shape[li, 2]
+            off = lut_offset[li]
+            inv = 1.0 / lut_pitch
+            for i in range(lo[0], hi[0] + 1):
+                px = grid_origin[0] + (i + 0.5) * voxel - t[s, li, 0]
+                for j in range(lo[1], hi[1] + 1):
+                    py = grid_origin[1] + (j + 0.5) * voxel - t[s, li, 1]
+                    for k in range(lo[2], hi[2] + 1):
+                        pz = grid_origin[2] + (k + 0.5) * voxel - t[s, li, 2]
+                        # local = R^T p, then look-up-table cell
+                        gx = int(np.floor((r[0, 0] * px + r[1, 0] * py + r[2, 0] * pz
+                                           - lut_origin[li, 0]) * inv))
+                        if gx < 0 or gx >= sx:
+                            continue
+                        gy = int(np.floor((r[0, 1] * px + r[1, 1] * py + r[2, 1] * pz
+                                           - lut_origin[li, 1]) * inv))
+                        if gy < 0 or gy >= sy:
+                            continue
+                        gz = int(np.floor((r[0, 2] * px + r[1, 2] * py + r[2, 2] * pz
+                                           - lut_origin[li, 2]) * inv))
+                        if gz < 0 or gz >= sz:
+                            continue
+                        if lut_data[off + (gx * sy + gy) * sz + gz]:
+                            v = (i * ny + j) * nz + k
+                            if free[v] and stamp[v] != sid:
+                                stamp[v] = sid
+                                H[v] += w
+    return H
 
-    def __init__(self, robot: RobotModel, grid: VoxelGrid, lut_pitch_m: float):
-        self.grid = grid
-        self.links = []
-        for mesh in robot.link_meshes:
-            lut = SolidLUT.from_mesh(mesh, lut_pitch_m)
-            padded = np.pad(lut.filled, 1)
-            w = int(np.ceil(2 * lut.half_diagonal_m / grid.voxel_m)) + 1
-            self.links.append((lut, padded.ravel(), np.asarray(padded.shape), w))
 
-    def occupied(self, placements: list[list]) -> tuple[np.ndarray, np.ndarray]:
-        """(sample index, flat voxel index) pairs, unique, for a batch of link placements.
+class _LinkTables:
+    """All link look-up tables packed into flat arrays for the compiled kernel."""
 
-        ``placements[s][l]`` is the ``pinocchio.SE3`` of link ``l`` in sample ``s``.
-        """
-        grid = self.grid
-        vox = grid.voxel_m
-        sample_ids, flat_ids = [], []
-        for li, (lut, table, pshape, w) in enumerate(self.links):
-            R = np.stack([p[li].rotation for p in placements])        # (n, 3, 3) T_base_link
-            t = np.stack([p[li].translation for p in placements])     # (n, 3)
-            center = np.einsum('nij,j->ni', R, lut.center_m) + t
-            start = grid.index_of(center - lut.half_diagonal_m)       # (n, 3) window corner
-            local0 = np.einsum('nji,nj->ni', R, grid.centers(start) - t)  # R^T (p0 - t)
-            # +1: index 0 of the padded table is the empty border.
-            g0 = (local0 - lut.origin_m) / lut.pitch_m + 1.0
-            steps = R * (vox / lut.pitch_m)                            # row k: R^T e_k scaled
-            a = np.arange(w, dtype=np.float32)
-            g = (g0[:, None, None, None, :].astype(np.float32)
-                 + a[None, :, None, None, None] * steps[:, None, None, None, 0, :]
-                 + a[None, None, :, None, None] * steps[:, None, None, None, 1, :]
-                 + a[None, None, None, :, None] * steps[:, None, None, None, 2, :])
-            gi = np.floor(g).astype(np.int32)
-            np.clip(gi, 0, (pshape - 1).astype(np.int32), out=gi)
-            flat = (gi[..., 0] * pshape[1] + gi[..., 1]) * pshape[2] + gi[..., 2]
-            inside = table[flat].reshape(len(placements), -1)
-            s_idx, k_idx = np.nonzero(inside)
-            k3 = np.stack(np.unravel_index(k_idx, (w, w, w)), axis=-1)
-            v = start[s_idx] + k3
-            ok = grid.in_bounds(v)
-            sample_ids.append(s_idx[ok])
-            flat_ids.append(np.ravel_multi_index(v[ok].T, grid.shape))
-        keys = np.unique(np.concatenate(sample_ids).astype(np.int64) * grid.size
-                         + np.concatenate(flat_ids))
-        return keys // grid.size, keys % grid.size
+    def __init__(self, robot: RobotModel, lut_pitch_m: float):
+        luts = [SolidLUT.from_mesh(m, lut_pitch_m) for m in robot.link_meshes]
+        self.pitch = float(lut_pitch_m)
+        self.shape = np.array([lut.filled.shape for lut in luts], dtype=np.int64)
+        sizes = self.shape.prod(axis=1)
+        self.offset = np.concatenate([[0], np.cumsum(sizes)[:-1]]).astype(np.int64)
+        self.data = np.concatenate([lut.filled.ravel() for lut in luts]).astype(np.uint8)
+        self.origin = np.array([lut.origin_m for lut in luts])
+        self.box_lo = np.array([m.bounds[0] for m in robot.link_meshes])
+        self.box_hi = np.array([m.bounds[1] for m in robot.link_meshes])
 
 
-def _sample_weights(robot: RobotModel, world: CollisionWorld, Q: np.ndarray,
-                    cfg: HeatmapConfig, use_scene: bool) -> np.ndarray:
+def _placement_arrays(world: CollisionWorld, Q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Rotations (n, L, 3, 3) and translations (n, L, 3) of every link for each q."""
+    R = np.empty((len(Q), world.n_links, 3, 3))
+    t = np.empty((len(Q), world.n_links, 3))
+    for s, q in enumerate(Q):
+        for li, T in enumerate(world.link_placements(q)):
+            R[s, li] = T.rotation
+            t[s, li] = T.translation
+    return R, t
+
+
+def sample_weights(robot: RobotModel, world: CollisionWorld, Q: np.ndarray,
+                    cfg: HeatmapConfig) -> np.ndarray:
+    """w(q) for each valid q; clearance distances only where a link is within d_safe."""
     data = robot.create_data()
-    weights = np.empty(len(Q))
+    s_man = np.empty(len(Q))
     for i, q in enumerate(Q):
         m = robot.manipulability(q, data)
-        s_man = m / (m + cfg.kappa)
-        s_clr = min(world.scene_distance(q) / cfg.d_safe_m, 1.0) if use_scene else 1.0
-        weights[i] = s_man ** cfg.gamma_man * max(s_clr, 0.0) ** cfg.gamma_clr
-    return weights
+        s_man[i] = m / (m + cfg.kappa)
+    s_clr = np.ones(len(Q))
+    if world.shapes:
+        near = world.near_scene_batch(Q, cfg.d_safe_m)
+        for i in np.flatnonzero(near):
+            s_clr[i] = min(max(world.scene_distance(Q[i]), 0.0) / cfg.d_safe_m, 1.0)
+    return s_man ** cfg.gamma_man * s_clr ** cfg.gamma_clr
+
+
+# Set by build_heatmap before forking workers, so they inherit the tables instead of rebuilding.
+_CONTEXT: dict = {}
 
 
 def _build_chunk(args) -> tuple[np.ndarray, int, int]:
-    """Accumulate one chunk: (H, valid samples, candidates drawn)."""
-    robot_spec, shapes, grid, free_flat, cfg, seed_seq, n_valid = args
-    robot = load_robot(robot_spec)
-    world = CollisionWorld(robot, shapes)
-    raster = _Rasterizer(robot, grid, grid.voxel_m * cfg.lut_pitch_fraction)
+    """Accumulate one chunk: (H flat, valid samples, candidates drawn)."""
+    chunk, seed_seq, n_valid = args
+    robot, world, tables = _CONTEXT['robot'], _CONTEXT['world'], _CONTEXT['tables']
+    grid, free_flat, cfg = _CONTEXT['grid'], _CONTEXT['free'], _CONTEXT['cfg']
     rng = np.random.default_rng(seed_seq)
     H = np.zeros(grid.size)
+    stamp = np.full(grid.size, -1, dtype=np.int64)
     done = drawn = 0
     while done < n_valid:
         Q = robot.sample_q(rng, 512)
         drawn += len(Q)
         Q = Q[~world.collisions_batch(Q, threads=1)][:n_valid - done]
-        if done == 0 and drawn >= 50_000:
-            raise RuntimeError('no valid configuration found: is the robot inside the scene?')
-        weights = _sample_weights(robot, world, Q, cfg, use_scene=bool(shapes))
-        s_idx, v_idx = raster.occupied([world.link_placements(q) for q in Q])
-        keep = free_flat[v_idx]
-        H += np.bincount(v_idx[keep], weights=weights[s_idx[keep]], minlength=grid.size)
+        if done == 0 and drawn >= 50_000 and len(Q) == 0:
+            raise RuntimeError('no valid configuration in 50,000 draws: is the robot inside '
+                               'the scene?')
+        R, t = _placement_arrays(world, Q)
+        _accumulate(H, stamp, free_flat, np.asarray(grid.origin_m), grid.voxel_m,
+                    np.asarray(grid.shape, dtype=np.int64), R, t,
+                    sample_weights(robot, world, Q, cfg), done, tables.data, tables.offset,
+                    tables.shape, tables.origin, tables.pitch, tables.box_lo, tables.box_hi)
         done += len(Q)
     return H, done, drawn
 
 
 def build_heatmap(scene: Scene, cfg: HeatmapConfig = HeatmapConfig(), seed: int = 0,
-                  workers: int = 1, progress: Callable[[int], None] | None = None) -> Heatmap:
+                  workers: int = 1, progress: Callable[[int], None] | None = None,
+                  shard: tuple[int, int] = (0, 1)) -> Heatmap:
     """Build H for ``scene``'s robot and objects (objects ignored when ``cfg.robot_only``).
 
+    ``shard=(i, k)`` builds only chunks ``i, i+k, i+2k, ...`` of the seed's sample stream, so
+    k machines can each build one shard and ``merge_heatmaps`` reproduces the full build.
     ``progress(n)`` is called with the number of valid samples finished after each chunk.
     """
+    index, count = shard
+    if not (0 <= index < count):
+        raise ValueError(f'shard {index}/{count}: need 0 <= index < count')
     t0 = time.perf_counter()
     robot = load_robot(scene.robot)
     shapes = [] if cfg.robot_only else scene.shapes
@@ -340,8 +386,14 @@ def build_heatmap(scene: Scene, cfg: HeatmapConfig = HeatmapConfig(), seed: int 
     sizes = [CHUNK_SAMPLES] * (cfg.samples // CHUNK_SAMPLES)
     if cfg.samples % CHUNK_SAMPLES:
         sizes.append(cfg.samples % CHUNK_SAMPLES)
-    seqs = np.random.SeedSequence(seed).spawn(len(sizes))
-    tasks = [(scene.robot, shapes, grid, free.ravel(), cfg, s, n) for s, n in zip(seqs, sizes)]
+    seqs = np.random.SeedSequence(seed).spawn(len(sizes))  # chunk i always gets stream i
+    _CONTEXT.update(robot=robot, world=CollisionWorld(robot, shapes), grid=grid,
+                    free=free.ravel(), cfg=cfg,
+                    tables=_LinkTables(robot, cfg.voxel_m * cfg.lut_pitch_fraction))
+    tasks = [(i, s, n) for i, (s, n) in enumerate(zip(seqs, sizes))][index::count]
+    if not tasks:
+        raise ValueError(f'shard {index}/{count} is empty: {len(sizes)} chunks of '
+                         f'{CHUNK_SAMPLES} samples')
     if workers > 1:
         # fork: workers inherit loaded modules (spawn would re-import pinocchio, ~1 s each).
         with multiprocessing.get_context('fork').Pool(min(workers, len(tasks))) as pool:
@@ -365,7 +417,8 @@ def build_heatmap(scene: Scene, cfg: HeatmapConfig = HeatmapConfig(), seed: int 
         'robot_joints': list(robot.joint_names), 'robot_links': list(robot.link_names),
         'scene_hash': None if cfg.robot_only else scene.objects_hash(),
         'scene_name': None if cfg.robot_only else scene.name,
-        'params': dataclasses.asdict(cfg), 'seeds': [seed],
+        'params': dataclasses.asdict(cfg),
+        'seeds': [str(seed) if count == 1 else f'{seed}:{index}/{count}'],
         'valid_samples': int(sum(r[1] for r in results)),
         'candidates': int(sum(r[2] for r in results)),
         'build_s': round(build_s, 3), 'workers': workers,

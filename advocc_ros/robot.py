@@ -221,8 +221,9 @@ class RobotModel:
     def ee_jacobian(self, q: np.ndarray, data: pin.Data | None = None) -> np.ndarray:
         """6 x nq geometric Jacobian of the end-effector, in the base-aligned local frame."""
         data = data or self.create_data()
-        return pin.computeFrameJacobian(self.model, data, q, self.ee_frame,
-                                        pin.LOCAL_WORLD_ALIGNED)
+        jac = pin.computeFrameJacobian(self.model, data, q, self.ee_frame,
+                                       pin.LOCAL_WORLD_ALIGNED)
+        return np.asarray(jac).reshape(6, self.nq)  # eigenpy returns (6,) when nq == 1
 
     def manipulability(self, q: np.ndarray, data: pin.Data | None = None) -> float:
         """Yoshikawa index ``sqrt(det(J J^T))`` of the 6 x nq end-effector Jacobian."""

@@ -80,12 +80,29 @@ class SolidLUT:
 
     @classmethod
     def from_mesh(cls, mesh: trimesh.Trimesh, pitch_m: float) -> 'SolidLUT':
-        vox = mesh.voxelized(pitch_m).fill()
-        # trimesh's voxel centres sit at transform @ index; the cell corner is half a pitch off.
-        origin = np.asarray(vox.transform[:3, 3]) - 0.5 * pitch_m
         lo, hi = mesh.bounds
-        return cls(origin, pitch_m, np.asarray(vox.matrix, dtype=bool),
-                   float(np.linalg.norm(hi - lo) / 2), (lo + hi) / 2)
+        hull = mesh.convex_hull
+        if mesh.is_watertight and abs(hull.volume - mesh.volume) <= 1e-3 * hull.volume:
+            # Convex solid (robot collision meshes usually are): exact half-space test of the
+            # cell centres, ~100x faster than surface voxelization + fill.
+            n = np.maximum(np.ceil((hi - lo) / pitch_m).astype(int) + 2, 1)
+            origin = lo - pitch_m
+            axes = [origin[a] + (np.arange(n[a]) + 0.5) * pitch_m for a in range(3)]
+            pts = np.stack(np.meshgrid(*axes, indexing='ij'), -1).reshape(-1, 3)
+            normals, offsets = hull.face_normals, np.einsum('ij,ij->i', hull.face_normals,
+                                                            hull.triangles[:, 0])
+            filled = np.ones(len(pts), dtype=bool)
+            for start in range(0, len(normals), 64):
+                sl = slice(start, start + 64)
+                filled &= np.all(pts @ normals[sl].T <= offsets[sl] + 1e-12, axis=1)
+            filled = filled.reshape(n)
+        else:
+            vox = mesh.voxelized(pitch_m).fill()
+            # trimesh's voxel centres sit at transform @ index; the cell corner is half a pitch
+            # off.
+            origin = np.asarray(vox.transform[:3, 3]) - 0.5 * pitch_m
+            filled = np.asarray(vox.matrix, dtype=bool)
+        return cls(origin, pitch_m, filled, float(np.linalg.norm(hi - lo) / 2), (lo + hi) / 2)
 
     def contains(self, points_local: np.ndarray) -> np.ndarray:
         idx = np.floor((points_local - self.origin_m) / self.pitch_m).astype(np.int64)

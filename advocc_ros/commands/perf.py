@@ -1,0 +1,70 @@
+"""``advocc perf ...``: benchmarks that report measured numbers (never timed unit tests)."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import statistics
+import time
+
+from advocc_ros.heatmap import HeatmapConfig, build_heatmap
+from advocc_ros.paths import scene_path
+from advocc_ros.scene import load_scene
+
+
+def machine() -> dict:
+    """What the numbers were measured on."""
+    cpu = platform.processor()
+    try:
+        with open('/proc/cpuinfo') as handle:
+            cpu = next(line.split(':', 1)[1].strip() for line in handle
+                       if line.startswith('model name'))
+    except (OSError, StopIteration):
+        pass
+    return {'cpu': cpu, 'cores': os.cpu_count(), 'python': platform.python_version()}
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    parser = sub.add_parser('perf', help='benchmarks')
+    psub = parser.add_subparsers(dest='perf_command', required=True)
+    heat = psub.add_parser('heatmap', help='time the offline heatmap build')
+    heat.add_argument('--scene', default='table_pick')
+    heat.add_argument('--samples', type=int, default=HeatmapConfig.samples)
+    heat.add_argument('--workers', type=int, default=os.cpu_count() or 1)
+    heat.add_argument('--repeats', type=int, default=3)
+    heat.add_argument('--json', action='store_true')
+    heat.set_defaults(func=_heatmap)
+
+
+def _heatmap(args) -> int:
+    scene = load_scene(scene_path(args.scene))
+    cfg = HeatmapConfig(samples=args.samples)
+    # First build includes one-time costs (numba kernel compile or cache load, link tables).
+    t0 = time.perf_counter()
+    build_heatmap(scene, HeatmapConfig(samples=200), seed=12345)
+    warmup_s = time.perf_counter() - t0
+    walls, candidates = [], 0
+    for rep in range(max(args.repeats, 1)):
+        t0 = time.perf_counter()
+        heatmap = build_heatmap(scene, cfg, seed=rep, workers=args.workers)
+        walls.append(time.perf_counter() - t0)
+        candidates = heatmap.meta['candidates']
+    med = statistics.median(walls)
+    report = {
+        'benchmark': 'heatmap build', 'scene': scene.name, 'objects': len(scene.objects),
+        'valid_samples': args.samples, 'candidates_per_build': candidates,
+        'voxel_m': cfg.voxel_m, 'grid_shape': list(heatmap.grid.shape),
+        'workers': args.workers, 'repeats': len(walls),
+        'wall_s': [round(w, 3) for w in walls], 'median_wall_s': round(med, 3),
+        'valid_samples_per_s': round(args.samples / med, 1),
+        'warmup_s': round(warmup_s, 3), 'paper_offline_s': 1251.47,
+        'speedup_vs_paper': round(1251.47 / med, 1), 'machine': machine(),
+    }
+    if args.json:
+        print(json.dumps(report, indent=2))
+    else:
+        for key, value in report.items():
+            print(f'{key:>22}: {value}')
+    return 0
