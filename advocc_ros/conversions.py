@@ -16,8 +16,8 @@ from shape_msgs.msg import Mesh, MeshTriangle, SolidPrimitive
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
 from advocc_ros.robot import RobotModel
-from advocc_ros.scene import (MAX_OBJECTS, GoalRegion, Pose, SceneError, SceneObject, Shape,
-                              make_mesh_shape)
+from advocc_ros.scene import (MAX_OBJECTS, GoalRegion, Operation, Pose, SceneError,
+                              SceneObject, Shape, make_mesh_shape)
 
 
 def pose_from_msg(msg: PoseMsg, where: str = 'pose') -> Pose:
@@ -76,9 +76,16 @@ def _shape_from_primitive(prim: SolidPrimitive, pose: Pose, where: str) -> Shape
     return Shape(kind, tuple(dims.tolist()), pose)
 
 
+def operation_int(op: int | bytes) -> int:
+    """A collision-object operation as an int: message fields and constants are ROS ``byte``
+    (Python ``bytes``), as in MoveIt; ``scene.Operation`` values are ints."""
+    return int.from_bytes(op, 'little') if isinstance(op, (bytes, bytearray)) else int(op)
+
+
 def collision_object_from_msg(msg: CollisionObject, where: str = 'object'
                               ) -> tuple[int, SceneObject, Pose]:
-    """(operation, object with shapes posed in the message frame, object pose)."""
+    """(operation as ``scene.Operation`` int, object with shapes posed in the message frame,
+    object pose)."""
     where = f'{where} {msg.id!r}'
     obj_pose = pose_from_msg(msg.pose, f'{where}.pose')
     T_obj = obj_pose.to_se3()
@@ -99,9 +106,10 @@ def collision_object_from_msg(msg: CollisionObject, where: str = 'object'
                          dtype=np.int64).reshape(-1, 3)
         shapes.append(make_mesh_shape(vertices, faces, Pose.from_se3(T_obj * local.to_se3()),
                                       f'{where}.meshes[{i}]'))
-    if msg.operation in (CollisionObject.ADD, CollisionObject.APPEND) and not shapes:
+    operation = operation_int(msg.operation)
+    if operation in (Operation.ADD, Operation.APPEND) and not shapes:
         raise SceneError(f'{where}: ADD/APPEND needs at least one primitive or mesh')
-    return msg.operation, SceneObject(msg.id, tuple(shapes)), obj_pose
+    return operation, SceneObject(msg.id, tuple(shapes)), obj_pose
 
 
 def scene_from_msgs(msgs: list[CollisionObject], where: str = 'scene') -> tuple[SceneObject, ...]:
@@ -111,18 +119,19 @@ def scene_from_msgs(msgs: list[CollisionObject], where: str = 'scene') -> tuple[
     objects = []
     for i, msg in enumerate(msgs):
         op, obj, _ = collision_object_from_msg(msg, f'{where}[{i}]')
-        if op != CollisionObject.ADD:
+        if op != Operation.ADD:
             raise SceneError(f'{where}[{i}]: only ADD objects can describe a scene')
         objects.append(obj)
     return tuple(objects)
 
 
 def collision_object_to_msg(obj: SceneObject, frame: str,
-                            operation: int = CollisionObject.ADD) -> CollisionObject:
+                            operation: int | bytes = Operation.ADD) -> CollisionObject:
     """Message for ``obj``; shapes are posed relative to an identity object pose."""
-    msg = CollisionObject(id=obj.id, operation=operation)
+    operation = operation_int(operation)
+    msg = CollisionObject(id=obj.id, operation=bytes([operation]))
     msg.header.frame_id = frame
-    for shape in obj.shapes if operation != CollisionObject.REMOVE else ():
+    for shape in obj.shapes if operation != Operation.REMOVE else ():
         if shape.kind == 'mesh':
             msg.meshes.append(Mesh(
                 triangles=[MeshTriangle(vertex_indices=[int(i) for i in f])

@@ -51,7 +51,7 @@ class RobotSpec:
     srdf: str = 'example-robot-data://panda_description/srdf/panda.srdf'
     """SRDF path: disabled collision pairs, planning group and reference joint values."""
     group: str = 'arm'
-    """SRDF group whose joints are planned; other joints are locked."""
+    """SRDF group whose joints are planned; other joints are locked. Empty: every joint."""
     ee_link: str = 'panda_hand'
     """End-effector link for goal regions, manipulability and corridors."""
     group_state: str = 'default'
@@ -136,9 +136,10 @@ class RobotModel:
         except (RuntimeError, ValueError) as exc:
             raise RobotError(f'{urdf}: pinocchio could not load it ({exc})') from exc
 
-        group = _srdf_group(srdf_xml, spec.group)
+        group = _srdf_group(srdf_xml, spec.group) if spec.group else list(full.names[1:])
         if not group:
-            raise RobotError(f'{srdf}: no group named {spec.group!r}')
+            raise RobotError(f'{srdf}: no group named {spec.group!r} (use group: "" to plan '
+                             'for every joint)')
         state = _srdf_state(srdf_xml, spec.group_state)
         lock_ids, q_ref = [], pin.neutral(full)
         for jid in range(1, full.njoints):

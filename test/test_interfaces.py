@@ -1,0 +1,87 @@
+"""advocc_msgs: the generated interfaces import, and a service round-trips between processes."""
+
+import subprocess
+import sys
+import textwrap
+import time
+
+import rclpy
+from rclpy.node import Node
+
+from advocc_msgs.msg import CollisionObject, ErrorCodes, GoalRegion, Obstacle
+from advocc_msgs.srv import Attack, GetInfo, Plan
+
+SERVER = textwrap.dedent('''
+    import rclpy
+    from rclpy.node import Node
+    from advocc_msgs.srv import Plan
+
+    def handle(request, response):
+        response.error_code.val = response.error_code.SUCCESS
+        response.message = request.planner_id
+        response.trajectory.joint_names = list(request.start_state.name)
+        response.planning_time_s = request.goal_region.position_tolerance[2]
+        return response
+
+    rclpy.init()
+    node = Node('echo_planner')
+    node.create_service(Plan, 'echo_plan', handle)
+    try:
+        rclpy.spin(node)
+    except KeyboardInterrupt:
+        pass
+    finally:
+        node.destroy_node()
+        rclpy.try_shutdown()
+''')
+
+
+def test_interfaces_have_moveit_fields_and_codes():
+    # ``byte`` constants, as in moveit_msgs/CollisionObject
+    assert [CollisionObject.ADD, CollisionObject.REMOVE, CollisionObject.APPEND,
+            CollisionObject.MOVE] == [b'\x00', b'\x01', b'\x02', b'\x03']
+    assert ErrorCodes.SUCCESS == 1 and ErrorCodes.PLANNING_FAILED == -1
+    assert ErrorCodes.TIMED_OUT == -6 and ErrorCodes.NO_IK_SOLUTION == -31
+    assert len(GoalRegion().position_tolerance) == 3
+    assert hasattr(Obstacle(), 'covered_mass')
+    for srv in (Attack, Plan, GetInfo):
+        assert srv.Request() is not None and srv.Response() is not None
+
+
+def test_service_round_trip_between_two_processes(ros_env):
+    server = subprocess.Popen([sys.executable, '-c', SERVER], env=ros_env)
+    ctx = rclpy.Context()
+    import os
+    old = os.environ.get('ROS_DOMAIN_ID')
+    os.environ['ROS_DOMAIN_ID'] = ros_env['ROS_DOMAIN_ID']
+    try:
+        rclpy.init(context=ctx)
+        node = Node('echo_client', context=ctx)
+        client = node.create_client(Plan, 'echo_plan')
+        assert client.wait_for_service(timeout_sec=20.0), 'server did not come up'
+        request = Plan.Request(planner_id='prmstar')
+        request.start_state.name = ['a', 'b']
+        request.goal_region.position_tolerance = [0.01, 0.02, 0.03]
+        future = client.call_async(request)
+        executor = rclpy.executors.SingleThreadedExecutor(context=ctx)
+        executor.add_node(node)
+        deadline = time.monotonic() + 10
+        while not future.done() and time.monotonic() < deadline:
+            executor.spin_once(timeout_sec=0.1)
+        response = future.result()
+        assert response.error_code.val == ErrorCodes.SUCCESS
+        assert response.message == 'prmstar'
+        assert list(response.trajectory.joint_names) == ['a', 'b']
+        assert response.planning_time_s == 0.03
+        node.destroy_node()
+    finally:
+        rclpy.try_shutdown(context=ctx)
+        if old is None:
+            os.environ.pop('ROS_DOMAIN_ID', None)
+        else:
+            os.environ['ROS_DOMAIN_ID'] = old
+        server.send_signal(2)
+        try:
+            assert server.wait(timeout=10) == 0
+        finally:
+            server.kill()
