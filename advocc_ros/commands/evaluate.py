@@ -1,0 +1,98 @@
+"""``advocc evaluate``: run a planner N times on a scene (optionally attacked) and report metrics.
+
+Prints the paper's row (PSR, SMR x10^-2, CMR x10^-2, JDS, PT) or, with ``--json``, a JSON object
+with the row and every trial's record. Progress goes to stderr.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import pathlib
+import sys
+
+from advocc_ros.cli import UserError
+
+
+def register(subparsers) -> None:
+    p = subparsers.add_parser(
+        'evaluate', help='plan N times with an OMPL planner and report PSR/SMR/CMR/JDS/PT',
+        description=__doc__.splitlines()[0])
+    p.add_argument('--scene', required=True,
+                   help='scene YAML file, or a shipped scene name such as table_pick')
+    p.add_argument('--obstacles', help='obstacles YAML (an attack result: objects: [...])')
+    p.add_argument('--planner', default='rrtconnect',
+                   help='rrtconnect | prmstar | bkpiece1 | another OMPL geometric planner')
+    p.add_argument('--trials', type=int, default=20, help='plan requests (default 20)')
+    p.add_argument('--time', type=float, default=5.0, help='budget per request [s] (default 5)')
+    p.add_argument('--seed', type=int, default=0, help='trial k uses seed SEED + k')
+    p.add_argument('--workers', type=int, default=1,
+                   help='planner processes in parallel (default 1; PT is wall time, so keep '
+                        'workers <= free cores)')
+    p.add_argument('--no-simplify', action='store_true',
+                   help='return the raw planner path (default: simplify like MoveIt)')
+    p.add_argument('--json', action='store_true', help='print JSON (row and per-trial records)')
+    p.set_defaults(func=run)
+
+
+def load_task(scene_arg: str, obstacles: str | None):
+    """The scene with the obstacles file's objects added."""
+    from advocc_ros.paths import scene_path
+    from advocc_ros.scene import load_scene, objects_from_data, read_yaml
+
+    scene = load_scene(scene_path(scene_arg))
+    if scene.goal is None or scene.start is None:
+        raise UserError(f'{scene_arg}: the scene needs a start and a goal to be evaluated')
+    if obstacles:
+        path = pathlib.Path(obstacles)
+        data = read_yaml(path)
+        if not isinstance(data, dict) or 'objects' not in data:
+            raise UserError(f'{path}: expected a mapping with an objects: list')
+        scene = scene.with_objects(objects_from_data(data['objects'], f'{path}.objects',
+                                                     path.parent))
+    return scene
+
+
+def run(args: argparse.Namespace) -> int:
+    import dataclasses
+
+    from advocc_ros.metrics import evaluate_planner, format_value
+    from advocc_ros.planning import PlanningConfig, planner_class_name
+
+    if args.trials < 1:
+        raise UserError('--trials must be >= 1')
+    if not 0 < args.time <= PlanningConfig().max_time_budget_s:
+        raise UserError(f'--time must be in (0, {PlanningConfig().max_time_budget_s:g}]')
+    if planner_class_name(args.planner) is None:
+        raise UserError(f'unknown planner {args.planner!r}')
+    if args.workers < 1:
+        raise UserError('--workers must be >= 1')
+    scene = load_task(args.scene, args.obstacles)
+    config = dataclasses.replace(PlanningConfig(), simplify=not args.no_simplify)
+
+    from tqdm import tqdm
+    bar = tqdm(total=args.trials, file=sys.stderr, disable=None, unit='plan',
+               desc=f'{scene.name} {args.planner}')
+    counts = [0, 0]  # successes, trials
+
+    def progress(record) -> None:
+        counts[0] += record.success
+        counts[1] += 1
+        bar.update(1)
+        bar.set_postfix(psr=f'{counts[0] / counts[1]:.2f}')
+
+    try:
+        result = evaluate_planner(scene, args.planner, args.trials, args.time, args.seed,
+                                  args.workers, config, progress=progress)
+    finally:
+        bar.close()
+    result['obstacles'] = args.obstacles
+    result['objects'] = len(scene.objects)
+    if args.json:
+        print(json.dumps(result, indent=1))
+        return 0
+    print(f'{"scene":<14}{"planner":<12}{"PSR":>7}{"SMR":>8}{"CMR":>8}{"JDS":>8}{"PT":>8}')
+    print(f'{scene.name:<14}{args.planner:<12}{format_value(result["psr"]):>7}'
+          f'{format_value(result["smr"]):>8}{format_value(result["cmr"]):>8}'
+          f'{format_value(result["jds"]):>8}{format_value(result["pt"]):>8}')
+    return 0

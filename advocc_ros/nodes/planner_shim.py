@@ -1,0 +1,247 @@
+"""planner_shim: a MoveIt move_group stand-in that plans with OMPL in an attackable scene.
+
+Planning scene = the static scene of the ``scene_file`` parameter + objects injected on
+``/advocc/collision_object`` (MoveIt ADD/REMOVE/APPEND/MOVE semantics; latched QoS so a late
+joiner still receives an attack's operations). Injected operations never touch the static
+objects: a REMOVE with an empty id clears the injected objects only, and an id that names a
+static object is rejected, so an attacker can reset its boxes without deleting the table.
+
+Services:
+- ``~/plan`` (advocc_msgs/srv/Plan): start state, goal region, planner id, budget, seed ->
+  MoveIt error code + message + trajectory + planning time. Requests run in a watched worker
+  process (``advocc_ros.planning.Planner``): a request never holds the node longer than its
+  budget + ``watchdog_margin_s``; bad requests get an error code and the node keeps serving.
+- ``~/get_info`` (advocc_msgs/srv/GetInfo): what is loaded, as JSON.
+
+The plan service has its own callback group and the node spins a MultiThreadedExecutor, so
+collision objects keep arriving while a request is being planned (the next request sees them).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+import sys
+import threading
+
+import rclpy
+from advocc_msgs.msg import CollisionObject, ErrorCodes
+from advocc_msgs.srv import GetInfo, Plan
+from rcl_interfaces.msg import SetParametersResult
+from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
+from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
+from rclpy.node import Node
+
+from advocc_ros.conversions import (collision_object_from_msg, goal_region_from_msg,
+                                    q_from_joint_state, trajectory_to_msg)
+from advocc_ros.nodes.qos import COLLISION_OBJECT_TOPIC, LATCHED_QOS
+from advocc_ros.paths import scene_path
+from advocc_ros.planning import PLANNERS, Planner, PlanningConfig, PlanStatus
+from advocc_ros.robot import RobotError
+from advocc_ros.scene import Scene, SceneError, apply_operation, load_scene
+
+# Parameters that map onto PlanningConfig fields (defaults come from the dataclass).
+_CONFIG_PARAMS = ('time_budget_s', 'max_time_budget_s', 'motion_step_rad', 'ik_goals',
+                  'max_goals', 'simplify', 'interpolate', 'waypoint_step_rad',
+                  'stop_at_first_solution', 'watchdog_margin_s')
+
+
+class PlannerShim(Node):
+    """Planning scene + plan service (see the module docstring)."""
+
+    def __init__(self):
+        super().__init__('planner_shim')
+        defaults = PlanningConfig()
+        self.declare_parameter('scene_file', 'table_pick')
+        self.declare_parameter('default_planner', 'rrtconnect')
+        for name in _CONFIG_PARAMS:
+            self.declare_parameter(name, getattr(defaults, name))
+        self.add_on_set_parameters_callback(self._check_parameters)
+
+        scene_arg = self.get_parameter('scene_file').value
+        self._static: Scene = load_scene(scene_path(scene_arg)) if scene_arg else Scene()
+        self._injected: dict = {}
+        self._scene_lock = threading.Lock()
+        self._planner = Planner(self._static, self._config())
+        self._planner.start()
+        self._served = 0
+        self.get_logger().info(
+            f'scene {self._static.name!r} ({len(self._static.objects)} static objects), '
+            f'planning worker pid {self._planner.worker_pid}')
+
+        scene_group = MutuallyExclusiveCallbackGroup()
+        self.create_subscription(CollisionObject, COLLISION_OBJECT_TOPIC, self._on_object,
+                                 LATCHED_QOS, callback_group=scene_group)
+        self.create_service(GetInfo, '~/get_info', self._on_get_info,
+                            callback_group=scene_group)
+        self.create_service(Plan, '~/plan', self._on_plan,
+                            callback_group=MutuallyExclusiveCallbackGroup())
+
+    # -- parameters --------------------------------------------------------------------------
+
+    def _config(self) -> PlanningConfig:
+        values = {name: self.get_parameter(name).value for name in _CONFIG_PARAMS}
+        return dataclasses.replace(PlanningConfig(), **values)
+
+    def _check_parameters(self, params) -> SetParametersResult:
+        for p in params:
+            if p.name == 'scene_file' and hasattr(self, '_planner'):
+                return SetParametersResult(successful=False,
+                                           reason='scene_file is read at start-up only')
+            if p.name in ('time_budget_s', 'max_time_budget_s', 'motion_step_rad',
+                          'waypoint_step_rad', 'watchdog_margin_s') and \
+                    not (isinstance(p.value, float) and math.isfinite(p.value) and p.value > 0):
+                return SetParametersResult(successful=False,
+                                           reason=f'{p.name} must be a finite float > 0')
+            if p.name in ('ik_goals', 'max_goals') and not (isinstance(p.value, int)
+                                                           and p.value >= 1):
+                return SetParametersResult(successful=False, reason=f'{p.name} must be >= 1')
+            if p.name == 'default_planner' and p.value.lower() not in PLANNERS:
+                return SetParametersResult(successful=False,
+                                           reason=f'unknown planner {p.value!r}')
+        return SetParametersResult(successful=True)
+
+    # -- planning scene ----------------------------------------------------------------------
+
+    def _scene(self) -> Scene:
+        with self._scene_lock:
+            return self._static.with_objects(list(self._injected.values()))
+
+    def _on_object(self, msg: CollisionObject) -> None:
+        try:
+            frame = msg.header.frame_id
+            if frame and frame != self._static.frame:
+                raise SceneError(f'frame {frame!r} is not the planning frame '
+                                 f'{self._static.frame!r} (no tf here)')
+            op, obj, pose = collision_object_from_msg(msg, 'collision object')
+            if obj.id in {o.id for o in self._static.objects}:
+                raise SceneError(f'id {obj.id!r} names a static scene object')
+            with self._scene_lock:
+                self._injected = apply_operation(self._injected, op, obj, pose)
+                count = len(self._injected)
+            self.get_logger().info(f'collision object {msg.id!r} op {op}: '
+                                   f'{count} injected objects')
+        except (SceneError, RobotError, ValueError) as exc:
+            self.get_logger().error(f'collision object rejected: {exc}')
+
+    # -- services ----------------------------------------------------------------------------
+
+    def _on_plan(self, request: Plan.Request, response: Plan.Response) -> Plan.Response:
+        try:
+            response = self._plan(request, response)
+        except Exception as exc:  # never let a callback take the executor down
+            self.get_logger().error(f'plan request failed: {exc!r}')
+            response.error_code.val = ErrorCodes.FAILURE
+            response.message = f'internal error: {exc}'
+        self._served += 1
+        level = self.get_logger().info if response.error_code.val == ErrorCodes.SUCCESS \
+            else self.get_logger().warning
+        level(f'plan #{self._served}: {response.error_code.val} {response.message}')
+        return response
+
+    def _plan(self, request: Plan.Request, response: Plan.Response) -> Plan.Response:
+        def fail(status: PlanStatus, message: str) -> Plan.Response:
+            response.error_code.val = int(status)
+            response.message = message
+            return response
+
+        robot = self._planner.robot
+        if not all(math.isfinite(v) for v in request.start_state.position):
+            return fail(PlanStatus.INVALID_REQUEST, 'start_state: non-finite joint positions')
+        try:
+            q_start = q_from_joint_state(robot, request.start_state)
+        except RobotError as exc:
+            return fail(PlanStatus.INVALID_ROBOT_STATE, str(exc))
+        gmsg = request.goal_region
+        numbers = [gmsg.center.position.x, gmsg.center.position.y, gmsg.center.position.z,
+                   gmsg.center.orientation.x, gmsg.center.orientation.y,
+                   gmsg.center.orientation.z, gmsg.center.orientation.w,
+                   *gmsg.position_tolerance, *gmsg.orientation_tolerance]
+        if not all(math.isfinite(v) for v in numbers):
+            return fail(PlanStatus.INVALID_REQUEST, 'goal_region: non-finite values')
+        frame = gmsg.header.frame_id
+        if frame and frame != self._static.frame:
+            return fail(PlanStatus.INVALID_GOAL_CONSTRAINTS,
+                        f'goal_region frame {frame!r} is not the planning frame '
+                        f'{self._static.frame!r}')
+        try:
+            goal = goal_region_from_msg(gmsg)
+        except SceneError as exc:
+            return fail(PlanStatus.INVALID_GOAL_CONSTRAINTS, str(exc))
+        budget = request.time_budget_s
+        if not math.isfinite(budget) or budget < 0:
+            return fail(PlanStatus.INVALID_REQUEST,
+                        f'time_budget_s must be >= 0 (0: default), got {budget}')
+        config = self._config()
+        budget = budget or config.time_budget_s
+        planner_id = request.planner_id or self.get_parameter('default_planner').value
+        self._planner.config = config
+        self._planner.set_scene(self._scene())
+        result = self._planner.plan(q_start, goal, planner_id, budget, request.seed)
+        response.error_code.val = int(result.status)
+        response.message = result.message
+        response.planning_time_s = float(result.planning_time_s)
+        if result.success:
+            response.trajectory = trajectory_to_msg(robot, result.path)
+            response.trajectory.header.frame_id = self._static.frame
+        return response
+
+    def _on_get_info(self, request: GetInfo.Request, response: GetInfo.Response
+                     ) -> GetInfo.Response:
+        try:
+            with self._scene_lock:
+                injected = sorted(self._injected)
+            robot = self._planner.robot
+            info = {
+                'node': self.get_fully_qualified_name(),
+                'scene': self._static.name, 'frame': self._static.frame,
+                'scene_file': self.get_parameter('scene_file').value,
+                'static_objects': [o.id for o in self._static.objects],
+                'injected_objects': injected,
+                'robot': {'joints': list(robot.joint_names), 'ee_link': robot.spec.ee_link,
+                          'hash': robot.hash},
+                'planners': sorted(PLANNERS),
+                'default_planner': self.get_parameter('default_planner').value,
+                'config': dataclasses.asdict(self._config()),
+                'worker_pid': self._planner.worker_pid,
+                'worker_restarts': self._planner.restarts,
+                'requests_served': self._served,
+            }
+            response.success = True
+            response.info_json = json.dumps(info)
+            response.message = 'ok'
+        except Exception as exc:
+            response.success = False
+            response.message = f'internal error: {exc}'
+        return response
+
+    def destroy_node(self):
+        planner = getattr(self, '_planner', None)
+        if planner is not None:
+            planner.close()
+        return super().destroy_node()
+
+
+def main(args=None) -> int:
+    rclpy.init(args=args)
+    node = None
+    try:
+        node = PlannerShim()
+        executor = MultiThreadedExecutor(num_threads=3)
+        executor.add_node(node)
+        executor.spin()
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    except (SceneError, RobotError) as exc:  # a bad scene_file: say so, no traceback
+        rclpy.logging.get_logger('planner_shim').fatal(f'cannot start: {exc}')
+        return 1
+    finally:
+        if node is not None:
+            node.destroy_node()
+        rclpy.try_shutdown()
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())

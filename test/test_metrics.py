@@ -1,0 +1,110 @@
+"""Metrics equal hand-computed values on fixed paths (SPEC §4)."""
+
+import numpy as np
+import pytest
+
+from advocc_ros.collision import CollisionWorld
+from advocc_ros.metrics import (MetricsConfig, TrialRecord, aggregate, densify, format_value,
+                                joint_deviation, min_clearance, min_manipulability,
+                                random_directions)
+from advocc_ros.scene import make_box
+
+Q_READY = np.array([0.0, -0.785, 0.0, -2.356, 0.0, 1.571, 0.785])
+
+
+def test_jds_exact():
+    q0 = np.zeros(7)
+    path = np.array([q0, [3.0, 4.0, 0, 0, 0, 0, 0], [0, 0, 0, 0, 0, 0, 2.0]])
+    assert joint_deviation(path, q0) == pytest.approx((0.0 + 5.0 + 2.0) / 3, abs=1e-15)
+
+
+def test_densify_spacing_and_endpoints():
+    path = np.array([np.zeros(7), np.full(7, 0.1), np.full(7, 0.1)])
+    dense = densify(path, 0.01)
+    np.testing.assert_array_equal(dense[0], path[0])
+    np.testing.assert_allclose(dense[-1], path[-1])
+    assert np.linalg.norm(np.diff(dense, axis=0), axis=1).max() <= 0.01 + 1e-12
+
+
+def test_smr_is_min_manipulability_along_dense_path(panda):
+    a = Q_READY
+    b = Q_READY + np.array([0.3, 0.4, -0.2, 1.5, 0.1, -1.2, 0.5])  # towards a stretched arm
+    path = np.array([a, b])
+    expected = min(panda.manipulability(q) for q in densify(path, 0.005))
+    got = min_manipulability(panda, path, 0.005)
+    assert got == pytest.approx(expected, rel=1e-12)
+    assert got <= min(panda.manipulability(a), panda.manipulability(b))
+
+
+def _brute_force_clearance(world, path, directions, t_max, step):
+    """First invalid point along each ray on a fine grid (limits count as collision)."""
+    robot = world.robot
+    best = np.inf
+    ts = np.arange(step, t_max + 1e-12, step)
+    for q, rays in zip(path, directions):
+        for u in rays:
+            Q = q + ts[:, None] * u
+            bad = np.any((Q < robot.lower) | (Q > robot.upper), axis=1)
+            bad |= world.collisions_batch(Q)
+            if bad.any():
+                best = min(best, ts[np.argmax(bad)])
+    return best
+
+
+def test_cmr_matches_brute_force_line_search(panda):
+    hand = panda.ee_pose(Q_READY).translation
+    box = make_box('box', hand + np.array([0.0, 0.0, -0.22]), (0.1, 0.1, 0.1))
+    world = CollisionWorld(panda, list(box.shapes))
+    assert not world.in_collision(Q_READY)
+    path = np.array([Q_READY, Q_READY + 0.05])
+    cfg = MetricsConfig(cmr_range_rad=0.3)
+    dirs = random_directions(np.random.default_rng(1), len(path), 6, panda.nq)
+    got = min_clearance(world, path, cfg, directions=dirs)
+    brute = _brute_force_clearance(world, path, dirs, cfg.cmr_range_rad, 2.5e-4)
+    assert brute < cfg.cmr_range_rad  # the obstacle is within range
+    assert abs(got - brute) <= cfg.cmr_resolution_rad + 2.5e-4, (got, brute)
+
+
+def test_cmr_caps_at_range_and_zero_in_collision(panda):
+    world = CollisionWorld(panda, [])
+    cfg = MetricsConfig(cmr_range_rad=0.05, cmr_limits_as_collision=False)
+    assert min_clearance(world, np.array([Q_READY]), cfg) == pytest.approx(0.05)
+    hand = panda.ee_pose(Q_READY).translation
+    blocked = CollisionWorld(panda, list(make_box('b', hand, (0.1, 0.1, 0.1)).shapes))
+    assert min_clearance(blocked, np.array([Q_READY]), cfg) == 0.0
+
+
+def test_cmr_joint_limits_count_as_collision(panda):
+    q = Q_READY.copy()
+    q[0] = panda.upper[0] - 0.01  # 10 mrad from the joint-1 limit, far from any obstacle
+    world = CollisionWorld(panda, [])
+    dirs = np.zeros((1, 2, 7))
+    dirs[0, 0, 0], dirs[0, 1, 0] = 1.0, -1.0
+    got = min_clearance(world, np.array([q]), MetricsConfig(), directions=dirs)
+    assert got == pytest.approx(0.01, abs=MetricsConfig().cmr_resolution_rad)
+
+
+def test_aggregate_hand_values():
+    recs = [
+        TrialRecord(0, 0, True, 'SUCCESS', 0.5, min_manipulability=0.04, min_clearance_rad=0.02,
+                    jds_rad=1.0),
+        TrialRecord(1, 1, True, 'SUCCESS', 1.5, min_manipulability=0.06, min_clearance_rad=0.04,
+                    jds_rad=2.0),
+        TrialRecord(2, 2, False, 'TIMED_OUT', 4.9),
+        TrialRecord(3, 3, False, 'NO_IK_SOLUTION', 0.2),
+    ]
+    row = aggregate(recs, time_budget_s=5.0)
+    assert row['psr'] == 0.5
+    assert row['smr'] == pytest.approx(5.0)   # mean 0.05, x10^-2
+    assert row['cmr'] == pytest.approx(3.0)   # mean 0.03, x10^-2
+    assert row['jds'] == pytest.approx(1.5)
+    assert row['pt'] == pytest.approx((0.5 + 1.5 + 5.0 + 5.0) / 4)  # failures = full budget
+
+
+def test_aggregate_na_when_nothing_succeeds():
+    row = aggregate([TrialRecord(0, 0, False, 'TIMED_OUT', 1.0),
+                     TrialRecord(1, 1, False, 'GOAL_IN_COLLISION', 0.1)], time_budget_s=5.0)
+    assert row['psr'] == 0.0
+    assert row['smr'] is None and row['cmr'] is None and row['jds'] is None
+    assert row['pt'] == 5.0
+    assert format_value(row['smr']) == 'N/A'
