@@ -12,7 +12,7 @@ import importlib
 import logging
 import sys
 
-COMMANDS = ['heatmap', 'perf', 'demo']
+COMMANDS = ['heatmap', 'perf', 'demo', 'evaluate']
 
 
 class UserError(Exception):
