@@ -32,6 +32,7 @@ from __future__ import annotations
 
 import dataclasses
 import enum
+import importlib
 import logging
 import math
 import pathlib
@@ -45,7 +46,7 @@ import pinocchio as pin
 from advocc_ros.collision import CollisionWorld, coal_geometry
 from advocc_ros.heatmap import Heatmap
 from advocc_ros.robot import RobotError, RobotModel
-from advocc_ros.scene import (GoalRegion, Pose, SceneError, SceneObject, Shape, make_box,
+from advocc_ros.scene import (GoalRegion, SceneError, SceneObject, Shape, make_box,
                               objects_from_data, objects_to_data, read_yaml, save_yaml_atomic)
 from advocc_ros.voxels import SolidLUT, VoxelGrid, occupied_mask, points_in_shape
 
@@ -600,8 +601,23 @@ METHODS: dict[str, Selector] = {'ours': _select_greedy, 'random': _select_random
 themselves with :func:`register_method` when their module is imported."""
 
 
+PLUGIN_METHODS = {'pfa': 'advocc_ros.pfa', 'pfa++': 'advocc_ros.pfa'}
+"""Methods whose module registers them on import (loaded on first use)."""
+KNOWN_METHODS = ('ours', 'random', 'pfa', 'pfa++')
+
+
 def register_method(name: str, selector: Selector) -> None:
     METHODS[name] = selector
+
+
+def load_method(name: str) -> bool:
+    """Whether ``name`` is usable, importing its plug-in module if it has one."""
+    if name not in METHODS and name in PLUGIN_METHODS:
+        try:
+            importlib.import_module(PLUGIN_METHODS[name])
+        except ModuleNotFoundError as exc:
+            log.info('method %s is not available: %s', name, exc)
+    return name in METHODS
 
 
 # --------------------------------------------------------------------------------------------
@@ -611,7 +627,7 @@ def validate_request(heatmap: Heatmap, robot: RobotModel, objects: tuple[SceneOb
                      q_init: np.ndarray, goal: GoalRegion, budget: int, method: str,
                      box_size_m: float, cfg: AttackConfig) -> None:
     """Raise ``AttackError`` with the status and a clear message for a bad request."""
-    if method not in METHODS:
+    if not load_method(method):
         raise AttackError(AttackStatus.UNKNOWN_METHOD,
                           f'unknown attack method {method!r}; known: {sorted(METHODS)}')
     if isinstance(budget, bool) or not isinstance(budget, (int, np.integer)) \
@@ -651,6 +667,7 @@ def attack(heatmap: Heatmap, robot: RobotModel, objects: tuple[SceneObject, ...]
            seed: int = 0) -> AttackResult:
     """Place at most ``budget`` boxes for one task. Never raises for a bad request: the result
     carries the status and message instead."""
+    link_luts(robot, heatmap.grid.voxel_m / 4)  # model loading (~1 s once), not attack time
     t0 = time.perf_counter()
     s = cfg.box_size_m if box_size_m is None or box_size_m == 0 else float(box_size_m)
     base = dict(method=method, budget=int(budget) if isinstance(budget, (int, np.integer))
@@ -666,7 +683,7 @@ def attack(heatmap: Heatmap, robot: RobotModel, objects: tuple[SceneObject, ...]
     except (SceneError, RobotError) as exc:
         return AttackResult(AttackStatus.INVALID_REQUEST, str(exc),
                             compute_s=time.perf_counter() - t0, **base)
-    obstacles = tuple(make_box(f'adv_{i}', region.center_m(c), (s, s, s))
+    obstacles = tuple(make_box(f'adv_{i}', np.round(region.center_m(c), 9), (s, s, s))
                       for i, (c, _) in enumerate(picks))
     masses = tuple(float(m) for _, m in picks)
     stats = dict(region.stats, rejected_picks=rejected)
@@ -726,7 +743,7 @@ def load_obstacles(path: str | pathlib.Path) -> tuple[tuple[SceneObject, ...], d
     return objects, meta
 
 
-__all__ = ['AttackConfig', 'AttackError', 'AttackResult', 'AttackStatus', 'METHODS', 'Pose',
-           'SearchRegion', 'Shape', 'attack', 'box_distance', 'box_sum', 'goal_configuration',
-           'greedy_cover', 'load_obstacles', 'obstacles_data', 'random_cover', 'register_method',
-           'save_obstacles', 'search_region', 'validate_request']
+__all__ = ['AttackConfig', 'AttackError', 'AttackResult', 'AttackStatus', 'KNOWN_METHODS',
+           'METHODS', 'SearchRegion', 'attack', 'box_distance', 'box_sum', 'goal_configuration',
+           'greedy_cover', 'load_method', 'load_obstacles', 'obstacles_data', 'random_cover',
+           'register_method', 'save_obstacles', 'search_region', 'validate_request']

@@ -12,7 +12,7 @@ import importlib
 import logging
 import sys
 
-COMMANDS = ['heatmap', 'perf', 'demo', 'evaluate']
+COMMANDS = ['heatmap', 'perf', 'demo', 'evaluate', 'attack']
 
 
 class UserError(Exception):

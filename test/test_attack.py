@@ -322,3 +322,24 @@ def test_obstacles_file_round_trip(panda, heatmaps, task, tmp_path):
 def test_pose_of_obstacles_is_axis_aligned():
     obj = make_box('adv_0', (0.1, 0.2, 0.3), (0.05,) * 3)
     assert obj.shapes[0].pose == Pose((0.1, 0.2, 0.3))
+
+
+def test_cli_attack_writes_the_obstacles_file(heatmaps, tmp_path, capsys):
+    import json
+
+    from advocc_ros.cli import main
+    from advocc_ros.heatmap import save_heatmap
+    save_heatmap(heatmaps['scene'], tmp_path / 'h.npz')
+    out = tmp_path / 'obstacles.yaml'
+    args = ['attack', '--heatmap', str(tmp_path / 'h.npz'), '--scene', 'table_pick',
+            '--budget', '3', '--out', str(out), '--json']
+    assert main(args) == 0
+    printed = json.loads(capsys.readouterr().out)
+    objects, meta = load_obstacles(out)
+    assert [o['id'] for o in printed['obstacles']] == [o.id for o in objects] == \
+        ['adv_0', 'adv_1', 'adv_2']
+    assert printed['compute_ms'] > 0 and meta['compute_ms'] == printed['compute_ms']
+    assert main(args[:-1] + ['--method', 'pfa']) == 2
+    assert main(['attack', '--heatmap', str(tmp_path / 'missing.npz'), '--scene', 'table_pick',
+                 '--budget', '3', '--out', str(out)]) == 2
+    assert 'cannot read' in capsys.readouterr().err
