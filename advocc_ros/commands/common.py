@@ -1,0 +1,38 @@
+"""Arguments shared by commands: which scene (our YAML or MotionBenchMaker files) to work on."""
+
+from __future__ import annotations
+
+import argparse
+
+from advocc_ros.scene import Scene
+
+GOAL_TOL_HELP = ('tolerances of the goal region: "pos=X[,Y,Z];rot=R[,P,Y]" (half-extents [m] '
+                 'and rotation-vector tolerances [rad] in the end-effector frame; one value = '
+                 'all axes; default pos=0.02;rot=0.1). With --request they shape the region '
+                 'built around the request\'s goal; without, they replace the scene goal\'s')
+
+
+def add_scene_args(parser: argparse.ArgumentParser, required: bool = True) -> None:
+    """Add ``--scene``, ``--request`` and ``--goal-tol`` to ``parser``."""
+    parser.add_argument('--scene', required=required,
+                        help='scene: our YAML file, a shipped name (table_pick, '
+                             'table_under_pick, bookshelf, box, cage) or a MotionBenchMaker '
+                             'scene file (MoveIt PlanningScene YAML, sceneNNNN.yaml)')
+    parser.add_argument('--request', metavar='FILE',
+                        help='MotionBenchMaker request file (requestNNNN.yaml): its start state '
+                             'and a goal region around its goal configuration\'s end-effector '
+                             'pose replace the scene\'s')
+    parser.add_argument('--goal-tol', metavar='TOL', help=GOAL_TOL_HELP)
+
+
+def scene_from_args(args: argparse.Namespace) -> Scene | None:
+    """The scene named by ``--scene/--request/--goal-tol``; None if ``--scene`` was optional
+    and not given. Errors are ``SceneError`` naming the file and field."""
+    from advocc_ros.mbm import load_any_scene
+
+    if args.scene is None:
+        if getattr(args, 'request', None) or getattr(args, 'goal_tol', None):
+            raise ValueError('--request and --goal-tol need a --scene')
+        return None
+    return load_any_scene(args.scene, getattr(args, 'request', None),
+                          getattr(args, 'goal_tol', None))
