@@ -135,9 +135,12 @@ class PlannerShim(Node):
             response.error_code.val = ErrorCodes.FAILURE
             response.message = f'internal error: {exc}'
         self._served += 1
-        level = self.get_logger().info if response.error_code.val == ErrorCodes.SUCCESS \
-            else self.get_logger().warning
-        level(f'plan #{self._served}: {response.error_code.val} {response.message}')
+        text = f'plan #{self._served}: {response.error_code.val} {response.message}'
+        # One call site per severity: rclpy refuses a call site whose severity changes.
+        if response.error_code.val == ErrorCodes.SUCCESS:
+            self.get_logger().info(text)
+        else:
+            self.get_logger().warning(text)
         return response
 
     def _plan(self, request: Plan.Request, response: Plan.Response) -> Plan.Response:
