@@ -184,3 +184,18 @@ def test_worker_overhead_is_small(planner, open_scene):
     overheads = [planner.plan(q0, open_scene.goal, 'rrtconnect', BUDGET, s).stats['overhead_s']
                  for s in range(3)]
     assert np.median(overheads) < 0.05, overheads
+
+
+def test_planner_shim_yaml_matches_config_defaults():
+    """config/planner_shim.yaml and PlanningConfig must not drift apart."""
+    import pathlib
+
+    import yaml
+
+    path = pathlib.Path(__file__).resolve().parents[1] / 'config' / 'planner_shim.yaml'
+    params = yaml.safe_load(path.read_text())['/planner_shim']['ros__parameters']
+    defaults = dataclasses.asdict(PlanningConfig())
+    shared = set(params) & set(defaults)
+    assert len(shared) >= 8
+    for key in shared:
+        assert params[key] == defaults[key], key
