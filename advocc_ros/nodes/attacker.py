@@ -1,0 +1,201 @@
+"""attacker: keeps the adversarial boxes of the current task in the planning scene.
+
+Subscribes (latched QoS, so a late joiner gets the last ones) to ``/advocc/scene``
+(advocc_msgs/Scene: static objects + start state) and ``/advocc/goal_region``
+(advocc_msgs/GoalRegion). When both are known, and whenever either changes, it calls the
+heatmap server's ``~/attack`` (``call_async``; one request in flight, and messages that arrive
+meanwhile coalesce into one more request with the latest task), then
+
+- publishes REMOVE for each box it placed before and ADD for the new ones on
+  ``/advocc/collision_object`` (advocc_msgs/CollisionObject, MoveIt semantics), and
+- publishes a ``visualization_msgs/MarkerArray`` on ``~/markers`` (DELETEALL + one cube each).
+
+A failed attack (error code) or a timeout removes the previous boxes, which no longer match the
+task. Parameters: ``server``, ``budget``, ``method``, ``box_size_m`` (0: server default),
+``seed``, ``timeout_s`` (defaults in ``config/attacker.yaml``).
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+
+import rclpy
+from advocc_msgs.msg import CollisionObject, ErrorCodes, GoalRegion, Scene
+from advocc_msgs.srv import Attack
+from rcl_interfaces.msg import SetParametersResult
+from rclpy.executors import ExternalShutdownException
+from rclpy.node import Node
+from shape_msgs.msg import SolidPrimitive
+from visualization_msgs.msg import Marker, MarkerArray
+
+from advocc_ros.attack import AttackConfig
+from advocc_ros.nodes.qos import (COLLISION_OBJECT_TOPIC, GOAL_REGION_TOPIC, LATCHED_QOS,
+                                  SCENE_TOPIC)
+
+MARKER_NS = 'advocc_attack'
+
+
+class Attacker(Node):
+    """Scene + goal in, adversarial collision objects and markers out."""
+
+    def __init__(self):
+        super().__init__('attacker')
+        self.declare_parameter('server', '/heatmap_server')
+        self.declare_parameter('budget', 3)
+        self.declare_parameter('method', 'ours')
+        self.declare_parameter('box_size_m', 0.0)
+        self.declare_parameter('seed', 0)
+        self.declare_parameter('timeout_s', 10.0)
+        self.add_on_set_parameters_callback(self._check_parameters)
+
+        server = self.get_parameter('server').value.rstrip('/')
+        self._client = self.create_client(Attack, f'{server}/attack')
+        self._objects_pub = self.create_publisher(CollisionObject, COLLISION_OBJECT_TOPIC,
+                                                  LATCHED_QOS)
+        self._markers_pub = self.create_publisher(MarkerArray, '~/markers', LATCHED_QOS)
+        self.create_subscription(Scene, SCENE_TOPIC, self._on_scene, LATCHED_QOS)
+        self.create_subscription(GoalRegion, GOAL_REGION_TOPIC, self._on_goal, LATCHED_QOS)
+        self._scene: Scene | None = None
+        self._goal: GoalRegion | None = None
+        self._dirty = False          # the task changed since the last request was sent
+        self._future = None          # request in flight
+        self._sent_at = 0.0
+        self._placed: list[str] = []  # ids of our boxes in the planning scene
+        self._frame = 'panda_link0'
+        self._attacks = 0
+        self._waiting_logged = False
+        self.create_timer(0.1, self._tick)
+
+    def _check_parameters(self, params) -> SetParametersResult:
+        for p in params:
+            if p.name == 'budget' and not (isinstance(p.value, int)
+                                           and 1 <= p.value <= AttackConfig.max_budget):
+                return SetParametersResult(
+                    successful=False, reason=f'budget must be in 1..{AttackConfig.max_budget}')
+            if p.name in ('box_size_m', 'timeout_s') and not (
+                    isinstance(p.value, float) and p.value >= 0):
+                return SetParametersResult(successful=False, reason=f'{p.name} must be >= 0')
+            if p.name == 'server' and hasattr(self, '_client'):
+                return SetParametersResult(successful=False,
+                                           reason='server is read at start-up only')
+        if any(p.name in ('budget', 'method', 'box_size_m', 'seed') for p in params):
+            self._dirty = self._scene is not None and self._goal is not None
+        return SetParametersResult(successful=True)
+
+    # -- inputs ------------------------------------------------------------------------------
+
+    def _on_scene(self, msg: Scene) -> None:
+        self._scene = msg
+        self._frame = msg.header.frame_id or self._frame
+        self._dirty = True
+        self.get_logger().info(f'scene {msg.name!r}: {len(msg.objects)} objects')
+        self._tick()
+
+    def _on_goal(self, msg: GoalRegion) -> None:
+        self._goal = msg
+        self._dirty = True
+        self.get_logger().info('goal region received')
+        self._tick()
+
+    # -- requests ----------------------------------------------------------------------------
+
+    def _tick(self) -> None:
+        """Send one request when the task changed and none is in flight; watch timeouts."""
+        try:
+            if self._future is not None:
+                if time.monotonic() - self._sent_at > self.get_parameter('timeout_s').value:
+                    self._client.remove_pending_request(self._future)
+                    self._future = None
+                    self.get_logger().error('attack request timed out; removing old boxes')
+                    self._publish([])
+                    self._dirty = True  # try again
+                return
+            if not self._dirty or self._scene is None or self._goal is None:
+                return
+            if not self._client.service_is_ready():
+                if not self._waiting_logged:
+                    self.get_logger().info(f'waiting for {self._client.srv_name}')
+                    self._waiting_logged = True
+                return
+            req = Attack.Request()
+            req.scene = list(self._scene.objects)
+            req.start_state = self._scene.start_state
+            req.goal_region = self._goal
+            req.budget = int(self.get_parameter('budget').value)
+            req.method = str(self.get_parameter('method').value)
+            req.box_size = float(self.get_parameter('box_size_m').value)
+            req.seed = int(self.get_parameter('seed').value)
+            self._dirty = False
+            self._sent_at = time.monotonic()
+            self._future = self._client.call_async(req)
+            self._future.add_done_callback(self._on_response)
+        except Exception as exc:  # never let a callback take the executor down
+            self.get_logger().error(f'attack request failed: {exc!r}')
+
+    def _on_response(self, future) -> None:
+        try:
+            if future is not self._future:  # timed out and superseded
+                return
+            self._future = None
+            res = future.result()
+            self._attacks += 1
+            if res.error_code.val in (ErrorCodes.SUCCESS, ErrorCodes.PARTIAL):
+                self._publish(list(res.obstacles))
+                self.get_logger().info(
+                    f'attack #{self._attacks}: {len(res.obstacles)} boxes, mass '
+                    f'{res.total_mass:.3f}, {res.compute_time_s * 1e3:.1f} ms ({res.message})')
+            else:
+                self._publish([])
+                self.get_logger().error(
+                    f'attack #{self._attacks} failed: {res.error_code.val} {res.message}')
+        except Exception as exc:
+            self.get_logger().error(f'attack response failed: {exc!r}')
+        self._tick()  # the task may have changed while the request was in flight
+
+    # -- outputs -----------------------------------------------------------------------------
+
+    def _publish(self, obstacles: list) -> None:
+        """REMOVE our previous boxes, ADD the new ones, and replace the markers."""
+        for obj_id in self._placed:
+            msg = CollisionObject(id=obj_id, operation=CollisionObject.REMOVE)
+            msg.header.frame_id = self._frame
+            msg.header.stamp = self.get_clock().now().to_msg()
+            self._objects_pub.publish(msg)
+        markers = MarkerArray(markers=[Marker(ns=MARKER_NS, action=Marker.DELETEALL)])
+        for i, obs in enumerate(obstacles):
+            msg = CollisionObject(id=obs.id, operation=CollisionObject.ADD)
+            msg.header.frame_id = self._frame
+            msg.header.stamp = self.get_clock().now().to_msg()
+            msg.pose.orientation.w = 1.0
+            msg.primitives.append(SolidPrimitive(type=SolidPrimitive.BOX,
+                                                 dimensions=[float(v) for v in obs.size]))
+            msg.primitive_poses.append(obs.pose)
+            self._objects_pub.publish(msg)
+            marker = Marker(ns=MARKER_NS, id=i, type=Marker.CUBE, action=Marker.ADD,
+                            pose=obs.pose)
+            marker.header.frame_id = self._frame
+            marker.scale.x, marker.scale.y, marker.scale.z = (float(v) for v in obs.size)
+            marker.color.r, marker.color.g, marker.color.b, marker.color.a = 0.9, 0.1, 0.1, 0.7
+            markers.markers.append(marker)
+        self._markers_pub.publish(markers)
+        self._placed = [obs.id for obs in obstacles]
+
+
+def main(args=None) -> int:
+    rclpy.init(args=args)
+    node = None
+    try:
+        node = Attacker()
+        rclpy.spin(node)
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        if node is not None:
+            node.destroy_node()
+        rclpy.try_shutdown()
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())

@@ -1,0 +1,261 @@
+"""heatmap_server: answers online attack requests from a heatmap loaded at start-up.
+
+Parameters (defaults = ``advocc_ros.attack.AttackConfig`` and ``RobotSpec``; see
+``config/heatmap_server.yaml``): ``heatmap_file`` (required), the attack parameters, the robot
+description and ``base_frame``. A heatmap that cannot be loaded, or was built for another robot,
+stops the node at start-up with a clear message and exit code 1.
+
+Services:
+- ``~/attack`` (advocc_msgs/srv/Attack): scene objects, start state, goal region, budget,
+  method, box size, seed -> error code (MoveIt values + advocc's own) + message + obstacles +
+  covered mass + compute time. Every bad request gets a code and a message; nothing raises out
+  of a callback, so the node keeps serving.
+- ``~/get_info`` (advocc_msgs/srv/GetInfo): robot, grid, heatmap summary, parameters as JSON.
+"""
+
+from __future__ import annotations
+
+import array
+import dataclasses
+import json
+import math
+import sys
+
+import rclpy
+from advocc_msgs.msg import ErrorCodes
+from advocc_msgs.srv import Attack, GetInfo
+from rcl_interfaces.msg import SetParametersResult
+from rclpy.executors import ExternalShutdownException
+from rclpy.node import Node
+
+from advocc_ros.attack import (METHODS, PLUGIN_METHODS, AttackConfig, AttackStatus, attack,
+                               link_luts, load_method)
+from advocc_ros.conversions import (goal_region_from_msg, obstacle_to_msg, q_from_joint_state,
+                                    scene_from_msgs)
+from advocc_ros.heatmap import HeatmapError, load_heatmap
+from advocc_ros.robot import RobotError, RobotSpec, load_robot
+from advocc_ros.scene import SceneError
+
+# AttackConfig fields exposed as parameters (same names, same defaults).
+_CONFIG_PARAMS = tuple(f.name for f in dataclasses.fields(AttackConfig))
+_ROBOT_PARAMS = {'robot_urdf': 'urdf', 'robot_srdf': 'srdf', 'robot_group': 'group',
+                 'robot_ee_link': 'ee_link'}
+
+STATUS_CODES = {
+    AttackStatus.SUCCESS: ErrorCodes.SUCCESS,
+    AttackStatus.PARTIAL: ErrorCodes.PARTIAL,
+    AttackStatus.INVALID_REQUEST: ErrorCodes.INVALID_REQUEST,
+    AttackStatus.UNKNOWN_METHOD: ErrorCodes.UNKNOWN_METHOD,
+    AttackStatus.INVALID_START: ErrorCodes.INVALID_ROBOT_STATE,
+    AttackStatus.START_IN_COLLISION: ErrorCodes.START_STATE_IN_COLLISION,
+    AttackStatus.INVALID_GOAL: ErrorCodes.INVALID_GOAL_CONSTRAINTS,
+    AttackStatus.INVALID_LINK: ErrorCodes.INVALID_LINK_NAME,
+    AttackStatus.ROBOT_MISMATCH: ErrorCodes.INVALID_ROBOT_STATE,
+}
+
+
+def non_finite_field(msg, path: str = '') -> str | None:
+    """Path of the first NaN/inf number anywhere in a message (nested, arrays), or None."""
+    for name in msg.get_fields_and_field_types():
+        value = getattr(msg, name)
+        where = f'{path}.{name}' if path else name
+        if isinstance(value, float):
+            if not math.isfinite(value):
+                return where
+        elif hasattr(value, 'get_fields_and_field_types'):
+            found = non_finite_field(value, where)
+            if found:
+                return found
+        elif isinstance(value, (list, tuple, array.array)) or hasattr(value, 'dtype'):
+            for i, item in enumerate(value):
+                if hasattr(item, 'get_fields_and_field_types'):
+                    found = non_finite_field(item, f'{where}[{i}]')
+                    if found:
+                        return found
+                elif isinstance(item, float) or hasattr(item, 'dtype'):
+                    if not math.isfinite(float(item)):
+                        return f'{where}[{i}]'
+    return None
+
+
+class HeatmapServer(Node):
+    """Attack service over one heatmap (see the module docstring)."""
+
+    def __init__(self):
+        super().__init__('heatmap_server')
+        self.declare_parameter('heatmap_file', '')
+        for name in _CONFIG_PARAMS:
+            self.declare_parameter(name, getattr(AttackConfig, name))
+        spec = RobotSpec()
+        for param, field in _ROBOT_PARAMS.items():
+            self.declare_parameter(param, getattr(spec, field))
+        self.declare_parameter('base_frame', 'panda_link0')
+        self.add_on_set_parameters_callback(self._check_parameters)
+
+        path = self.get_parameter('heatmap_file').value
+        if not path:
+            raise HeatmapError('parameter heatmap_file is empty: give a heatmap .npz file '
+                               '(--ros-args -p heatmap_file:=FILE)')
+        self._spec = RobotSpec(**{field: self.get_parameter(param).value
+                                  for param, field in _ROBOT_PARAMS.items()})
+        self.robot = load_robot(self._spec)
+        self.heatmap = load_heatmap(path, robot_hash=self.robot.hash)
+        self.cfg = self._config()
+        link_luts(self.robot, self.heatmap.grid.voxel_m / 4)  # warm the cache: ~1 s once
+        self._path = path
+        self._served = 0
+        summary = self.heatmap.summary()
+        self.get_logger().info(
+            f'heatmap {path}: grid {summary["shape"]} x {summary["voxel_m"]} m, '
+            f'{summary["valid_samples"]} samples, robot-only={self.heatmap.robot_only}')
+        self.create_service(Attack, '~/attack', self._on_attack)
+        self.create_service(GetInfo, '~/get_info', self._on_get_info)
+
+    # -- parameters --------------------------------------------------------------------------
+
+    def _config(self) -> AttackConfig:
+        return AttackConfig(**{name: self.get_parameter(name).value for name in _CONFIG_PARAMS})
+
+    def _check_parameters(self, params) -> SetParametersResult:
+        if not hasattr(self, 'cfg'):  # start-up: validated when the config is built
+            return SetParametersResult(successful=True)
+        fixed = {'heatmap_file', 'base_frame', *_ROBOT_PARAMS}
+        values = dataclasses.asdict(self.cfg)
+        for p in params:
+            if p.name in fixed:
+                return SetParametersResult(successful=False,
+                                           reason=f'{p.name} is read at start-up only')
+            if p.name in values:
+                values[p.name] = p.value
+        try:
+            cfg = AttackConfig(**values)
+        except (ValueError, TypeError) as exc:
+            return SetParametersResult(successful=False, reason=str(exc))
+        self.cfg = cfg
+        return SetParametersResult(successful=True)
+
+    # -- services ----------------------------------------------------------------------------
+
+    def _on_attack(self, request: Attack.Request, response: Attack.Response
+                   ) -> Attack.Response:
+        self._served += 1
+        try:
+            response = self._attack(request, response)
+            line = f'attack #{self._served}: {response.error_code.val} {response.message}'
+            if response.error_code.val in (ErrorCodes.SUCCESS, ErrorCodes.PARTIAL):
+                self.get_logger().info(line)
+            else:
+                self.get_logger().warning(line)
+        except Exception as exc:  # never let a callback take the executor down
+            response.error_code.val = ErrorCodes.FAILURE
+            response.message = f'internal error: {exc}'
+            response.obstacles = []
+            self.get_logger().error(f'attack #{self._served} failed: {exc!r}')
+        return response
+
+    def _attack(self, request: Attack.Request, response: Attack.Response) -> Attack.Response:
+        def fail(code: int, message: str) -> Attack.Response:
+            response.error_code.val = code
+            response.message = message
+            return response
+
+        bad = non_finite_field(request)
+        if bad:
+            return fail(ErrorCodes.INVALID_REQUEST, f'{bad}: non-finite number (NaN or inf)')
+        method = request.method or 'ours'
+        if not load_method(method):
+            return fail(ErrorCodes.UNKNOWN_METHOD, f'unknown attack method {method!r}; known: '
+                        f'{sorted(set(METHODS) | set(PLUGIN_METHODS))}')
+        cfg = self.cfg
+        if not 1 <= request.budget <= cfg.max_budget:
+            return fail(ErrorCodes.INVALID_REQUEST,
+                        f'budget must be in 1..{cfg.max_budget}, got {request.budget}')
+        if request.box_size < 0 or request.box_size > cfg.max_box_m:
+            return fail(ErrorCodes.INVALID_REQUEST, f'box_size must be in (0, {cfg.max_box_m}] '
+                        f'm (0: default {cfg.box_size_m}), got {request.box_size}')
+        base = self.get_parameter('base_frame').value
+        frames = {(o.header.frame_id, f'scene[{i}] {o.id!r}')
+                  for i, o in enumerate(request.scene)}
+        frames.add((request.goal_region.header.frame_id, 'goal_region'))
+        for frame, what in sorted(frames):
+            if frame and frame != base:
+                return fail(ErrorCodes.INVALID_REQUEST if what != 'goal_region'
+                            else ErrorCodes.INVALID_GOAL_CONSTRAINTS,
+                            f'{what}: frame {frame!r} is not the robot base frame {base!r} '
+                            '(no tf here)')
+        try:
+            objects = scene_from_msgs(list(request.scene))
+        except SceneError as exc:
+            return fail(ErrorCodes.INVALID_REQUEST, str(exc))
+        try:
+            q_init = q_from_joint_state(self.robot, request.start_state)
+        except RobotError as exc:
+            return fail(ErrorCodes.INVALID_ROBOT_STATE, str(exc))
+        gmsg = request.goal_region
+        if any(v < 0 for v in [*gmsg.position_tolerance, *gmsg.orientation_tolerance]):
+            return fail(ErrorCodes.INVALID_GOAL_CONSTRAINTS,
+                        'goal_region is inverted: tolerances must be >= 0, got position '
+                        f'{list(gmsg.position_tolerance)}, orientation '
+                        f'{list(gmsg.orientation_tolerance)}')
+        try:
+            goal = goal_region_from_msg(gmsg)
+        except SceneError as exc:
+            return fail(ErrorCodes.INVALID_GOAL_CONSTRAINTS, str(exc))
+        result = attack(self.heatmap, self.robot, objects, q_init, goal, int(request.budget),
+                        method, cfg, box_size_m=request.box_size or None, seed=request.seed)
+        response.error_code.val = STATUS_CODES.get(result.status, ErrorCodes.FAILURE)
+        response.message = result.message
+        response.obstacles = [obstacle_to_msg(o, m)
+                              for o, m in zip(result.obstacles, result.masses)]
+        response.total_mass = float(result.total_mass)
+        response.compute_time_s = float(result.compute_s)
+        return response
+
+    def info(self) -> dict:
+        return {
+            'node': self.get_fully_qualified_name(),
+            'heatmap_file': self._path,
+            'heatmap': self.heatmap.summary(),
+            'robot': {'hash': self.robot.hash, 'urdf': self._spec.urdf,
+                      'joints': list(self.robot.joint_names), 'ee_link': self._spec.ee_link,
+                      'base_frame': self.get_parameter('base_frame').value},
+            'grid': self.heatmap.grid.to_data(),
+            'robot_only': self.heatmap.robot_only,
+            'parameters': dataclasses.asdict(self.cfg),
+            'methods': sorted(m for m in set(METHODS) | set(PLUGIN_METHODS)
+                              if m in METHODS or load_method(m)),
+            'requests_served': self._served,
+        }
+
+    def _on_get_info(self, request: GetInfo.Request, response: GetInfo.Response
+                     ) -> GetInfo.Response:
+        try:
+            response.info_json = json.dumps(self.info())
+            response.success, response.message = True, 'ok'
+        except Exception as exc:
+            self.get_logger().error(f'get_info failed: {exc!r}')
+            response.success, response.message = False, f'internal error: {exc}'
+        return response
+
+
+def main(args=None) -> int:
+    rclpy.init(args=args)
+    node = None
+    try:
+        try:
+            node = HeatmapServer()
+        except (HeatmapError, RobotError, ValueError) as exc:  # bad file or parameters
+            rclpy.logging.get_logger('heatmap_server').fatal(f'cannot start: {exc}')
+            return 1
+        rclpy.spin(node)
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        if node is not None:
+            node.destroy_node()
+        rclpy.try_shutdown()
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())

@@ -1,0 +1,284 @@
+"""heatmap_server and attacker as real processes: topics in, obstacles out, bad requests, exits."""
+
+import dataclasses
+import json
+import signal
+import subprocess
+import sys
+import time
+
+import numpy as np
+import pytest
+
+from conftest import REPO
+
+
+@pytest.fixture(scope='module')
+def heatmap_file(tmp_path_factory, table_scene):
+    from advocc_ros.heatmap import HeatmapConfig, build_heatmap, save_heatmap
+    path = tmp_path_factory.mktemp('heatmap') / 'h500.npz'
+    save_heatmap(build_heatmap(table_scene, HeatmapConfig(samples=500), seed=2), path)
+    return path
+
+
+def _start(module, env, *params):
+    args = [sys.executable, '-m', f'advocc_ros.nodes.{module}', '--ros-args']
+    for p in params:
+        args += ['-p', p]
+    return subprocess.Popen(args, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+                            text=True)
+
+
+def _stop(proc, timeout_s=15.0):
+    """SIGINT, then the exit code (killed and failed if it does not exit in time)."""
+    if proc.poll() is None:
+        proc.send_signal(signal.SIGINT)
+    try:
+        return proc.wait(timeout_s)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        proc.wait(5)
+        pytest.fail(f'{proc.args[2]} ignored SIGINT for {timeout_s} s')
+
+
+@pytest.fixture
+def ros(ros_env, monkeypatch):
+    """rclpy in this process on the children's domain; children are always killed."""
+    import rclpy
+
+    for key in ('ROS_DOMAIN_ID', 'ROS_LOCALHOST_ONLY'):
+        monkeypatch.setenv(key, ros_env[key])
+    context = rclpy.Context()
+    rclpy.init(context=context, domain_id=int(ros_env['ROS_DOMAIN_ID']))
+    node = rclpy.create_node('attack_test_client', context=context)
+    executor = rclpy.executors.SingleThreadedExecutor(context=context)
+    executor.add_node(node)
+    children = []
+    try:
+        yield node, executor, children
+    finally:
+        for proc in children:
+            if proc.poll() is None:
+                proc.kill()
+            proc.wait(10)
+        executor.shutdown()
+        node.destroy_node()
+        rclpy.try_shutdown(context=context)
+
+
+def _wait_service(executor, client, proc, timeout_s=60):
+    deadline = time.monotonic() + timeout_s
+    while not client.service_is_ready():
+        assert proc.poll() is None, f'node exited early:\n{proc.stdout.read()}'
+        assert time.monotonic() < deadline, f'{client.srv_name} not up within {timeout_s} s'
+        executor.spin_once(timeout_sec=0.1)
+
+
+def _call(executor, client, request, timeout_s=15):
+    future = client.call_async(request)
+    executor.spin_until_future_complete(future, timeout_sec=timeout_s)
+    assert future.done(), f'no answer within {timeout_s} s'
+    return future.result()
+
+
+def _request(scene, budget=3, method='ours'):
+    from advocc_ros.commands.call import attack_request
+    return attack_request(scene, budget, method)
+
+
+def test_attacker_publishes_what_the_core_computes(ros, ros_env, heatmap_file, table_scene,
+                                                   panda):
+    from advocc_msgs.msg import CollisionObject, GoalRegion, Scene
+    from sensor_msgs.msg import JointState
+    from visualization_msgs.msg import Marker, MarkerArray
+
+    from advocc_ros.attack import attack
+    from advocc_ros.conversions import collision_object_to_msg, goal_region_to_msg
+    from advocc_ros.heatmap import load_heatmap
+    from advocc_ros.nodes.qos import (COLLISION_OBJECT_TOPIC, GOAL_REGION_TOPIC, LATCHED_QOS,
+                                      SCENE_TOPIC)
+    from advocc_ros.scene import Pose, make_box
+
+    node, executor, children = ros
+    server = _start('heatmap_server', ros_env, f'heatmap_file:={heatmap_file}')
+    attacker = _start('attacker', ros_env, 'budget:=3')
+    children += [server, attacker]
+    ops, markers = [], []
+    node.create_subscription(CollisionObject, COLLISION_OBJECT_TOPIC, ops.append, LATCHED_QOS)
+    node.create_subscription(MarkerArray, '/attacker/markers', markers.append, LATCHED_QOS)
+    scene_pub = node.create_publisher(Scene, SCENE_TOPIC, LATCHED_QOS)
+    goal_pub = node.create_publisher(GoalRegion, GOAL_REGION_TOPIC, LATCHED_QOS)
+
+    msg = Scene(name=table_scene.name)
+    msg.header.frame_id = 'panda_link0'
+    msg.objects = [collision_object_to_msg(o, 'panda_link0') for o in table_scene.objects]
+    msg.start_state = JointState(name=list(table_scene.start),
+                                 position=list(table_scene.start.values()))
+    scene_pub.publish(msg)
+    goal_pub.publish(goal_region_to_msg(table_scene.goal, 'panda_link0'))
+
+    def wait_for(count, timeout_s=60):
+        deadline = time.monotonic() + timeout_s
+        while len(ops) < count:
+            for proc in (server, attacker):
+                assert proc.poll() is None, f'{proc.args[2]} exited:\n{proc.stdout.read()}'
+            assert time.monotonic() < deadline, f'{len(ops)} of {count} operations arrived'
+            executor.spin_once(timeout_sec=0.1)
+
+    wait_for(3)
+    q = panda.q_from_names(list(table_scene.start), list(table_scene.start.values()))
+    heatmap = load_heatmap(heatmap_file)
+    expected = attack(heatmap, panda, table_scene.objects, q, table_scene.goal, 3)
+    assert [m.operation for m in ops] == [CollisionObject.ADD] * 3
+    assert [m.id for m in ops] == [o.id for o in expected.obstacles]
+    for m, obj in zip(ops, expected.obstacles):
+        p = m.primitive_poses[0].position
+        assert (p.x, p.y, p.z) == pytest.approx(obj.shapes[0].pose.position_m, abs=1e-9)
+        assert list(m.primitives[0].dimensions) == pytest.approx([0.05] * 3)
+        assert m.header.frame_id == 'panda_link0'
+    deadline = time.monotonic() + 10
+    while not markers and time.monotonic() < deadline:
+        executor.spin_once(timeout_sec=0.1)
+    assert markers[-1].markers[0].action == Marker.DELETEALL
+    assert [m.type for m in markers[-1].markers[1:]] == [Marker.CUBE] * 3
+
+    # A new goal: the previous boxes are removed first, then the new ones added.
+    goal2 = dataclasses.replace(table_scene.goal, center=Pose(
+        (0.55, 0.15, 0.40), table_scene.goal.center.quat_xyzw))
+    goal_pub.publish(goal_region_to_msg(goal2, 'panda_link0'))
+    wait_for(9)
+    assert [(m.operation, m.id) for m in ops[3:6]] == \
+        [(CollisionObject.REMOVE, f'adv_{i}') for i in range(3)]
+    expected2 = attack(heatmap, panda, table_scene.objects, q, goal2, 3)
+    got = [(m.primitive_poses[0].position.x, m.primitive_poses[0].position.y,
+            m.primitive_poses[0].position.z) for m in ops[6:9]]
+    assert np.allclose(got, expected2.centers_m, atol=1e-9)
+
+    # A new scene with an object where the first box was: new boxes elsewhere.
+    blocker = make_box('blocker', expected.centers_m[0], (0.06, 0.06, 0.06))
+    msg.objects = msg.objects + [collision_object_to_msg(blocker, 'panda_link0')]
+    scene_pub.publish(msg)
+    wait_for(15)
+    assert [(m.operation, m.id) for m in ops[9:12]] == \
+        [(CollisionObject.REMOVE, f'adv_{i}') for i in range(3)]
+    expected3 = attack(heatmap, panda, table_scene.objects + (blocker,), q, goal2, 3)
+    got = [(m.primitive_poses[0].position.x, m.primitive_poses[0].position.y,
+            m.primitive_poses[0].position.z) for m in ops[12:15]]
+    assert np.allclose(got, expected3.centers_m, atol=1e-9)
+    assert not np.allclose(got, expected2.centers_m)
+
+    assert _stop(attacker) == 0
+    assert _stop(server) == 0
+
+
+def test_server_answers_bad_requests_and_keeps_serving(ros, ros_env, heatmap_file,
+                                                       table_scene):
+    from advocc_msgs.msg import ErrorCodes
+    from advocc_msgs.srv import Attack, GetInfo
+
+    node, executor, children = ros
+    server = _start('heatmap_server', ros_env, f'heatmap_file:={heatmap_file}',
+                    'max_budget:=20')
+    children.append(server)
+    client = node.create_client(Attack, '/heatmap_server/attack')
+    _wait_service(executor, client, server)
+
+    good = _call(executor, client, _request(table_scene))
+    assert good.error_code.val == ErrorCodes.SUCCESS, good.message
+    assert [o.id for o in good.obstacles] == ['adv_0', 'adv_1', 'adv_2']
+    assert good.total_mass == pytest.approx(sum(o.covered_mass for o in good.obstacles))
+    assert 0 < good.compute_time_s < 5
+
+    def bad(**edit):
+        req = _request(table_scene)
+        for path, value in edit.items():
+            obj, *attrs, last = path.split('__')
+            target = req if obj == 'req' else getattr(req, obj)
+            for a in attrs:
+                target = target[int(a)] if a.isdigit() else getattr(target, a)
+            setattr(target, last, value)
+        return req
+
+    cases = [
+        (bad(req__budget=0), ErrorCodes.INVALID_REQUEST, 'budget'),
+        (bad(req__budget=21), ErrorCodes.INVALID_REQUEST, 'budget'),
+        (bad(req__method='pfa'), ErrorCodes.UNKNOWN_METHOD, 'pfa'),
+        (bad(req__method='nope'), ErrorCodes.UNKNOWN_METHOD, 'nope'),
+        (bad(req__box_size=float('nan')), ErrorCodes.INVALID_REQUEST, 'box_size'),
+        (bad(req__box_size=-0.05), ErrorCodes.INVALID_REQUEST, 'box_size'),
+        (bad(goal_region__center__position__x=float('inf')), ErrorCodes.INVALID_REQUEST,
+         'goal_region.center.position.x'),
+        (bad(scene__0__primitive_poses__0__position__z=float('nan')),
+         ErrorCodes.INVALID_REQUEST, 'scene[0].primitive_poses[0].position.z'),
+        (bad(start_state__position=[0.0, float('nan'), 0, -2, 0, 1.5, 0.7]),
+         ErrorCodes.INVALID_REQUEST, 'start_state.position[1]'),
+        (bad(goal_region__position_tolerance=[0.02, -0.01, 0.02]),
+         ErrorCodes.INVALID_GOAL_CONSTRAINTS, 'inverted'),
+        (bad(goal_region__position_tolerance=[0.0] * 3,
+             goal_region__orientation_tolerance=[0.0] * 3),
+         ErrorCodes.INVALID_GOAL_CONSTRAINTS, 'empty'),
+        (bad(goal_region__link_name='tool0'), ErrorCodes.INVALID_LINK_NAME, 'tool0'),
+        (bad(goal_region__header__frame_id='world'), ErrorCodes.INVALID_GOAL_CONSTRAINTS,
+         'world'),
+        (bad(start_state__name=[f'joint{i}' for i in range(1, 8)]),
+         ErrorCodes.INVALID_ROBOT_STATE, 'missing joints'),
+        (bad(start_state__position=[0.0, -0.785, 0, -2.356, 0, 1.571, 9.0]),
+         ErrorCodes.INVALID_ROBOT_STATE, 'limits'),
+        (bad(start_state__position=[0.0, 1.5, 0, -0.2, 0, 1.571, 0.785]),
+         ErrorCodes.START_STATE_IN_COLLISION, 'collision'),
+    ]
+    for req, code, words in cases:
+        res = _call(executor, client, req)
+        assert res.error_code.val == code, (words, res.error_code.val, res.message)
+        assert words in res.message and not res.obstacles
+    # Still serving, same answer as before.
+    again = _call(executor, client, _request(table_scene))
+    assert again.error_code.val == ErrorCodes.SUCCESS
+    assert [o.pose.position.x for o in again.obstacles] == \
+        [o.pose.position.x for o in good.obstacles]
+    partial = _call(executor, client, _request(table_scene, budget=20))
+    assert partial.error_code.val in (ErrorCodes.SUCCESS, ErrorCodes.PARTIAL)
+
+    info_client = node.create_client(GetInfo, '/heatmap_server/get_info')
+    info = json.loads(_call(executor, info_client, GetInfo.Request()).info_json)
+    assert info['robot']['joints'][0] == 'panda_joint1'
+    assert info['grid']['voxel_m'] == 0.02 and info['parameters']['max_budget'] == 20
+    assert info['requests_served'] == len(cases) + 3
+
+    # The CLI client sees the same server.
+    out = subprocess.run([sys.executable, '-m', 'advocc_ros.cli', 'call', 'attack', '--scene',
+                          'table_pick', '--budget', '3', '--json', '--timeout', '20'],
+                         env=ros_env, capture_output=True, text=True, timeout=60)
+    assert out.returncode == 0, out.stderr
+    data = json.loads(out.stdout)
+    assert [o['pose']['position'][0] for o in data['obstacles']] == \
+        pytest.approx([o.pose.position.x for o in good.obstacles])
+    assert data['round_trip_ms'] > 0
+    assert _stop(server) == 0
+
+
+def test_server_refuses_a_corrupted_heatmap(ros_env, tmp_path):
+    path = tmp_path / 'broken.npz'
+    path.write_bytes(b'PK\x03\x04 this is not a heatmap')
+    proc = _start('heatmap_server', ros_env, f'heatmap_file:={path}')
+    try:
+        out, _ = proc.communicate(timeout=60)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait(5)
+    assert proc.returncode == 1
+    assert 'cannot start' in out and 'not a readable heatmap file' in out and str(path) in out
+
+
+def test_config_files_match_the_core_defaults():
+    import yaml
+
+    from advocc_ros.attack import AttackConfig
+    server = yaml.safe_load((REPO / 'config' / 'heatmap_server.yaml').read_text())
+    params = server['/heatmap_server']['ros__parameters']
+    for field in dataclasses.fields(AttackConfig):
+        assert params[field.name] == getattr(AttackConfig(), field.name), field.name
+    attacker = yaml.safe_load((REPO / 'config' / 'attacker.yaml').read_text())
+    assert set(attacker['/attacker']['ros__parameters']) == \
+        {'server', 'budget', 'method', 'box_size_m', 'seed', 'timeout_s'}
