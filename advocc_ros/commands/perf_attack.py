@@ -1,0 +1,176 @@
+"""``advocc perf attack``: online attack compute time and heatmap_server round trip.
+
+Wired into ``advocc perf`` by ``commands/perf.py`` calling :func:`register_attack`.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import pathlib
+import signal
+import subprocess
+import sys
+import tempfile
+import time
+
+import numpy as np
+
+from advocc_ros.cli import UserError
+
+PAPER_ONLINE_S = 1.27  # paper §V: online attack generation time
+
+
+def register_attack(sub: argparse._SubParsersAction) -> None:
+    """Add ``attack`` to the ``advocc perf`` subcommands."""
+    p = sub.add_parser('attack', help='time the online attack (core and service round trip)')
+    p.add_argument('--scene', default='table_pick')
+    p.add_argument('--heatmap', help='heatmap file (default: build one with --samples)')
+    p.add_argument('--samples', type=int, default=3000,
+                   help='samples of the heatmap built when --heatmap is not given')
+    p.add_argument('--budgets', default='1,3,5', help='comma-separated budgets')
+    p.add_argument('--method', default='ours')
+    p.add_argument('--repeats', type=int, default=30, help='core runs per budget')
+    p.add_argument('--calls', type=int, default=30, help='service calls per budget')
+    p.add_argument('--no-service', action='store_true', help='skip the round-trip benchmark')
+    p.add_argument('--domain', type=int, help='ROS_DOMAIN_ID for the server (default: private)')
+    p.add_argument('--json', action='store_true')
+    p.set_defaults(func=_perf_attack)
+
+
+def _stats_ms(values_s: list[float]) -> dict:
+    ms = np.asarray(values_s) * 1e3
+    return {'median_ms': round(float(np.median(ms)), 3),
+            'p95_ms': round(float(np.percentile(ms, 95)), 3),
+            'min_ms': round(float(ms.min()), 3), 'n': int(ms.size)}
+
+
+def _core(heatmap, robot, scene, q, budgets, method, repeats) -> dict:
+    from advocc_ros.attack import attack
+
+    attack(heatmap, robot, scene.objects, q, scene.goal, budgets[0], method)  # warm caches
+    out = {}
+    for budget in budgets:
+        compute, wall, boxes = [], [], 0
+        for rep in range(max(repeats, 1)):
+            t0 = time.perf_counter()
+            res = attack(heatmap, robot, scene.objects, q, scene.goal, budget, method,
+                         seed=rep)
+            wall.append(time.perf_counter() - t0)
+            compute.append(res.compute_s)
+            boxes = len(res.obstacles)
+        out[str(budget)] = {'compute': _stats_ms(compute), 'call_wall': _stats_ms(wall),
+                            'boxes': boxes, 'status': res.status.value}
+    return out
+
+
+def _service(heatmap_path, scene, budgets, method, calls, domain) -> dict:
+    from advocc_msgs.msg import ErrorCodes
+    from advocc_msgs.srv import Attack
+
+    from advocc_ros.commands.call import ServiceClient, attack_request
+
+    env = dict(os.environ, ROS_DOMAIN_ID=str(domain), PYTHONUNBUFFERED='1')
+    os.environ['ROS_DOMAIN_ID'] = str(domain)  # this process's client joins the same domain
+    log = tempfile.TemporaryFile(mode='w+')
+    proc = subprocess.Popen([sys.executable, '-m', 'advocc_ros.nodes.heatmap_server',
+                             '--ros-args', '-p', f'heatmap_file:={heatmap_path}'],
+                            env=env, stdout=log, stderr=subprocess.STDOUT, text=True)
+    try:
+        with ServiceClient('advocc_perf') as client:
+            t0 = time.perf_counter()
+            deadline = time.monotonic() + 60
+            service = '/heatmap_server/attack'
+            while True:
+                if proc.poll() is not None:
+                    log.seek(0)
+                    raise UserError(f'heatmap_server exited ({proc.returncode}):\n{log.read()}')
+                try:
+                    client.client(Attack, service, 1.0)
+                    break
+                except UserError:
+                    if time.monotonic() > deadline:
+                        raise
+            startup_s = time.perf_counter() - t0
+            out = {'server_startup_s': round(startup_s, 3)}
+            for budget in budgets:
+                req = attack_request(scene, budget, method)
+                client.call(Attack, service, req, 30.0)  # warm-up
+                rtt, compute = [], []
+                for _ in range(max(calls, 1)):
+                    t0 = time.perf_counter()
+                    res = client.call(Attack, service, req, 30.0)
+                    rtt.append(time.perf_counter() - t0)
+                    compute.append(res.compute_time_s)
+                    if res.error_code.val not in (ErrorCodes.SUCCESS, ErrorCodes.PARTIAL):
+                        raise UserError(f'attack failed: {res.error_code.val} {res.message}')
+                out[str(budget)] = {'round_trip': _stats_ms(rtt),
+                                    'server_compute': _stats_ms(compute)}
+            return out
+    finally:
+        if proc.poll() is None:
+            proc.send_signal(signal.SIGINT)
+            try:
+                proc.wait(15)
+            except subprocess.TimeoutExpired:
+                proc.kill()
+                proc.wait(5)
+        log.close()
+
+
+def _perf_attack(args: argparse.Namespace) -> int:
+    from advocc_ros.commands.perf import machine
+    from advocc_ros.heatmap import HeatmapConfig, HeatmapError, build_heatmap, load_heatmap, \
+        save_heatmap
+    from advocc_ros.paths import scene_path
+    from advocc_ros.robot import load_robot
+    from advocc_ros.scene import SceneError, load_scene
+
+    try:
+        budgets = [int(b) for b in args.budgets.split(',') if b.strip()]
+        scene = load_scene(scene_path(args.scene))
+    except (ValueError, SceneError) as exc:
+        raise UserError(str(exc)) from None
+    if scene.start is None or scene.goal is None:
+        raise UserError(f'{args.scene}: the scene needs a start and a goal')
+    robot = load_robot(scene.robot)
+    q = robot.q_from_names(list(scene.start), list(scene.start.values()))
+    with tempfile.TemporaryDirectory(prefix='advocc_perf_') as tmp:
+        if args.heatmap:
+            path = pathlib.Path(args.heatmap)
+            try:
+                heatmap = load_heatmap(path, robot_hash=robot.hash)
+            except HeatmapError as exc:
+                raise UserError(str(exc)) from None
+        else:
+            heatmap = build_heatmap(scene, HeatmapConfig(samples=args.samples), seed=0)
+            path = pathlib.Path(tmp) / 'heatmap.npz'
+            save_heatmap(heatmap, path)
+        report = {
+            'benchmark': 'online attack', 'scene': scene.name, 'method': args.method,
+            'heatmap': str(args.heatmap or f'built: {args.samples} samples'),
+            'grid_shape': list(heatmap.grid.shape), 'voxel_m': heatmap.grid.voxel_m,
+            'core': _core(heatmap, robot, scene, q, budgets, args.method, args.repeats),
+        }
+        if not args.no_service:
+            domain = args.domain if args.domain is not None else 150 + os.getpid() % 80
+            report['service'] = _service(path, scene, budgets, args.method, args.calls, domain)
+    report['paper_online_s'] = PAPER_ONLINE_S
+    report['machine'] = machine()
+    if args.json:
+        print(json.dumps(report, indent=2))
+    else:
+        print(f'online attack, {scene.name}, method {args.method}, grid '
+              f'{report["grid_shape"]} x {report["voxel_m"]} m')
+        for budget in budgets:
+            core = report['core'][str(budget)]['compute']
+            line = (f'  M={budget}: core {core["median_ms"]:.1f} ms median, '
+                    f'{core["p95_ms"]:.1f} ms p95')
+            if 'service' in report:
+                rtt = report['service'][str(budget)]['round_trip']
+                line += (f'; service round trip {rtt["median_ms"]:.1f} ms median, '
+                         f'{rtt["p95_ms"]:.1f} ms p95')
+            print(line)
+        print(f'  paper: {PAPER_ONLINE_S * 1e3:.0f} ms')
+    return 0
