@@ -185,27 +185,37 @@ def box_sum(values: np.ndarray, k: int) -> np.ndarray:
     return out
 
 
-def box_distance(mask: np.ndarray, voxel_m: float, half_m: float, max_m: float) -> np.ndarray:
+def box_distance(mask: np.ndarray, voxel_m: float, half_m: float, max_m: float,
+                 crop: tuple[slice, slice, slice] | None = None) -> np.ndarray:
     """Distance [m] from the closed box (half-edge ``half_m``) centred on each voxel centre to
-    the nearest True voxel centre of ``mask``; ``inf`` beyond ``max_m``.
+    the nearest True voxel centre of ``mask``; ``inf`` beyond ``max_m``. ``crop``: only this
+    part of the output is wanted (the input around it still counts).
 
-    Exact on the lattice: the squared distance is a sum of per-axis costs
+    Exact on the lattice (float32): the squared distance is a sum of per-axis costs
     ``max(|dx| - half, 0)^2``, so three 1-D min-convolutions (generalized distance transform)
-    give it, each over the few offsets that can stay within ``max_m``.
+    give it, each over the few offsets that can stay within ``max_m``; each pass then drops
+    the rows of its axis outside ``crop``.
     """
     reach = int(math.ceil((max_m + half_m) / voxel_m))
-    out = np.where(mask, 0.0, np.inf)
+    out = np.where(mask, np.float32(0), np.float32(np.inf))
     for axis in range(3):
         acc = out.copy()
-        for o in range(1, reach + 1):
+        tmp = np.empty_like(out)
+        for o in range(1, min(reach, out.shape[axis] - 1) + 1):
             cost = max(o * voxel_m - half_m, 0.0) ** 2
             if cost > max_m ** 2:
                 break
-            shifted = out + cost
-            _shift_add(shifted, acc, o, axis, np.minimum)
-            _shift_add(shifted, acc, -o, axis, np.minimum)
+            n = out.shape[axis]
+            for dst, src in ((slice(o, None), slice(None, n - o)),
+                             (slice(None, n - o), slice(o, None))):
+                d = tuple(dst if a == axis else slice(None) for a in range(3))
+                s = tuple(src if a == axis else slice(None) for a in range(3))
+                np.add(out[s], np.float32(cost), out=tmp[d])
+                np.minimum(acc[d], tmp[d], out=acc[d])
         out = acc
-    return np.sqrt(out)
+        if crop is not None:
+            out = out[tuple(crop[a] if a == axis else slice(None) for a in range(3))]
+    return np.sqrt(out, dtype=np.float64)
 
 
 def _ball_offsets(radius_vox: float) -> np.ndarray:
@@ -468,8 +478,8 @@ def search_region(heatmap: Heatmap, robot: RobotModel, objects: tuple[SceneObjec
     free = heatmap.free[win] & ~_occupied(sub, shapes)
     weights = np.where(free, heatmap.values[win], 0.0)
     in_window = np.zeros(free.shape, dtype=bool)
-    in_window[tuple(slice(max(c_lo[a] - lo[a], 0), max(c_hi[a] - lo[a], 0))
-                    for a in range(3))] = True
+    crop = tuple(slice(max(c_lo[a] - lo[a], 0), max(c_hi[a] - lo[a], 0)) for a in range(3))
+    in_window[crop] = True
     cand = in_window & free & (weights > 0)
     stats['free_positive'] = int(cand.sum())
     idx = np.argwhere(cand)
@@ -477,7 +487,7 @@ def search_region(heatmap: Heatmap, robot: RobotModel, objects: tuple[SceneObjec
     cand[tuple(idx[far].T)] = False
     stats['corridor'] = int(cand.sum())
     # The box fits: no non-free voxel centre inside it (U(c) in V_free).
-    cand &= box_distance(~free, grid.voxel_m, half, _CONTACT_TOL_M) > 0
+    cand[crop] &= box_distance(~free, grid.voxel_m, half, _CONTACT_TOL_M, crop) > 0
     stats['box_fits'] = int(cand.sum())
 
     # Clearance from the robot at q_init (+ the hand at a goal configuration).
@@ -501,7 +511,8 @@ def search_region(heatmap: Heatmap, robot: RobotModel, objects: tuple[SceneObjec
     else:
         log.info('goal IK did not converge: only the goal box is kept clear')
     if cfg.d_safe_m > 0:
-        cand &= box_distance(protected, grid.voxel_m, half, cfg.d_safe_m) >= cfg.d_safe_m
+        cand[crop] &= box_distance(protected, grid.voxel_m, half, cfg.d_safe_m, crop) \
+            >= cfg.d_safe_m
     stats['robot_clear'] = int(cand.sum())
 
     # Clearance from G's position box: voxel centres within half a voxel diagonal of it mark
@@ -511,8 +522,8 @@ def search_region(heatmap: Heatmap, robot: RobotModel, objects: tuple[SceneObjec
     slack = grid.voxel_m * math.sqrt(3) / 2
     near_goal = _near_box(sub, T_c, tol, slack)
     if cfg.d_safe_m > 0:
-        cand &= (box_distance(near_goal, grid.voxel_m, half, cfg.d_safe_m)
-                 >= cfg.d_safe_m - slack)
+        cand[crop] &= (box_distance(near_goal, grid.voxel_m, half, cfg.d_safe_m, crop)
+                       >= cfg.d_safe_m - slack)
     checks.append((coal.Box(*np.maximum(2 * tol, 1e-9)), _tf(T_c), cfg.d_safe_m,
                    'goal region'))
     stats['goal_clear'] = int(cand.sum())
