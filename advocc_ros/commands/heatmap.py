@@ -9,8 +9,7 @@ import sys
 from advocc_ros.cli import UserError
 from advocc_ros.heatmap import (HeatmapConfig, build_heatmap, load_heatmap, merge_heatmaps,
                                 save_heatmap)
-from advocc_ros.paths import scene_path
-from advocc_ros.scene import load_scene
+from advocc_ros.commands.common import add_scene_args, scene_from_args
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -18,7 +17,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     hsub = parser.add_subparsers(dest='heatmap_command', required=True)
 
     build = hsub.add_parser('build', help='sample valid configurations and accumulate H')
-    build.add_argument('--scene', required=True, help='scene YAML (or a name in config/scenes)')
+    add_scene_args(build)
     build.add_argument('--samples', type=int, default=HeatmapConfig.samples,
                        help='valid configurations N_off (default %(default)s)')
     build.add_argument('--out', required=True, help='output .npz file')
@@ -47,7 +46,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     plot = hsub.add_parser('plot', help='slices through the peak (paper Fig. 4)')
     plot.add_argument('file')
     plot.add_argument('--out', required=True, help='PNG file')
-    plot.add_argument('--scene', help='scene YAML: draw its start/goal and corridor')
+    add_scene_args(plot, required=False)  # the scene's start/goal and corridor are drawn
     plot.add_argument('--obstacles', help='obstacles YAML: draw the placed boxes')
     plot.add_argument('--at', help='slice through x,y,z [m] instead of the peak')
     plot.set_defaults(func=_plot)
@@ -71,7 +70,7 @@ def _build(args) -> int:
         assert len(shard) == 2 and 0 <= shard[0] < shard[1]
     except (ValueError, AssertionError):
         raise UserError(f'--shard: expected I/K with 0 <= I < K, got {args.shard!r}') from None
-    scene = load_scene(scene_path(args.scene))
+    scene = scene_from_args(args)
     cfg = HeatmapConfig(samples=args.samples, voxel_m=args.voxel, robot_only=args.robot_only)
     from tqdm import tqdm
     with tqdm(total=args.samples, unit='q', desc='heatmap', file=sys.stderr,
@@ -110,7 +109,7 @@ def _plot(args) -> int:
             raise UserError(f'--at: expected x,y,z in metres, got {args.at!r}') from None
         if len(at) != 3:
             raise UserError(f'--at: expected 3 numbers, got {args.at!r}')
-    scene = load_scene(scene_path(args.scene)) if args.scene else None
+    scene = scene_from_args(args)
     obstacles = None
     if args.obstacles:
         from advocc_ros.scene import objects_from_data, read_yaml
