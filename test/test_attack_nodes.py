@@ -282,3 +282,17 @@ def test_config_files_match_the_core_defaults():
     attacker = yaml.safe_load((REPO / 'config' / 'attacker.yaml').read_text())
     assert set(attacker['/attacker']['ros__parameters']) == \
         {'server', 'budget', 'method', 'box_size_m', 'seed', 'timeout_s'}
+
+
+def test_run_attack_nodes_for_the_demo(ros_env, monkeypatch, heatmap_file, table_scene,
+                                       tmp_path):
+    from advocc_ros.attack import load_obstacles
+    from advocc_ros.attack_demo import run_attack_nodes
+
+    monkeypatch.setenv('ROS_LOCALHOST_ONLY', ros_env['ROS_LOCALHOST_ONLY'])
+    out = tmp_path / 'obstacles.yaml'
+    report = run_attack_nodes(heatmap_file, table_scene, out, budget=2,
+                              domain=int(ros_env['ROS_DOMAIN_ID']), timeout_s=60)
+    assert report['exit_codes'] == {'heatmap_server': 0, 'attacker': 0}
+    objects, meta = load_obstacles(out)
+    assert [o.id for o in objects] == ['adv_0', 'adv_1'] and meta['budget'] == 2

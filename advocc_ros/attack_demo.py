@@ -1,0 +1,113 @@
+"""The online attack through the ROS graph, for ``advocc demo`` (issue 3, "done when").
+
+:func:`run_attack_nodes` starts ``heatmap_server`` and ``attacker`` as child processes on a
+private ROS domain, publishes the scene and goal region on their latched topics, collects the
+boxes the attacker adds on ``/advocc/collision_object``, writes them as an obstacles file, and
+always stops the children.
+"""
+
+from __future__ import annotations
+
+import os
+import pathlib
+import signal
+import subprocess
+import sys
+import tempfile
+import time
+
+from advocc_ros.scene import Scene, make_box, objects_to_data, save_yaml_atomic
+
+
+def _stop(proc: subprocess.Popen, timeout_s: float = 15.0) -> int:
+    if proc.poll() is None:
+        proc.send_signal(signal.SIGINT)
+        try:
+            proc.wait(timeout_s)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait(5)
+    return proc.returncode
+
+
+def run_attack_nodes(heatmap_file: str | pathlib.Path, scene: Scene, out: str | pathlib.Path,
+                     budget: int = 3, method: str = 'ours', timeout_s: float = 90.0,
+                     domain: int | None = None) -> dict:
+    """Attack ``scene``'s task through the nodes; returns what the attacker published.
+
+    Raises ``RuntimeError`` (with the nodes' output) if no boxes arrive within ``timeout_s``.
+    """
+    import rclpy
+    from advocc_msgs.msg import CollisionObject, GoalRegion, Scene as SceneMsg
+    from rclpy.executors import SingleThreadedExecutor
+    from sensor_msgs.msg import JointState
+
+    from advocc_ros.conversions import collision_object_to_msg, goal_region_to_msg
+    from advocc_ros.nodes.qos import (COLLISION_OBJECT_TOPIC, GOAL_REGION_TOPIC, LATCHED_QOS,
+                                      SCENE_TOPIC)
+
+    if scene.start is None or scene.goal is None:
+        raise ValueError(f'scene {scene.name!r} needs a start and a goal')
+    domain = 150 + os.getpid() % 80 if domain is None else domain
+    env = dict(os.environ, ROS_DOMAIN_ID=str(domain), PYTHONUNBUFFERED='1')
+    logs = [tempfile.TemporaryFile(mode='w+') for _ in range(2)]
+    procs = [subprocess.Popen([sys.executable, '-m', f'advocc_ros.nodes.{module}', '--ros-args',
+                               *[a for p in params for a in ('-p', p)]],
+                              env=env, stdout=log, stderr=subprocess.STDOUT, text=True)
+             for module, params, log in (
+                 ('heatmap_server', [f'heatmap_file:={heatmap_file}'], logs[0]),
+                 ('attacker', [f'budget:={int(budget)}', f'method:={method}'], logs[1]))]
+    context = rclpy.Context()
+    rclpy.init(context=context, domain_id=domain)
+    node = rclpy.create_node('advocc_demo_feeder', context=context)
+    executor = SingleThreadedExecutor(context=context)
+    executor.add_node(node)
+    added: list = []
+    try:
+        node.create_subscription(
+            CollisionObject, COLLISION_OBJECT_TOPIC,
+            lambda m: added.append(m) if m.operation == CollisionObject.ADD else None,
+            LATCHED_QOS)
+        msg = SceneMsg(name=scene.name)
+        msg.header.frame_id = scene.frame
+        msg.objects = [collision_object_to_msg(o, scene.frame) for o in scene.objects]
+        msg.start_state = JointState(name=list(scene.start),
+                                     position=[float(v) for v in scene.start.values()])
+        node.create_publisher(SceneMsg, SCENE_TOPIC, LATCHED_QOS).publish(msg)
+        node.create_publisher(GoalRegion, GOAL_REGION_TOPIC, LATCHED_QOS).publish(
+            goal_region_to_msg(scene.goal, scene.frame))
+        t0 = time.monotonic()
+        while len(added) < budget:
+            if any(p.poll() is not None for p in procs) or time.monotonic() - t0 > timeout_s:
+                break
+            executor.spin_once(timeout_sec=0.1)
+        # A PARTIAL attack adds fewer boxes: give late ones a moment.
+        settle = time.monotonic() + (0.5 if len(added) >= budget else 2.0)
+        while time.monotonic() < settle and len(added) < budget:
+            executor.spin_once(timeout_sec=0.1)
+        elapsed = time.monotonic() - t0
+    finally:
+        executor.shutdown()
+        node.destroy_node()
+        rclpy.try_shutdown(context=context)
+        codes = [_stop(p) for p in procs]
+    output = []
+    for log in logs:
+        log.seek(0)
+        output.append(log.read())
+        log.close()
+    if not added:
+        raise RuntimeError('the attacker published no boxes within '
+                           f'{timeout_s:g} s\n--- heatmap_server:\n{output[0]}\n'
+                           f'--- attacker:\n{output[1]}')
+    boxes = [make_box(m.id, (m.primitive_poses[0].position.x, m.primitive_poses[0].position.y,
+                             m.primitive_poses[0].position.z),
+                      tuple(float(v) for v in m.primitives[0].dimensions)) for m in added]
+    data = {'format': 'advocc_obstacles', 'version': 1, 'method': method, 'budget': budget,
+            'source': 'heatmap_server + attacker nodes', 'heatmap_file': str(heatmap_file),
+            'scene': {'name': scene.name, 'objects_hash': scene.objects_hash()},
+            'objects': objects_to_data(boxes)}
+    save_yaml_atomic(out, data)
+    return {'obstacles': data['objects'], 'seconds_to_boxes': round(elapsed, 3),
+            'exit_codes': {'heatmap_server': codes[0], 'attacker': codes[1]},
+            'out': str(out), 'logs': {'heatmap_server': output[0], 'attacker': output[1]}}
