@@ -114,6 +114,19 @@ def _numbers(data: Any, where: str, keys: str) -> np.ndarray:
     return arr
 
 
+def _floats(data: Any, where: str) -> np.ndarray:
+    """A list of finite numbers of any length."""
+    if not isinstance(data, list):
+        raise SceneError(f'{where}: expected a list of numbers, got {data!r}')
+    try:
+        arr = np.asarray(data, dtype=float).reshape(len(data))
+    except (TypeError, ValueError):
+        raise SceneError(f'{where}: expected numbers, got {data!r}') from None
+    if not np.all(np.isfinite(arr)):
+        raise SceneError(f'{where}: values must be finite, got {data!r}')
+    return arr
+
+
 def _pose(data: Any, where: str) -> pin.SE3:
     if data is None:
         return pin.SE3.Identity()
@@ -148,7 +161,7 @@ def _primitive(prim: Any, where: str, pose: pin.SE3) -> Shape:
     if not isinstance(dims, list) or len(dims) != _DIMS[kind]:
         layout = {'box': '[x, y, z]', 'sphere': '[radius]', 'cylinder': '[height, radius]'}[kind]
         raise SceneError(f'{where}.dimensions: a {kind} needs {layout}, got {dims!r}')
-    arr = _numbers(dims, f'{where}.dimensions', 'xyz'[:len(dims)])
+    arr = _floats(dims, f'{where}.dimensions')
     if not np.all(arr > 0):
         raise SceneError(f'{where}.dimensions: values must be > 0, got {dims!r}')
     return Shape(kind, tuple(arr.tolist()), Pose.from_se3(pose))
@@ -222,9 +235,8 @@ def _joint_state(data: Any, where: str, robot: RobotModel) -> dict[str, float]:
         raise SceneError(f'{where}.name: no joint names')
     if not all(isinstance(n, str) for n in names):
         raise SceneError(f'{where}.name: expected joint names (strings), got {names!r}')
-    arr = _numbers(positions, f'{where}.position', ['p'] * len(positions)) if positions else []
     try:
-        q = robot.q_from_names(names, list(arr), where)
+        q = robot.q_from_names(names, list(_floats(positions, f'{where}.position')), where)
     except RobotError as exc:
         raise SceneError(str(exc)) from None
     return dict(zip(robot.joint_names, q.tolist()))
@@ -267,8 +279,11 @@ def load_request(path: str | pathlib.Path, robot: RobotModel) -> MbmRequest:
         if not isinstance(name, str) or not name:
             raise SceneError(f'{w}.joint_constraints[{k}].joint_name: expected a joint name, '
                              f'got {name!r}')
+        if jc.get('position') is None:
+            raise SceneError(f'{w}.joint_constraints[{k}].position: missing')
         names.append(name)
-        positions.append(jc.get('position'))
+        positions.append(float(_numbers([jc.get('position')],
+                                        f'{w}.joint_constraints[{k}].position', 'p')[0]))
     goal = _joint_state({'name': names, 'position': positions}, f'{w}.joint_constraints', robot)
     return MbmRequest(start, goal)
 

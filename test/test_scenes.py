@@ -140,6 +140,28 @@ def test_malformed_mbm_scene_variants(tmp_path, edit, match):
     assert str(path) in str(info.value)
 
 
+def test_malformed_mbm_request_variants(tmp_path):
+    import yaml
+    cases = [
+        (lambda d: d['goal_constraints'][0]['joint_constraints'][2].pop('position'),
+         r'goal_constraints\[0\].joint_constraints\[2\].position: missing'),
+        (lambda d: d['goal_constraints'][0]['joint_constraints'][0].update(position='x'),
+         r'goal_constraints\[0\].joint_constraints\[0\].position: expected numbers'),
+        (lambda d: d['goal_constraints'][0].update(joint_constraints=[]),
+         r'goal_constraints\[0\].joint_constraints: missing or empty'),
+        (lambda d: d['start_state']['joint_state'].update(name='panda_joint1'),
+         r'start_state.joint_state.name: expected a list'),
+    ]
+    for k, (edit, match) in enumerate(cases):
+        data = read_yaml(MBM / 'request0001.yaml')
+        edit(data)
+        path = tmp_path / f'request{k}.yaml'
+        path.write_text(yaml.safe_dump(data))
+        with pytest.raises(SceneError, match=match) as info:
+            load_mbm_scene(MBM / 'scene0001.yaml', path)
+        assert str(path) in str(info.value)
+
+
 def test_goal_tolerance_parsing():
     assert parse_goal_tolerance('pos=0.01,0.02,0.03;rot=0.2') == GoalTolerance(
         (0.01, 0.02, 0.03), (0.2, 0.2, 0.2))
