@@ -36,6 +36,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     heat.add_argument('--repeats', type=int, default=3)
     heat.add_argument('--json', action='store_true')
     heat.set_defaults(func=_heatmap)
+    from advocc_ros.commands.perf_attack import register_attack
+    register_attack(psub)
 
 
 def _heatmap(args) -> int:
