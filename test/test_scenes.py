@@ -264,3 +264,20 @@ def test_scenes_vary_cli_writes_loadable_files(tmp_path):
     assert not list(tmp_path.glob('.*.tmp'))
     assert main(['scenes', 'vary', '--scene', 'box', '--count', '1', '--out', str(tmp_path),
                  '--jitter-size', '1.5']) == 2
+
+
+def test_scenes_convert_check_and_list_cli(tmp_path, capsys):
+    from advocc_ros.cli import main
+    out = tmp_path / 'converted.yaml'
+    assert main(['scenes', 'convert', '--scene', str(MBM / 'scene0001.yaml'), '--request',
+                 str(MBM / 'request0001.yaml'), '--out', str(out)]) == 0
+    original = load_mbm_scene(MBM / 'scene0001.yaml', MBM / 'request0001.yaml')
+    converted = load_scene(out)
+    assert len(converted.shapes) == len(original.shapes) == 5
+    assert converted.goal.center.position_m == pytest.approx(original.goal.center.position_m)
+    assert main(['scenes', 'check', '--scene', str(out), '--ik-attempts', '30']) == 0
+    capsys.readouterr()
+    assert main(['scenes', 'list']) == 0
+    listing = capsys.readouterr().out
+    assert all(name in listing for name in SCENES)
+    assert main(['scenes', 'check', '--scene', str(MBM / 'scene_bad_type.yaml')]) == 2
