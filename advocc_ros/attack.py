@@ -592,8 +592,24 @@ def _tf(T: pin.SE3) -> coal.Transform3s:
 # --------------------------------------------------------------------------------------------
 # Methods
 
-Selector = Callable[[SearchRegion, int, int, AttackConfig], tuple[list, int]]
-"""``(region, budget, seed, cfg) -> ([(window index, mass), ...], rejected picks)``."""
+Selector = Callable[..., tuple[list, int]]
+"""``(region, budget, seed, cfg[, context]) -> ([(window index, mass), ...], rejected picks)``;
+``context`` (a :class:`MethodContext`) only for methods registered with ``needs_context``."""
+
+
+@dataclasses.dataclass(frozen=True)
+class MethodContext:
+    """The task behind a search region, for planner-in-the-loop methods (PFA, PFA++).
+
+    Ours and Random never get it: they choose from the heatmap and the region alone.
+    """
+
+    robot: RobotModel
+    objects: tuple[SceneObject, ...]
+    q_init: np.ndarray
+    goal: GoalRegion
+    options: Any = None
+    """Method-specific settings from ``attack(method_options=...)`` (e.g. a planner)."""
 
 
 def _select_greedy(region: SearchRegion, budget: int, seed: int, cfg: AttackConfig):
@@ -617,8 +633,16 @@ PLUGIN_METHODS = {'pfa': 'advocc_ros.pfa', 'pfa++': 'advocc_ros.pfa'}
 KNOWN_METHODS = ('ours', 'random', 'pfa', 'pfa++')
 
 
-def register_method(name: str, selector: Selector) -> None:
+CONTEXT_METHODS: set[str] = set()
+"""Methods whose selector also takes ``context=MethodContext(...)``."""
+
+
+def register_method(name: str, selector: Selector, needs_context: bool = False) -> None:
     METHODS[name] = selector
+    if needs_context:
+        CONTEXT_METHODS.add(name)
+    else:
+        CONTEXT_METHODS.discard(name)
 
 
 def load_method(name: str) -> bool:
@@ -675,9 +699,10 @@ def validate_request(heatmap: Heatmap, robot: RobotModel, objects: tuple[SceneOb
 def attack(heatmap: Heatmap, robot: RobotModel, objects: tuple[SceneObject, ...] | list,
            q_init: np.ndarray, goal: GoalRegion, budget: int, method: str = 'ours',
            cfg: AttackConfig = AttackConfig(), box_size_m: float | None = None,
-           seed: int = 0) -> AttackResult:
+           seed: int = 0, method_options: Any = None) -> AttackResult:
     """Place at most ``budget`` boxes for one task. Never raises for a bad request: the result
-    carries the status and message instead."""
+    carries the status and message instead. ``method_options``: settings of a
+    planner-in-the-loop method (``advocc_ros.pfa.PfaOptions``)."""
     link_luts(robot, heatmap.grid.voxel_m / 4)  # model loading (~1 s once), not attack time
     t0 = time.perf_counter()
     s = cfg.box_size_m if box_size_m is None or box_size_m == 0 else float(box_size_m)
@@ -688,7 +713,10 @@ def attack(heatmap: Heatmap, robot: RobotModel, objects: tuple[SceneObject, ...]
         validate_request(heatmap, robot, objects, q_init, goal, budget, method, s, cfg)
         q_init = np.asarray(q_init, dtype=float)
         region = search_region(heatmap, robot, objects, q_init, goal, cfg, s)
-        picks, rejected = METHODS[method](region, int(budget), int(seed), cfg)
+        extra = {}
+        if method in CONTEXT_METHODS:
+            extra['context'] = MethodContext(robot, objects, q_init, goal, method_options)
+        picks, rejected = METHODS[method](region, int(budget), int(seed), cfg, **extra)
     except AttackError as exc:
         return AttackResult(exc.status, str(exc), compute_s=time.perf_counter() - t0, **base)
     except (SceneError, RobotError) as exc:
@@ -754,7 +782,8 @@ def load_obstacles(path: str | pathlib.Path) -> tuple[tuple[SceneObject, ...], d
     return objects, meta
 
 
-__all__ = ['AttackConfig', 'AttackError', 'AttackResult', 'AttackStatus', 'KNOWN_METHODS',
-           'METHODS', 'SearchRegion', 'attack', 'box_distance', 'box_sum', 'goal_configuration',
-           'greedy_cover', 'load_method', 'load_obstacles', 'obstacles_data', 'random_cover',
-           'register_method', 'save_obstacles', 'search_region', 'validate_request']
+__all__ = ['AttackConfig', 'AttackError', 'AttackResult', 'AttackStatus', 'CONTEXT_METHODS',
+           'KNOWN_METHODS', 'METHODS', 'MethodContext', 'SearchRegion', 'attack', 'box_distance',
+           'box_sum', 'goal_configuration', 'greedy_cover', 'load_method', 'load_obstacles',
+           'obstacles_data', 'random_cover', 'register_method', 'save_obstacles',
+           'search_region', 'validate_request']

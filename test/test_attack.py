@@ -341,7 +341,7 @@ def test_cli_attack_writes_the_obstacles_file(heatmaps, tmp_path, capsys):
     assert [o['id'] for o in printed['obstacles']] == [o.id for o in objects] == \
         ['adv_0', 'adv_1', 'adv_2']
     assert printed['compute_ms'] > 0 and meta['compute_ms'] == printed['compute_ms']
-    assert main(args[:-1] + ['--method', 'pfa']) == 2
+    assert main(args[:-1] + ['--method', 'pfa', '--queries', '1']) == 2  # < baseline + 1
     assert main(['attack', '--heatmap', str(tmp_path / 'missing.npz'), '--scene', 'table_pick',
                  '--budget', '3', '--out', str(out)]) == 2
     assert 'cannot read' in capsys.readouterr().err

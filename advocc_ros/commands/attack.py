@@ -17,7 +17,8 @@ from advocc_ros.scene import SceneError, load_scene
 
 def register(sub: argparse._SubParsersAction) -> None:
     defaults = AttackConfig()
-    p = sub.add_parser('attack', help='place adversarial boxes (paper Algorithm 1 or Random)')
+    p = sub.add_parser('attack', help='place adversarial boxes (paper Algorithm 1, Random, '
+                       'PFA, PFA++)')
     p.add_argument('--heatmap', required=True, help='heatmap .npz file')
     p.add_argument('--scene', required=True, help='scene YAML (or a name in config/scenes) '
                    'with start and goal')
@@ -33,7 +34,20 @@ def register(sub: argparse._SubParsersAction) -> None:
                    '%(default)s)')
     p.add_argument('--d-min', type=float, default=defaults.d_min_m,
                    help='minimum distance between box centres [m] (default %(default)s)')
-    p.add_argument('--seed', type=int, default=0, help='random generator seed (random method)')
+    p.add_argument('--seed', type=int, default=0,
+                   help='random generator seed (random, pfa, pfa++)')
+    g = p.add_argument_group('planner in the loop (pfa, pfa++)')
+    g.add_argument('--planner', help='victim planner pfa++ queries: rrtconnect, prmstar, '
+                   'bkpiece1 (default rrtconnect); pfa always queries rrtconnect')
+    g.add_argument('--queries', type=int, default=150,
+                   help='Q, planner queries in total, baseline included (default %(default)s)')
+    g.add_argument('--queries-per-placement', type=int, default=3, metavar='K',
+                   help='planner queries per scored placement (default %(default)s)')
+    g.add_argument('--query-time', type=float, default=1.0,
+                   help='time budget of one query [s] (default %(default)s)')
+    g.add_argument('--workers', type=int, default=1,
+                   help='local planner processes queried in parallel (default %(default)s)')
+    g.add_argument('--no-progress', action='store_true', help='no progress bar on stderr')
     p.add_argument('--out', required=True, help='obstacles YAML to write')
     p.add_argument('--json', action='store_true', help='print the result as JSON')
     p.set_defaults(func=_attack)
@@ -61,12 +75,16 @@ def _attack(args: argparse.Namespace) -> int:
         print(f'advocc attack: warning: {args.heatmap} was built for scene '
               f'{heatmap.meta.get("scene_name")!r}, not {scene.name!r}; the current scene is '
               'masked, but its heatmap mass may be off', file=sys.stderr)
-    result = attack(heatmap, robot, scene.objects, q_init, scene.goal, args.budget,
-                    args.method, cfg, seed=args.seed)
+    extra = {'heatmap_file': str(args.heatmap), 'seed': args.seed}
+    if args.method in ('pfa', 'pfa++'):
+        result = _attack_in_the_loop(args, heatmap, robot, scene, q_init, cfg)
+        extra['pfa'] = result.stats.get(args.method, {})
+    else:
+        result = attack(heatmap, robot, scene.objects, q_init, scene.goal, args.budget,
+                        args.method, cfg, seed=args.seed)
     if not result.status.ok:
         raise UserError(f'{result.status.value}: {result.message}')
-    data = obstacles_data(result, heatmap, scene.name, scene.objects_hash(),
-                          {'heatmap_file': str(args.heatmap), 'seed': args.seed})
+    data = obstacles_data(result, heatmap, scene.name, scene.objects_hash(), extra)
     save_obstacles(args.out, data)
     if args.json:
         print(json.dumps(dict(result.to_json(), out=str(args.out)), indent=2))
@@ -80,3 +98,40 @@ def _attack(args: argparse.Namespace) -> int:
     if result.status == AttackStatus.PARTIAL:
         print(f'advocc attack: warning: {result.message}', file=sys.stderr)
     return 0
+
+
+def _attack_in_the_loop(args: argparse.Namespace, heatmap, robot, scene, q_init,
+                        cfg: AttackConfig):
+    """PFA / PFA++ with ``--workers`` local planner processes and a progress bar."""
+    from advocc_ros.pfa import PFA_PLANNER, LocalPlanners, PfaConfig, PfaOptions
+
+    if args.method == 'pfa' and args.planner not in (None, PFA_PLANNER):
+        raise UserError(f'pfa always queries {PFA_PLANNER} with the exact goal pose; use '
+                        f'--method pfa++ to query {args.planner} with the goal region')
+    if args.workers < 1:
+        raise UserError(f'--workers must be >= 1, got {args.workers}')
+    try:
+        pcfg = PfaConfig(queries=args.queries, queries_per_placement=args.queries_per_placement,
+                         query_time_s=args.query_time, planner_id=args.planner or PFA_PLANNER)
+    except ValueError as exc:
+        raise UserError(str(exc)) from None
+    bar = None
+
+    def progress(done: int, total: int) -> None:
+        bar.update(done - bar.n)
+
+    try:
+        with LocalPlanners(scene, args.workers) as planners:
+            planners.start()  # process start-up is not part of the attack's online time
+            if not args.no_progress:
+                from tqdm import tqdm
+                victim = pcfg.planner_id if args.method == 'pfa++' else PFA_PLANNER
+                bar = tqdm(total=pcfg.queries, unit='query', file=sys.stderr,
+                           desc=f'{args.method} ({victim})')
+            return attack(heatmap, robot, scene.objects, q_init, scene.goal, args.budget,
+                          args.method, cfg, seed=args.seed,
+                          method_options=PfaOptions(planners, pcfg,
+                                                    progress if bar is not None else None))
+    finally:
+        if bar is not None:
+            bar.close()
