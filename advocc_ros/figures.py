@@ -11,6 +11,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 from matplotlib.colors import LogNorm  # noqa: E402
 from matplotlib.patches import Rectangle  # noqa: E402
+from matplotlib.ticker import MaxNLocator  # noqa: E402
 
 from advocc_ros.fileio import atomic_open  # noqa: E402
 from advocc_ros.heatmap import Heatmap  # noqa: E402
@@ -70,6 +71,42 @@ def plot_heatmap_slices(heatmap: Heatmap, out: str | pathlib.Path, scene: Scene 
     if heatmap.meta.get('scene_name'):
         title += f', scene {heatmap.meta["scene_name"]}'
     fig.suptitle(title)
+    with atomic_open(out, 'wb') as handle:
+        fig.savefig(handle, format='png', dpi=90)
+    plt.close(fig)
+
+
+_METHOD_STYLE = {'ours': ('tab:red', 'o'), 'random': ('tab:gray', 's'),
+                 'pfa': ('tab:blue', '^'), 'pfa++': ('tab:green', 'v')}
+_PLANNER_TITLES = {'rrtconnect': 'RRT', 'prmstar': 'PRM*', 'bkpiece1': 'BKPIECE'}
+
+
+def plot_psr_vs_budget(curves: dict[tuple[str, str], dict[int, float]],
+                       out: str | pathlib.Path, title: str = '') -> None:
+    """PSR [%] against the obstacle budget, one panel per planner and one line per method.
+
+    ``curves[(planner, method)] = {budget: psr}`` (PSR as a fraction; budget 0 = unattacked).
+    """
+    planners = list(dict.fromkeys(p for p, _ in curves))
+    fig, axes = plt.subplots(1, len(planners), figsize=(4.5 * len(planners), 3.8),
+                             squeeze=False, constrained_layout=True)
+    for ax, planner in zip(axes[0], planners):
+        for (p, method), points in curves.items():
+            if p != planner:
+                continue
+            budgets = sorted(points)
+            color, marker = _METHOD_STYLE.get(method, (None, 'x'))
+            ax.plot(budgets, [100 * points[b] for b in budgets], marker=marker, color=color,
+                    label=method)
+        ax.set_title(_PLANNER_TITLES.get(planner, planner))
+        ax.set_xlabel('obstacle budget M')
+        ax.set_ylabel('PSR [%]')
+        ax.set_ylim(-3, 103)
+        ax.xaxis.set_major_locator(MaxNLocator(integer=True))
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=8)
+    if title:
+        fig.suptitle(title)
     with atomic_open(out, 'wb') as handle:
         fig.savefig(handle, format='png', dpi=90)
     plt.close(fig)
