@@ -18,11 +18,11 @@ import pinocchio as pin
 import trimesh
 import yaml
 
+from advocc_ros.limits import (MAX_FILE_BYTES, MAX_MESH_TRIANGLES, MAX_MESH_VERTICES,
+                               MAX_OBJECTS, yaml_size)  # MAX_*: re-exported
 from advocc_ros.robot import RobotSpec
 
 SHAPES = ('box', 'sphere', 'cylinder', 'mesh')
-MAX_OBJECTS = 1000
-MAX_MESH_VERTICES = 200_000
 
 
 class SceneError(ValueError):
@@ -64,9 +64,10 @@ class Pose:
             raise SceneError(f'{where}: unknown field(s) {sorted(unknown)}')
         pos = _finite(data.get('position', [0, 0, 0]), f'{where}.position', 3)
         quat = _finite(data.get('orientation', [0, 0, 0, 1]), f'{where}.orientation', 4)
-        norm = np.linalg.norm(quat)
-        if norm < 1e-6:
-            raise SceneError(f'{where}.orientation: zero quaternion')
+        norm = np.linalg.norm(quat / np.max(np.abs(quat))) * np.max(np.abs(quat)) \
+            if np.any(quat) else 0.0  # scaled: components near 1e308 must not overflow to inf
+        if not 1e-6 <= norm < np.inf:
+            raise SceneError(f'{where}.orientation: zero or overflowing quaternion {quat.tolist()}')
         return cls(tuple(pos.tolist()), tuple((quat / norm).tolist()))
 
     @classmethod
@@ -314,6 +315,9 @@ def _mesh_shape(entry: dict, where: str, base_dir: pathlib.Path | None, pose: Po
             raise SceneError(f'{where}.file: {path} is not an STL, OBJ or PLY file')
         if not path.is_file():
             raise SceneError(f'{where}.file: {path} not found')
+        if path.stat().st_size > MAX_FILE_BYTES:
+            raise SceneError(f'{where}.file: {path} is {path.stat().st_size} bytes, limit '
+                             f'{MAX_FILE_BYTES} (MAX_FILE_BYTES)')
         try:
             mesh = trimesh.load_mesh(str(path), force='mesh')
         except Exception as exc:  # trimesh raises many types on bad files
@@ -342,6 +346,8 @@ def make_mesh_shape(vertices, faces, pose: Pose, where: str = 'mesh') -> Shape:
         raise SceneError(f'{where}.vertices: non-finite values')
     if faces.ndim != 2 or faces.shape[1] != 3 or len(faces) < 4:
         raise SceneError(f'{where}.faces: expected at least 4 triangles (F, 3)')
+    if len(faces) > MAX_MESH_TRIANGLES:
+        raise SceneError(f'{where}.faces: {len(faces)} triangles, limit {MAX_MESH_TRIANGLES}')
     if not np.issubdtype(faces.dtype, np.integer) or faces.min() < 0 \
             or faces.max() >= len(vertices):
         raise SceneError(f'{where}.faces: vertex indices out of range 0..{len(vertices) - 1}')
@@ -383,16 +389,31 @@ def _start_from_data(data: Any, where: str) -> dict[str, float]:
 
 
 def read_yaml(path: str | pathlib.Path) -> Any:
-    """``yaml.safe_load`` of a file, with errors that name the file."""
+    """``yaml.safe_load`` of a file, with errors that name the file.
+
+    Bounded: files over ``MAX_FILE_BYTES``, documents whose aliases expand past
+    ``MAX_YAML_NODES`` values, recursive aliases and absurd nesting are refused here, before
+    any parser turns them into arrays.
+    """
     path = pathlib.Path(path)
     try:
+        size = path.stat().st_size
+        if size > MAX_FILE_BYTES:
+            raise SceneError(f'{path}: {size} bytes, limit {MAX_FILE_BYTES} (MAX_FILE_BYTES)')
         text = path.read_text()
     except (OSError, UnicodeDecodeError) as exc:
         raise SceneError(f'{path}: cannot read ({exc})') from exc
     try:
-        return yaml.safe_load(text)
+        data = yaml.safe_load(text)
     except yaml.YAMLError as exc:
         raise SceneError(f'{path}: malformed YAML ({exc})') from exc
+    except RecursionError:
+        raise SceneError(f'{path}: malformed YAML (nested too deeply)') from None
+    try:
+        yaml_size(data)
+    except ValueError as exc:
+        raise SceneError(f'{path}: {exc}') from None
+    return data
 
 
 def scene_from_data(data: Any, where: str, base_dir: pathlib.Path | None = None) -> Scene:

@@ -1,0 +1,83 @@
+"""Size limits on everything advocc reads, in one place, so one input cannot exhaust memory.
+
+Each limit is enforced where the input enters (file loader or message conversion), before the
+expensive work, and the error names the limit. Per-request budgets that users tune live in the
+node configs instead (``AttackConfig.max_budget``, ``max_box_m``,
+``PlanningConfig.max_time_budget_s``); their defaults are listed in :data:`TABLE`.
+"""
+
+from __future__ import annotations
+
+MAX_FILE_BYTES = 64 * 1024 * 1024
+"""Scene, request, obstacles and mesh files [bytes] (a 200k-vertex mesh in YAML is ~10 MB)."""
+MAX_YAML_NODES = 2_000_000
+"""Values in one YAML document after expanding aliases (stops "billion laughs" files)."""
+MAX_OBJECTS = 1000
+"""Collision objects in one scene file, obstacles file or request."""
+MAX_SHAPES = 10_000
+"""Primitives + meshes over all objects of one scene or request."""
+MAX_MESH_VERTICES = 200_000
+"""Vertices of one mesh."""
+MAX_MESH_TRIANGLES = 400_000
+"""Triangles of one mesh."""
+MAX_SCENE_VERTICES = 1_000_000
+"""Mesh vertices over a whole scene or request."""
+MAX_JOINTS = 1024
+"""Names in one joint state."""
+MAX_HEATMAP_VOXELS = 128 * 1024 * 1024
+"""Voxels of a heatmap grid (1 GiB of float64 H); checked on the zip header before inflating."""
+MAX_HEATMAP_BYTES = MAX_HEATMAP_VOXELS * 9 + (64 << 20)
+"""Uncompressed size of all arrays of a heatmap file (H, free mask, metadata)."""
+MAX_TRIALS = 100_000
+"""Trials of one evaluation or benchmark cell."""
+MAX_PLANNER_QUERIES = 10_000
+"""Planner queries of one planner-in-the-loop attack (PFA, PFA++)."""
+
+TABLE = [
+    ('scene/request/obstacles/mesh file size', f'{MAX_FILE_BYTES >> 20} MiB',
+     'limits.MAX_FILE_BYTES'),
+    ('YAML values after alias expansion', f'{MAX_YAML_NODES:,}', 'limits.MAX_YAML_NODES'),
+    ('collision objects per scene/request', f'{MAX_OBJECTS:,}', 'limits.MAX_OBJECTS'),
+    ('shapes (primitives + meshes) per scene/request', f'{MAX_SHAPES:,}', 'limits.MAX_SHAPES'),
+    ('vertices per mesh', f'{MAX_MESH_VERTICES:,}', 'limits.MAX_MESH_VERTICES'),
+    ('triangles per mesh', f'{MAX_MESH_TRIANGLES:,}', 'limits.MAX_MESH_TRIANGLES'),
+    ('mesh vertices per scene/request', f'{MAX_SCENE_VERTICES:,}', 'limits.MAX_SCENE_VERTICES'),
+    ('joint names per joint state', f'{MAX_JOINTS:,}', 'limits.MAX_JOINTS'),
+    ('heatmap voxels', f'{MAX_HEATMAP_VOXELS:,}', 'limits.MAX_HEATMAP_VOXELS'),
+    ('attack budget M', '100', 'heatmap_server max_budget'),
+    ('attack box edge', '0.5 m', 'heatmap_server max_box_m'),
+    ('plan time budget', '600 s', 'planner_shim max_time_budget_s'),
+    ('trials per cell', f'{MAX_TRIALS:,}', 'limits.MAX_TRIALS'),
+    ('planner queries per PFA attack', f'{MAX_PLANNER_QUERIES:,}', 'limits.MAX_PLANNER_QUERIES'),
+]
+"""(what, limit, where it is set) rows for the README."""
+
+
+def yaml_size(data, limit: int = MAX_YAML_NODES, max_depth: int = 200) -> int:
+    """Values in ``data`` counting shared (aliased) sub-trees once per use; raises
+    ``ValueError`` past ``limit``, ``max_depth`` levels, or on a cycle."""
+    memo: dict[int, int] = {}
+
+    def size(node, depth: int, path: set) -> int:
+        if not isinstance(node, (list, dict)):
+            return 1
+        key = id(node)
+        if key in path:
+            raise ValueError('YAML document contains itself (recursive alias)')
+        if key in memo:
+            return memo[key]
+        if depth > max_depth:
+            raise ValueError(f'YAML nesting deeper than {max_depth} levels')
+        path.add(key)
+        items = list(node.keys()) + list(node.values()) if isinstance(node, dict) else node
+        total = 1
+        for item in items:
+            total += size(item, depth + 1, path)
+            if total > limit:
+                raise ValueError(f'YAML document expands to more than {limit:,} values '
+                                 '(limit MAX_YAML_NODES)')
+        path.discard(key)
+        memo[key] = total
+        return total
+
+    return size(data, 0, set())
