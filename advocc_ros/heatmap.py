@@ -29,6 +29,7 @@ import multiprocessing
 import pathlib
 import time
 import zipfile
+import zlib
 from typing import Callable
 
 import numba
@@ -36,6 +37,7 @@ import numpy as np
 
 from advocc_ros.collision import CollisionWorld
 from advocc_ros.fileio import atomic_open
+from advocc_ros.limits import MAX_HEATMAP_BYTES, MAX_HEATMAP_VOXELS
 from advocc_ros.robot import RobotModel, load_robot
 from advocc_ros.scene import Scene
 from advocc_ros.voxels import SolidLUT, VoxelGrid, occupied_mask
@@ -140,16 +142,27 @@ def load_heatmap(path: str | pathlib.Path, robot_hash: str | None = None) -> Hea
     except OSError as exc:
         raise HeatmapError(f'{path}: cannot read ({exc.strerror or exc})') from exc
     try:
+        with zipfile.ZipFile(io.BytesIO(raw)) as zf:
+            inflated = sum(info.file_size for info in zf.infolist())
+        if inflated > MAX_HEATMAP_BYTES:  # checked before inflating: no zip bomb
+            raise HeatmapError(f'{path}: arrays of {inflated} bytes, limit {MAX_HEATMAP_BYTES} '
+                               '(MAX_HEATMAP_VOXELS)')
         with np.load(io.BytesIO(raw), allow_pickle=False) as npz:
             arrays = {k: npz[k] for k in npz.files}
-    except (zipfile.BadZipFile, ValueError, OSError, EOFError, KeyError) as exc:
+    except (zipfile.BadZipFile, zlib.error, ValueError, OSError, EOFError, KeyError,
+            NotImplementedError) as exc:
+        if isinstance(exc, HeatmapError):
+            raise
         raise HeatmapError(f'{path}: not a readable heatmap file (corrupted or truncated: '
                            f'{exc})') from exc
     required = {'format_version', 'origin_m', 'voxel_m', 'shape', 'values', 'free', 'meta_json'}
     missing = required - set(arrays)
     if missing:
         raise HeatmapError(f'{path}: not a heatmap file (missing {sorted(missing)})')
-    version = int(arrays['format_version'])
+    try:
+        version = int(arrays['format_version'])
+    except (TypeError, ValueError):
+        raise HeatmapError(f'{path}: format_version is not an integer') from None
     if version != FORMAT_VERSION:
         raise HeatmapError(f'{path}: format version {version}, this advocc reads '
                            f'{FORMAT_VERSION}; rebuild it with `advocc heatmap build`')
@@ -157,8 +170,10 @@ def load_heatmap(path: str | pathlib.Path, robot_hash: str | None = None) -> Hea
         grid = VoxelGrid(tuple(float(v) for v in arrays['origin_m']),
                          float(arrays['voxel_m']), tuple(int(v) for v in arrays['shape']))
         meta = json.loads(arrays['meta_json'].tobytes().decode())
-    except (ValueError, TypeError, UnicodeDecodeError) as exc:
+    except (ValueError, TypeError, UnicodeDecodeError, OverflowError) as exc:
         raise HeatmapError(f'{path}: invalid grid or metadata ({exc})') from exc
+    if grid.size > MAX_HEATMAP_VOXELS:
+        raise HeatmapError(f'{path}: grid of {grid.size} voxels, limit {MAX_HEATMAP_VOXELS}')
     values, free = arrays['values'], arrays['free']
     if values.shape != grid.shape or free.shape != grid.shape:
         raise HeatmapError(f'{path}: arrays of shape {values.shape}/{free.shape} do not match '

@@ -33,6 +33,8 @@ class VoxelGrid:
             raise ValueError(f'voxel size must be a positive number, got {self.voxel_m}')
         if len(self.shape) != 3 or min(self.shape) < 1:
             raise ValueError(f'grid shape must be 3 positive integers, got {self.shape}')
+        if len(self.origin_m) != 3 or not np.all(np.isfinite(self.origin_m)):
+            raise ValueError(f'grid origin must be 3 finite numbers, got {self.origin_m}')
 
     @property
     def size(self) -> int:
