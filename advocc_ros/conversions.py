@@ -15,9 +15,11 @@ from sensor_msgs.msg import JointState
 from shape_msgs.msg import Mesh, MeshTriangle, SolidPrimitive
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
-from advocc_ros.robot import RobotModel
-from advocc_ros.scene import (MAX_OBJECTS, GoalRegion, Operation, Pose, SceneError,
-                              SceneObject, Shape, make_mesh_shape)
+from advocc_ros.limits import (MAX_JOINTS, MAX_MESH_TRIANGLES, MAX_MESH_VERTICES, MAX_OBJECTS,
+                               MAX_SCENE_VERTICES, MAX_SHAPES)
+from advocc_ros.robot import RobotError, RobotModel
+from advocc_ros.scene import (GoalRegion, Operation, Pose, SceneError, SceneObject, Shape,
+                              make_mesh_shape)
 
 
 def pose_from_msg(msg: PoseMsg, where: str = 'pose') -> Pose:
@@ -94,6 +96,7 @@ def collision_object_from_msg(msg: CollisionObject, where: str = 'object'
                          f'{len(msg.primitive_poses)} primitive_poses')
     if len(msg.meshes) != len(msg.mesh_poses):
         raise SceneError(f'{where}: {len(msg.meshes)} meshes but {len(msg.mesh_poses)} mesh_poses')
+    _check_sizes([msg], where)
     shapes = []
     for i, (prim, pmsg) in enumerate(zip(msg.primitives, msg.primitive_poses)):
         local = pose_from_msg(pmsg, f'{where}.primitive_poses[{i}]')
@@ -112,10 +115,30 @@ def collision_object_from_msg(msg: CollisionObject, where: str = 'object'
     return operation, SceneObject(msg.id, tuple(shapes)), obj_pose
 
 
+def _check_sizes(msgs: list[CollisionObject], where: str) -> None:
+    """Refuse oversized messages from their array lengths, before any per-element work."""
+    shapes = sum(len(m.primitives) + len(m.meshes) for m in msgs)
+    if shapes > MAX_SHAPES:
+        raise SceneError(f'{where}: {shapes} primitives + meshes, limit {MAX_SHAPES}')
+    total = 0
+    for m in msgs:
+        for i, mesh in enumerate(m.meshes):
+            if len(mesh.vertices) > MAX_MESH_VERTICES:
+                raise SceneError(f'{where}.meshes[{i}]: {len(mesh.vertices)} vertices, limit '
+                                 f'{MAX_MESH_VERTICES}')
+            if len(mesh.triangles) > MAX_MESH_TRIANGLES:
+                raise SceneError(f'{where}.meshes[{i}]: {len(mesh.triangles)} triangles, limit '
+                                 f'{MAX_MESH_TRIANGLES}')
+            total += len(mesh.vertices)
+    if total > MAX_SCENE_VERTICES:
+        raise SceneError(f'{where}: {total} mesh vertices, limit {MAX_SCENE_VERTICES}')
+
+
 def scene_from_msgs(msgs: list[CollisionObject], where: str = 'scene') -> tuple[SceneObject, ...]:
     """Objects of a request's scene list (each message must be an ADD)."""
     if len(msgs) > MAX_OBJECTS:
         raise SceneError(f'{where}: {len(msgs)} objects, limit {MAX_OBJECTS}')
+    _check_sizes(msgs, where)
     objects = []
     for i, msg in enumerate(msgs):
         op, obj, _ = collision_object_from_msg(msg, f'{where}[{i}]')
@@ -149,6 +172,9 @@ def collision_object_to_msg(obj: SceneObject, frame: str,
 
 def q_from_joint_state(robot: RobotModel, msg: JointState, where: str = 'start_state'
                        ) -> np.ndarray:
+    if len(msg.name) > MAX_JOINTS or len(msg.position) > MAX_JOINTS:
+        raise RobotError(f'{where}: {len(msg.name)} names / {len(msg.position)} positions, '
+                         f'limit {MAX_JOINTS}')
     return robot.q_from_names(list(msg.name), list(msg.position), where)
 
 
