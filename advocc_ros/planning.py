@@ -132,6 +132,32 @@ class PlanningConfig:
     worker_start_timeout_s: float = 120.0
     """Time a new worker may take to import its libraries and load the robot [s]."""
 
+    def __post_init__(self):
+        positive = ('time_budget_s', 'max_time_budget_s', 'motion_step_rad', 'ik_damping',
+                    'waypoint_step_rad', 'watchdog_margin_s', 'worker_start_timeout_s')
+        checks = {name: _finite_number(getattr(self, name)) and getattr(self, name) > 0
+                  for name in positive}
+        checks.update({name: _whole(getattr(self, name)) and getattr(self, name) >= 1
+                       for name in ('ik_goals', 'max_goals', 'ik_iterations')})
+        checks['min_waypoints'] = _whole(self.min_waypoints) and self.min_waypoints >= 2
+        checks['ik_time_fraction'] = (_finite_number(self.ik_time_fraction)
+                                      and 0 < self.ik_time_fraction <= 1)
+        checks['time_budget_s'] = (checks['time_budget_s'] and checks['max_time_budget_s']
+                                   and self.time_budget_s <= self.max_time_budget_s)
+        for name, ok in checks.items():
+            if not ok:
+                raise ValueError(f'planning parameter {name}={getattr(self, name)!r} is out '
+                                 'of range')
+
+
+def _finite_number(value) -> bool:
+    return isinstance(value, (int, float)) and not isinstance(value, bool) \
+        and math.isfinite(value)
+
+
+def _whole(value) -> bool:
+    return isinstance(value, int) and not isinstance(value, bool)
+
 
 @dataclasses.dataclass
 class PlanResult:

@@ -236,7 +236,7 @@ def main(args=None) -> int:
         executor.spin()
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
-    except (SceneError, RobotError) as exc:  # a bad scene_file: say so, no traceback
+    except (SceneError, RobotError, ValueError) as exc:  # bad scene_file or parameters
         rclpy.logging.get_logger('planner_shim').fatal(f'cannot start: {exc}')
         return 1
     finally:
