@@ -100,8 +100,9 @@ class BenchConfig:
     """A plan request unanswered ``time_budget_s`` + this long marks its shim as hung [s]."""
     max_restarts: int = 5
     """Restarts of one node per scene before the benchmark gives up."""
-    attacker: bool = False
-    """Generate ours/random attacks through the attacker node (scene + goal topics)."""
+    pfa: dict = dataclasses.field(default_factory=dict)
+    """Settings of the planner-in-the-loop methods (``advocc_ros.pfa.PfaConfig`` fields:
+    queries, queries_per_placement, query_time_s, ...); their queries run on the shims."""
 
     def __post_init__(self):
         def fail(what: str) -> None:
@@ -136,6 +137,9 @@ class BenchConfig:
                 fail(f'{name}={value!r} must be a finite number > 0')
         if not (isinstance(self.box_size_m, (int, float)) and 0 <= self.box_size_m <= 0.5):
             fail(f'box_size_m={self.box_size_m!r} must be in [0, 0.5] (0: server default)')
+        if not isinstance(self.pfa, dict) or 'planner_id' in self.pfa:
+            fail(f'pfa: expected a mapping of PfaConfig settings (the planner is the cell\'s), '
+                 f'got {self.pfa!r}')
         if not isinstance(self.variants, dict) or not all(
                 isinstance(v, int) and not isinstance(v, bool) and v >= 1
                 for v in self.variants.values()):

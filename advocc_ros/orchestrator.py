@@ -35,8 +35,10 @@ import logging
 import os
 import pathlib
 import signal
+import queue
 import subprocess
 import sys
+import threading
 import time
 from typing import Any
 
@@ -230,6 +232,58 @@ class Graph:
             self._rclpy.try_shutdown(context=self.context)
 
 
+class _Query:
+    """One planner query of a planner-in-the-loop attack, answered by a shim."""
+
+    def __init__(self, q_start, obstacles: tuple, goal, planner_id: str, time_budget_s: float,
+                 seed: int):
+        self.q_start, self.obstacles, self.goal = np.asarray(q_start, float), obstacles, goal
+        self.planner_id, self.time_budget_s, self.seed = planner_id, time_budget_s, seed
+        self.key = tuple((tuple(np.round(sh.pose.position_m, 9)), tuple(sh.dims))
+                         for o in obstacles for sh in o.shapes)
+        self.result = None
+        self.event = threading.Event()
+
+    def done(self, res, robot) -> None:
+        """Turn a Plan response into the ``PlanResult`` the optimiser expects."""
+        from advocc_ros.conversions import trajectory_from_msg
+        from advocc_ros.planning import PlanResult, PlanStatus
+
+        try:
+            status = PlanStatus(int(res.error_code.val))
+        except ValueError:
+            status = PlanStatus.PLANNING_FAILED
+        path = trajectory_from_msg(robot, res.trajectory) if status == PlanStatus.SUCCESS \
+            else np.zeros((0, robot.nq))
+        stats = {}
+        if len(path) > 1:
+            stats['path_length_rad'] = float(np.linalg.norm(np.diff(path, axis=0), axis=1).sum())
+        self.result = PlanResult(status, res.message, path, float(res.planning_time_s), stats)
+        self.event.set()
+
+
+class ShimQueries:
+    """:class:`advocc_ros.pfa.QueryPlanner` backed by the planner shims.
+
+    Called from the optimiser's threads; the orchestrator's main thread (which owns every ROS
+    handle) injects each query's obstacles into all shims, waits until they hold them, and plans
+    on them. Queries with the same obstacles run in parallel on different shims.
+    """
+
+    def __init__(self, workers: int):
+        self.workers = max(1, int(workers))
+        self.requests: queue.SimpleQueue = queue.SimpleQueue()
+        self.aborted = threading.Event()
+
+    def __call__(self, q_start, obstacles, goal, planner_id, time_budget_s, seed):
+        query = _Query(q_start, tuple(obstacles), goal, planner_id, time_budget_s, seed)
+        self.requests.put(query)
+        while not query.event.wait(0.2):
+            if self.aborted.is_set():
+                raise RuntimeError('the benchmark stopped')
+        return query.result
+
+
 @dataclasses.dataclass
 class Shim:
     """A planner shim serving this scene and what it is doing."""
@@ -244,7 +298,8 @@ class Shim:
     """starting -> sync -> idle <-> busy; dead when it cannot be used any more."""
     since: float = 0.0
     future: Any = None
-    trial: Trial | None = None
+    trial: Any = None
+    """The Trial (or PFA query) in flight."""
     deadline: float = 0.0
     info_future: Any = None
     info_at: float = 0.0
@@ -305,7 +360,10 @@ class Orchestrator:
                 finally:
                     for s, handler in old.items():
                         signal.signal(s, handler)
-                summary = dict(progress_summary(self.store, units), status=status,
+                summary = progress_summary(self.store, units)
+                if status == 'complete' and summary['missing']:
+                    status = 'incomplete'
+                summary = dict(summary, status=status,
                                restarts=dict(self.restarts), notes=self.notes,
                                wall_s=round(time.monotonic() - self._t0, 1))
                 try:
@@ -419,6 +477,7 @@ class Orchestrator:
         logs = self.run_dir / 'logs'
         self.server: Child | None = None
         self.server_clients = None
+        self.heatmap_file, self.heatmap = heatmap, None
         if heatmap is not None:
             self.server = Child(f'advocc_heatmap_{stem}', 'heatmap_server',
                                 {'heatmap_file': str(heatmap)}, self.env, logs)
@@ -549,7 +608,12 @@ class Orchestrator:
                 log.warning('%s does not match %s: regenerating', path, spec)
             except SceneError as exc:
                 log.warning('%s unreadable (%s): regenerating', path, exc)
-        objects, meta = self._generate(spec)
+        from advocc_ros.attack import CONTEXT_METHODS, load_method
+        load_method(spec.method)
+        if spec.method in CONTEXT_METHODS:
+            objects, meta = self._generate_in_the_loop(spec)
+        else:
+            objects, meta = self._generate(spec)
         save_obstacles(path, meta)
         return objects
 
@@ -601,6 +665,98 @@ class Orchestrator:
         self.bar.write(f'{self.scene.name}: attack {spec.tag}: {len(boxes)} boxes '
                        f'({data["status"].lower()}, {res.compute_time_s * 1e3:.0f} ms)',
                        file=sys.stderr)
+        return boxes, meta
+
+    def _generate_in_the_loop(self, spec: AttackSpec) -> tuple[tuple, dict]:
+        """PFA / PFA++: the optimiser runs in a thread; its planner queries run on the shims."""
+        from advocc_ros.attack import AttackConfig, attack
+        from advocc_ros.heatmap import load_heatmap
+        from advocc_ros.pfa import PFA_PLANNER, PfaConfig, PfaOptions
+        from advocc_ros.scene import make_box, objects_to_data
+
+        if self.heatmap_file is None:
+            raise BenchError(f'no heatmap for {spec} (internal error)')
+        if self.heatmap is None:
+            self.heatmap = load_heatmap(self.heatmap_file, robot_hash=self.robot.hash)
+        pcfg = PfaConfig(**dict(self.cfg.pfa, planner_id=spec.planner or PFA_PLANNER))
+        queries = ShimQueries(sum(1 for s in self.shims if s.state != 'dead'))
+        done = [0]
+
+        def progress(n: int, total: int) -> None:
+            done[0] = n
+
+        outcome: dict[str, Any] = {}
+
+        def work() -> None:
+            try:
+                outcome['result'] = attack(
+                    self.heatmap, self.robot, self.scene.objects, self.q_init, self.scene.goal,
+                    spec.budget, spec.method, AttackConfig(),
+                    box_size_m=self.cfg.box_size_m or None, seed=spec.seed,
+                    method_options=PfaOptions(queries, pcfg, progress))
+            except BaseException as exc:  # noqa: BLE001 - re-raised in the main thread
+                outcome['error'] = exc
+
+        thread = threading.Thread(target=work, name=f'attack-{spec.tag}', daemon=True)
+        self.pending = collections.deque()
+        waiting: collections.deque = collections.deque()
+        current = None
+        sets = 0
+        self.bar.write(f'{self.scene.name}: attack {spec.tag}: {pcfg.queries} planner queries '
+                       f'on {queries.workers} shims', file=sys.stderr)
+        thread.start()
+        try:
+            while thread.is_alive() or self.pending or any(s.state == 'busy'
+                                                             for s in self.shims):
+                self._supervise()
+                while True:
+                    try:
+                        waiting.append(queries.requests.get_nowait())
+                    except queue.Empty:
+                        break
+                busy = any(s.state == 'busy' for s in self.shims)
+                if waiting and not self.pending and not busy and waiting[0].key != current:
+                    current, sets = waiting[0].key, sets + 1
+                    self._inject(tuple(make_box(f'q{sets}_{i}', o.shapes[0].pose.position_m,
+                                                o.shapes[0].dims)
+                                       for i, o in enumerate(waiting[0].obstacles)))
+                for job in [q for q in waiting if q.key == current]:
+                    waiting.remove(job)
+                    self.pending.append(job)
+                now = time.monotonic()
+                for shim in self.shims:
+                    self._step_shim(shim, now)
+                if all(s.state == 'dead' for s in self.shims):
+                    raise BenchError('no planner shim left for the attack\'s queries')
+                self.graph.spin(0.01)
+        finally:
+            queries.aborted.set()
+            thread.join(timeout=10)
+        if 'error' in outcome:
+            raise BenchError(f'attack {spec.tag} failed: {outcome["error"]!r}')
+        result = outcome['result']
+        if not result.status.ok:
+            raise BenchError(f'attack {spec.tag} on {spec.scene} failed: {result.status.value}: '
+                             f'{result.message}')
+        boxes = tuple(make_box(f'{spec.tag}_{i}', o.shapes[0].pose.position_m, o.shapes[0].dims)
+                      for i, o in enumerate(result.obstacles))
+        stats = result.stats.get(spec.method, {})
+        meta = {'format': 'advocc_obstacles', 'version': 1, 'status': result.status.value,
+                'message': result.message, 'method': spec.method, 'budget': spec.budget,
+                'variant': spec.variant, 'seed': spec.seed, 'planner': spec.planner,
+                'planner_specific': spec.planner is not None,
+                'compute_s': float(result.compute_s), 'masses': list(result.masses),
+                'total_mass': float(result.total_mass),
+                'source': f'{spec.method} in the orchestrator, queries on the planner shims',
+                'heatmap_file': str(self.heatmap_file), 'pfa': json.loads(json.dumps(
+                    stats, default=str)),
+                'scene': {'name': self.scene.name, 'file': str(self.scene_file),
+                          'objects_hash': self.scene.objects_hash()},
+                'objects': objects_to_data(boxes)}
+        self.bar.write(f'{self.scene.name}: attack {spec.tag}: {len(boxes)} boxes '
+                       f'({result.status.value}, {result.compute_s:.1f} s, '
+                       f'{stats.get("queries")} queries, best failure rate '
+                       f'{stats.get("best_failure_rate")})', file=sys.stderr)
         return boxes, meta
 
     def _wait_server(self) -> None:
@@ -673,10 +829,10 @@ class Orchestrator:
     def _run_unit(self, unit: Unit) -> None:
         from advocc_ros.collision import CollisionWorld
 
-        self.pending = collections.deque(t for t in unit.trials if t.key not in self.store)
-        if not self.pending:
+        if all(t.key in self.store for t in unit.trials):
             return
         objects = self._obstacles(unit.attack) if unit.attack is not None else ()
+        self.pending = collections.deque(t for t in unit.trials if t.key not in self.store)
         self.world = CollisionWorld(self.robot, self.scene.shapes +
                                     [s for o in objects for s in o.shapes])
         self.unit = unit
@@ -748,22 +904,27 @@ class Orchestrator:
             shim.since = now
             log.info('%s re-synced: had %s, want %s', shim.name, sorted(have), sorted(want))
 
-    def _dispatch(self, shim: Shim, trial: Trial, now: float) -> None:
+    def _dispatch(self, shim: Shim, job: Trial | _Query, now: float) -> None:
         from advocc_msgs.srv import Plan
         from sensor_msgs.msg import JointState
 
         from advocc_ros.conversions import goal_region_to_msg
 
+        if isinstance(job, _Query):
+            q, goal, planner, budget = job.q_start, job.goal, job.planner_id, job.time_budget_s
+        else:
+            q, goal, planner = self.q_init, self.scene.goal, job.planner
+            budget = self.cfg.time_budget_s
         req = Plan.Request()
         req.start_state = JointState(name=list(self.robot.joint_names),
-                                     position=[float(v) for v in self.q_init])
-        req.goal_region = goal_region_to_msg(self.scene.goal, self.scene.frame)
-        req.planner_id = trial.planner
-        req.time_budget_s = float(self.cfg.time_budget_s)
-        req.seed = int(trial.seed)
+                                     position=[float(v) for v in q])
+        req.goal_region = goal_region_to_msg(goal, self.scene.frame)
+        req.planner_id = planner
+        req.time_budget_s = float(budget)
+        req.seed = int(job.seed)
         shim.future = shim.plan.call_async(req)
-        shim.trial, shim.state, shim.since = trial, 'busy', now
-        shim.deadline = now + self.cfg.time_budget_s + self.cfg.plan_timeout_margin_s
+        shim.trial, shim.state, shim.since = job, 'busy', now
+        shim.deadline = now + budget + self.cfg.plan_timeout_margin_s
 
     def _finish(self, shim: Shim) -> None:
         from advocc_ros.conversions import trajectory_from_msg
@@ -779,6 +940,9 @@ class Orchestrator:
             self.pending.appendleft(trial)
             return
         status = _code_name(res.error_code.val)
+        if isinstance(trial, _Query):
+            trial.done(res, self.robot)
+            return
         if status in _FATAL_CODES:
             raise BenchError(f'{shim.name} rejected trial {trial.key}: {status}: {res.message}')
         if status == 'CRASH' and self.crashes[trial.key] < _CRASH_RETRIES:
@@ -866,8 +1030,9 @@ def write_report(run_dir: str | pathlib.Path, cfg: BenchConfig, summary: dict | 
     notes = (summary or {}).get('notes', [])
     head = (f'Time budget {cfg.time_budget_s:g} s, {cfg.trials} trials per cell planned '
             f'(`*`: fewer finished). PSR in %, SMR and CMR x10^-2, JDS in rad, PT in s.\n')
-    put('table1.md', f'# Table I: attack performance\n\n{head}\n{md1}\n'
-        f'## Unattacked baseline (budget 0)\n\n{baseline_table(rows, cfg)}'
+    base = baseline_table(rows, cfg)
+    base = f'\n## Unattacked baseline (budget 0)\n\n{base}' if base.count('\n') > 2 else ''
+    put('table1.md', f'# Table I: attack performance\n\n{head}\n{md1}{base}'
         + ''.join(f'\n- {n}' for n in notes) + ('\n' if notes else ''))
     put('table1.csv', csv1)
     put('table2.md', '# Table II: minimum budget to reach PSR <= threshold\n\n'

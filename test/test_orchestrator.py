@@ -203,3 +203,26 @@ def test_sigint_stops_every_child(tmp_path, heatmap_file, ros_env):
         assert _gone(child['pid'], timeout=2), f'{name} still running after the orchestrator'
     summary = json.loads((out / 'summary.json').read_text())
     assert summary['status'] == 'interrupted' and summary['done'] >= 1
+
+
+def test_planner_in_the_loop_attack_queries_the_shims(tmp_path, heatmap_file, ros_env):
+    """PFA's optimiser plans through the shims' ~/plan (each query's boxes injected first)."""
+    out = tmp_path / 'run'
+    args = [sys.executable, '-m', 'advocc_ros.orchestrator', '--profile', 'quick',
+            '--out', str(out), '--scenes', 'table_pick', '--planners', 'rrtconnect',
+            '--methods', 'pfa', '--budgets', '1', '--trials', '2', '--time-budget', '1',
+            '--no-baseline', '--shims', '2', '--heatmap', f'table_pick={heatmap_file}',
+            '--set', 'pfa={queries: 9, queries_per_placement: 3, query_time_s: 0.5}']
+    code, text = _finish(subprocess.Popen(args, env=ros_env, stdout=subprocess.PIPE,
+                                          stderr=subprocess.STDOUT, text=True))
+    assert code == 0, text
+    import yaml
+    meta = yaml.safe_load((out / 'attacks' / 'table_pick' / 'pfa_b1_v0.yaml').read_text())
+    assert meta['method'] == 'pfa' and len(meta['objects']) == 1
+    assert meta['pfa']['queries'] == 9 and meta['pfa']['planner'] == 'rrtconnect'
+    assert sum(meta['pfa']['statuses'].values()) == 9
+    served = 0
+    for i in range(2):  # 9 queries + 2 trials were planned by the shims
+        served += (out / 'logs' / f'advocc_shim_table_pick_{i}.log').read_text().count('plan #')
+    assert served == 9 + 2
+    assert len(_lines(out)) == 2
