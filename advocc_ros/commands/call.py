@@ -9,8 +9,8 @@ import sys
 import time
 
 from advocc_ros.cli import UserError
-from advocc_ros.paths import scene_path
-from advocc_ros.scene import SceneError, load_scene
+from advocc_ros.commands.common import add_scene_args, scene_from_args
+from advocc_ros.scene import SceneError
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -18,7 +18,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     csub = parser.add_subparsers(dest='call_command', required=True)
 
     p = csub.add_parser('attack', help='heatmap_server ~/attack for a scene\'s task')
-    p.add_argument('--scene', required=True, help='scene YAML (or a name in config/scenes)')
+    add_scene_args(p)
     p.add_argument('--budget', type=int, required=True, help='M, number of boxes')
     p.add_argument('--method', default='ours', help='ours | random | pfa | pfa++')
     p.add_argument('--size', type=float, default=0.0, help='box edge [m]; 0: server default')
@@ -135,7 +135,7 @@ def _attack(args: argparse.Namespace) -> int:
     from advocc_msgs.srv import Attack
 
     try:
-        scene = load_scene(scene_path(args.scene))
+        scene = scene_from_args(args)
     except SceneError as exc:
         raise UserError(str(exc)) from None
     req = attack_request(scene, args.budget, args.method, args.size, args.seed)

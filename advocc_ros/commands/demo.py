@@ -14,13 +14,13 @@ import pathlib
 import time
 
 from advocc_ros.heatmap import HeatmapConfig, build_heatmap, load_heatmap, save_heatmap
-from advocc_ros.paths import scene_path
-from advocc_ros.scene import load_scene
+from advocc_ros.commands.common import add_scene_args, scene_from_args
 
 
 def register(sub: argparse._SubParsersAction) -> None:
     parser = sub.add_parser('demo', help='heatmap, attack and evaluation on the default scene')
-    parser.add_argument('--scene', default='table_pick')
+    add_scene_args(parser, required=False)
+    parser.set_defaults(scene='table_pick')
     parser.add_argument('--out', default='out/demo', help='output folder')
     parser.add_argument('--samples', type=int, default=HeatmapConfig.samples)
     parser.add_argument('--workers', type=int, default=os.cpu_count() or 1)
@@ -39,7 +39,7 @@ def _stage(title: str) -> None:
 def run(args) -> int:
     out = pathlib.Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    scene = load_scene(scene_path(args.scene))
+    scene = scene_from_args(args)
 
     _stage(f'1. offline: kinematic occupancy heatmap for {scene.name} ({args.samples} samples)')
     heatmap_file = out / f'heatmap_{scene.name}.npz'

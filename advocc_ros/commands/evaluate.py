@@ -12,14 +12,14 @@ import pathlib
 import sys
 
 from advocc_ros.cli import UserError
+from advocc_ros.commands.common import add_scene_args, scene_from_args
 
 
 def register(subparsers) -> None:
     p = subparsers.add_parser(
         'evaluate', help='plan N times with an OMPL planner and report PSR/SMR/CMR/JDS/PT',
         description=__doc__.splitlines()[0])
-    p.add_argument('--scene', required=True,
-                   help='scene YAML file, or a shipped scene name such as table_pick')
+    add_scene_args(p)
     p.add_argument('--obstacles', help='obstacles YAML (an attack result: objects: [...])')
     p.add_argument('--planner', default='rrtconnect',
                    help='rrtconnect | prmstar | bkpiece1 | another OMPL geometric planner')
@@ -35,14 +35,13 @@ def register(subparsers) -> None:
     p.set_defaults(func=run)
 
 
-def load_task(scene_arg: str, obstacles: str | None):
-    """The scene with the obstacles file's objects added."""
-    from advocc_ros.paths import scene_path
-    from advocc_ros.scene import load_scene, objects_from_data, read_yaml
+def load_task(args, obstacles: str | None):
+    """The scene of ``--scene/--request/--goal-tol`` with the obstacles file's objects added."""
+    from advocc_ros.scene import objects_from_data, read_yaml
 
-    scene = load_scene(scene_path(scene_arg))
+    scene = scene_from_args(args)
     if scene.goal is None or scene.start is None:
-        raise UserError(f'{scene_arg}: the scene needs a start and a goal to be evaluated')
+        raise UserError(f'{args.scene}: the scene needs a start and a goal to be evaluated')
     if obstacles:
         path = pathlib.Path(obstacles)
         data = read_yaml(path)
@@ -67,7 +66,7 @@ def run(args: argparse.Namespace) -> int:
         raise UserError(f'unknown planner {args.planner!r}')
     if args.workers < 1:
         raise UserError('--workers must be >= 1')
-    scene = load_task(args.scene, args.obstacles)
+    scene = load_task(args, args.obstacles)
     config = dataclasses.replace(PlanningConfig(), simplify=not args.no_simplify)
 
     from tqdm import tqdm

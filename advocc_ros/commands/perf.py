@@ -10,8 +10,7 @@ import statistics
 import time
 
 from advocc_ros.heatmap import HeatmapConfig, build_heatmap
-from advocc_ros.paths import scene_path
-from advocc_ros.scene import load_scene
+from advocc_ros.commands.common import add_scene_args, scene_from_args
 
 
 def machine() -> dict:
@@ -30,7 +29,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     parser = sub.add_parser('perf', help='benchmarks')
     psub = parser.add_subparsers(dest='perf_command', required=True)
     heat = psub.add_parser('heatmap', help='time the offline heatmap build')
-    heat.add_argument('--scene', default='table_pick')
+    add_scene_args(heat, required=False)
+    heat.set_defaults(scene='table_pick')
     heat.add_argument('--samples', type=int, default=HeatmapConfig.samples)
     heat.add_argument('--workers', type=int, default=os.cpu_count() or 1)
     heat.add_argument('--repeats', type=int, default=3)
@@ -41,7 +41,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def _heatmap(args) -> int:
-    scene = load_scene(scene_path(args.scene))
+    scene = scene_from_args(args)
     cfg = HeatmapConfig(samples=args.samples)
     # First build includes one-time costs (numba kernel compile or cache load, link tables).
     t0 = time.perf_counter()

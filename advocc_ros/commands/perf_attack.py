@@ -18,6 +18,7 @@ import time
 import numpy as np
 
 from advocc_ros.cli import UserError
+from advocc_ros.commands.common import add_scene_args
 
 PAPER_ONLINE_S = 1.27  # paper §V: online attack generation time
 
@@ -25,7 +26,8 @@ PAPER_ONLINE_S = 1.27  # paper §V: online attack generation time
 def register_attack(sub: argparse._SubParsersAction) -> None:
     """Add ``attack`` to the ``advocc perf`` subcommands."""
     p = sub.add_parser('attack', help='time the online attack (core and service round trip)')
-    p.add_argument('--scene', default='table_pick')
+    add_scene_args(p, required=False)
+    p.set_defaults(scene='table_pick')
     p.add_argument('--heatmap', help='heatmap file (default: build one with --samples)')
     p.add_argument('--samples', type=int, default=3000,
                    help='samples of the heatmap built when --heatmap is not given')
@@ -123,13 +125,13 @@ def _perf_attack(args: argparse.Namespace) -> int:
     from advocc_ros.commands.perf import machine
     from advocc_ros.heatmap import HeatmapConfig, HeatmapError, build_heatmap, load_heatmap, \
         save_heatmap
-    from advocc_ros.paths import scene_path
+    from advocc_ros.commands.common import scene_from_args
     from advocc_ros.robot import load_robot
-    from advocc_ros.scene import SceneError, load_scene
+    from advocc_ros.scene import SceneError
 
     try:
         budgets = [int(b) for b in args.budgets.split(',') if b.strip()]
-        scene = load_scene(scene_path(args.scene))
+        scene = scene_from_args(args)
     except (ValueError, SceneError) as exc:
         raise UserError(str(exc)) from None
     if scene.start is None or scene.goal is None:
