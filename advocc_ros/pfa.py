@@ -24,8 +24,9 @@ CMA-ES), initial mean = M distinct seeded random candidates, sigma0 = 0.2, popul
 library default 4 + floor(3 ln 3M). A sample is decoded box by box: the nearest candidate
 centre (k-d tree) that passes the exact check and keeps d_min from the boxes already placed.
 CMA-ES is told the decoded (snapped) point, not the raw sample (Lamarckian repair), so its
-distribution follows placements that exist. The result is the best placement scored so far
-(earliest on ties). No restarts: with a few hundred queries there is no budget for them.
+distribution follows placements that exist. The result is the best placement scored (the
+latest on ties: with K noisy queries an early tie is more likely luck than a real blocker).
+No restarts: with a few hundred queries there is no budget for them.
 
 Budget. ``queries`` (Q) counts every planner call, the K baseline queries included, and is
 never exceeded: a generation is evaluated only as far as whole placements (K queries each)
@@ -336,7 +337,10 @@ def optimise(decoder: _Decoder, objective: Objective, budget: int, seed: int,
             break
         if objective.affordable() == 0:
             break
-    best, best_score = max(history, key=lambda h: h[1]) if history else (start, -math.inf)
+    # Ties go to the latest: later generations are better informed, and an early tie is more
+    # likely a lucky draw of a noisy score (K queries) than a real blocker.
+    best, best_score = max(reversed(history), key=lambda h: h[1]) if history else (
+        start, -math.inf)
     return OptimiseResult(best, best_score, len(history), generations, stopped, history)
 
 

@@ -1,0 +1,198 @@
+"""PFA / PFA++: the optimiser on a known objective, and real OMPL planners in the loop.
+
+The planner scene is an open-top bin around a top-down goal: its opening is the only way in,
+and every goal configuration passes the wrist through it, so a box over the opening blocks the
+task (goal configurations in collision) while most boxes of the search region do not.
+"""
+
+import itertools
+import threading
+
+import numpy as np
+import pytest
+
+from advocc_ros.attack import METHODS, AttackConfig, AttackStatus, attack, search_region
+from advocc_ros.heatmap import HeatmapConfig, build_heatmap
+from advocc_ros.pfa import (LocalPlanners, PfaConfig, PfaOptions, _Decoder, exact_goal,
+                            optimise)
+from advocc_ros.planning import start_configuration
+from advocc_ros.scene import GoalRegion, Pose, Scene, make_box
+from test_attack import _assert_constraints
+
+# ---------------------------------------------------------------------------------------------
+# The optimiser alone: a deterministic objective (no planner), so runs must match exactly
+
+
+class _Distance:
+    """Score = -distance of the first box to a target point; counts placements scored."""
+
+    def __init__(self, centers, target, budget):
+        self.centers, self.target, self.budget, self.calls = centers, np.asarray(target), budget, 0
+
+    def affordable(self):
+        return self.budget - self.calls
+
+    def __call__(self, placements):
+        assert len(placements) <= self.affordable()
+        self.calls += len(placements)
+        return [-float(np.linalg.norm(self.centers[p[0]] - self.target)) for p in placements]
+
+
+def _lattice(n=12, step=0.02):
+    g = np.arange(n) * step
+    return np.stack(np.meshgrid(g, g, g, indexing='ij'), -1).reshape(-1, 3)
+
+
+def test_optimiser_is_reproducible_and_respects_the_budget():
+    centers = _lattice()
+    runs = []
+    for seed in (3, 3, 4):
+        obj = _Distance(centers, (0.2, 0.05, 0.11), budget=60)
+        res = optimise(_Decoder(centers, 0.05), obj, 2, seed)
+        assert obj.calls == res.scored <= 60
+        runs.append(res)
+    assert runs[0].history == runs[1].history and runs[0].best == runs[1].best
+    assert runs[0].history != runs[2].history
+    # It optimises: the best first box is far closer to the target than a random one.
+    d = np.linalg.norm(centers - (0.2, 0.05, 0.11), axis=1)
+    assert -runs[0].best_score <= np.quantile(d, 0.02)
+
+
+def test_decoder_keeps_d_min_and_the_exact_check():
+    centers = _lattice(8, 0.02)
+    vetoed = {i for i in range(len(centers)) if i % 3 == 0}
+    dec = _Decoder(centers, 0.05, lambda row: row not in vetoed)
+    rng = np.random.default_rng(0)
+    for _ in range(50):
+        p = dec.decode(rng.random(9))
+        assert len(p) == 3 and not set(p) & vetoed
+        for a, b in itertools.combinations(p, 2):
+            assert np.linalg.norm(centers[a] - centers[b]) >= 0.05 - 1e-9
+    assert dec.rejected == len([r for r in dec._checked if r in vetoed])
+
+
+
+
+def test_pfa_config_checks_its_values():
+    with pytest.raises(ValueError, match='queries'):
+        PfaConfig(queries=5, queries_per_placement=3)
+    with pytest.raises(ValueError, match='planner'):
+        PfaConfig(planner_id='nope')
+
+
+def test_exact_goal_is_the_centre_pose():
+    goal = GoalRegion(Pose((0.5, 0.0, 0.3), (1.0, 0.0, 0.0, 0.0)), (0.03, 0.02, 0.02),
+                      (0.1, 0.1, 0.5))
+    exact = exact_goal(goal)
+    assert exact.center == goal.center and exact.link == goal.link
+    assert max(exact.position_tolerance_m) <= 1e-4
+    assert max(exact.orientation_tolerance_rad) <= 1e-3
+
+
+# ---------------------------------------------------------------------------------------------
+# Real planners in the loop
+
+BOX = 0.15
+CFG = AttackConfig(box_size_m=BOX, d_safe_m=0.05)
+GOAL_XYZ = (0.55, 0.0, 0.30)
+
+
+@pytest.fixture(scope='module')
+def bin_task(table_scene):
+    """A top-down goal inside an open bin (inner 0.34 m square, rim 6 cm above the hand)."""
+    cx, cy, _ = GOAL_XYZ
+    inner, t, top = 0.17, 0.02, 0.36
+    h = top - 0.1
+    zc, off, out = 0.1 + h / 2, inner + t / 2, inner + t
+    objects = (make_box('table', (0.55, 0.0, 0.05), (0.6, 0.8, 0.1)),
+               make_box('wall_px', (cx + off, cy, zc), (t, 2 * out, h)),
+               make_box('wall_nx', (cx - off, cy, zc), (t, 2 * out, h)),
+               make_box('wall_py', (cx, cy + off, zc), (2 * inner, t, h)),
+               make_box('wall_ny', (cx, cy - off, zc), (2 * inner, t, h)))
+    goal = GoalRegion(Pose(GOAL_XYZ, (1.0, 0.0, 0.0, 0.0)), (0.02, 0.02, 0.02), (0.1, 0.1, 0.3))
+    scene = Scene(objects, dict(table_scene.start), goal, table_scene.robot, 'bin')
+    heatmap = build_heatmap(scene, HeatmapConfig(samples=300, robot_only=True), seed=1)
+    return scene, heatmap
+
+
+@pytest.fixture(scope='module')
+def planners(bin_task):
+    with LocalPlanners(bin_task[0], workers=2) as lp:
+        yield lp.start()
+
+
+def test_pfa_without_a_planner_is_refused(panda, bin_task):
+    scene, heatmap = bin_task
+    q = start_configuration(scene, panda)
+    res = attack(heatmap, panda, scene.objects, q, scene.goal, 1, 'pfa', CFG)
+    assert res.status == AttackStatus.UNKNOWN_METHOD and 'planner' in res.message
+
+
+class _Counting:
+    """Counts the calls that reach the real planners (and checks the ones in flight)."""
+
+    def __init__(self, inner):
+        self.inner, self.workers, self.calls, self.busy, self.max_busy = inner, inner.workers, \
+            0, 0, 0
+        self._lock = threading.Lock()
+
+    def __call__(self, *args):
+        with self._lock:
+            self.calls += 1
+            self.busy += 1
+            self.max_busy = max(self.max_busy, self.busy)
+        try:
+            return self.inner(*args)
+        finally:
+            with self._lock:
+                self.busy -= 1
+
+
+def _failure_rate(planners, q, goal, obstacles, trials, seed):
+    results = [planners(q, obstacles, goal, 'rrtconnect', 1.0, seed + k) for k in range(trials)]
+    return sum(not r.success for r in results) / trials
+
+
+def test_pfa_beats_random_on_the_bin(panda, bin_task, planners):
+    scene, heatmap = bin_task
+    q = start_configuration(scene, panda)
+    counting = _Counting(planners)
+    progress = []
+    pcfg = PfaConfig(queries=87, queries_per_placement=3, query_time_s=1.0)
+    res = attack(heatmap, panda, scene.objects, q, scene.goal, 1, 'pfa', CFG, seed=7,
+                 method_options=PfaOptions(counting, pcfg, lambda d, t: progress.append(d)))
+    assert res.status == AttackStatus.SUCCESS, res.message
+    stats = res.stats['pfa']
+    # The query budget is respected and reported; queries ran in parallel.
+    assert counting.calls == stats['queries'] <= 87 and progress[-1] == counting.calls
+    assert counting.max_busy == 2 and stats['goal'] == 'exact pose'
+    assert stats['placements_scored'] >= 20 and res.compute_s >= stats['optimise_s']
+    _assert_constraints(res, panda, heatmap, scene.objects, q, scene.goal, CFG)
+
+    # Failure rates measured afresh (goal region, RRT-Connect): PFA's box against Random's.
+    region = search_region(heatmap, panda, scene.objects, q, scene.goal, CFG, BOX)
+    pfa_rate = _failure_rate(planners, q, scene.goal, res.obstacles, 6, 100)
+    rnd_rates = []
+    for seed in (1, 2, 3):
+        picks, _ = METHODS['random'](region, 1, seed, CFG)
+        boxes = tuple(make_box(f'adv_{i}', region.center_m(c), (BOX,) * 3)
+                      for i, (c, _) in enumerate(picks))
+        rnd_rates.append(_failure_rate(planners, q, scene.goal, boxes, 4, 200 + 10 * seed))
+    assert pfa_rate >= 0.65, (pfa_rate, rnd_rates, res.centers_m, stats)
+    assert pfa_rate >= np.mean(rnd_rates) + 0.3, (pfa_rate, rnd_rates, res.centers_m)
+
+
+def test_pfa_pp_queries_the_victim_with_the_goal_region(panda, bin_task, planners):
+    scene, heatmap = bin_task
+    q = start_configuration(scene, panda)
+    counting = _Counting(planners)
+    pcfg = PfaConfig(queries=8, queries_per_placement=2, query_time_s=0.5,
+                     planner_id='bkpiece1')
+    res = attack(heatmap, panda, scene.objects, q, scene.goal, 2, 'pfa++', CFG, seed=1,
+                 method_options=PfaOptions(counting, pcfg))
+    assert res.status == AttackStatus.SUCCESS, res.message
+    stats = res.stats['pfa++']
+    assert stats['planner'] == 'bkpiece1' and stats['goal'] == 'goal region'
+    assert counting.calls == stats['queries'] <= 8
+    assert len(res.obstacles) == 2 and len(res.masses) == 2
+    _assert_constraints(res, panda, heatmap, scene.objects, q, scene.goal, CFG)
