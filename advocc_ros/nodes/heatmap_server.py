@@ -33,7 +33,8 @@ from advocc_ros.attack import (METHODS, PLUGIN_METHODS, AttackConfig, AttackStat
 from advocc_ros.conversions import (goal_region_from_msg, obstacle_to_msg, q_from_joint_state,
                                     scene_from_msgs)
 from advocc_ros.heatmap import HeatmapError, load_heatmap
-from advocc_ros.robot import RobotError, RobotSpec, load_robot
+from advocc_ros.paths import allowed_dirs, confine
+from advocc_ros.robot import RobotError, RobotSpec, load_robot, resolve_path
 from advocc_ros.scene import SceneError
 
 # AttackConfig fields exposed as parameters (same names, same defaults).
@@ -90,12 +91,18 @@ class HeatmapServer(Node):
         for param, field in _ROBOT_PARAMS.items():
             self.declare_parameter(param, getattr(spec, field))
         self.declare_parameter('base_frame', 'panda_link0')
+        self.declare_parameter('allowed_dirs', [''])  # ['']: the defaults, see paths.py
         self.add_on_set_parameters_callback(self._check_parameters)
 
         path = self.get_parameter('heatmap_file').value
         if not path:
             raise HeatmapError('parameter heatmap_file is empty: give a heatmap .npz file '
                                '(--ros-args -p heatmap_file:=FILE)')
+        self._allowed = allowed_dirs(self.get_parameter('allowed_dirs').value)
+        confine(path, self._allowed, 'heatmap_file')
+        for param in ('robot_urdf', 'robot_srdf'):
+            confine(resolve_path(self.get_parameter(param).value),
+                    self._allowed + [resolve_path('example-robot-data://')], param)
         self._spec = RobotSpec(**{field: self.get_parameter(param).value
                                   for param, field in _ROBOT_PARAMS.items()})
         self.robot = load_robot(self._spec)
@@ -119,7 +126,7 @@ class HeatmapServer(Node):
     def _check_parameters(self, params) -> SetParametersResult:
         if not hasattr(self, 'cfg'):  # start-up: validated when the config is built
             return SetParametersResult(successful=True)
-        fixed = {'heatmap_file', 'base_frame', *_ROBOT_PARAMS}
+        fixed = {'heatmap_file', 'base_frame', 'allowed_dirs', *_ROBOT_PARAMS}
         values = dataclasses.asdict(self.cfg)
         for p in params:
             if p.name in fixed:

@@ -36,9 +36,9 @@ from rclpy.node import Node
 from advocc_ros.conversions import (collision_object_from_msg, goal_region_from_msg,
                                     q_from_joint_state, trajectory_to_msg)
 from advocc_ros.nodes.qos import COLLISION_OBJECT_TOPIC, LATCHED_QOS
-from advocc_ros.paths import scene_path
+from advocc_ros.paths import allowed_dirs, confine, scene_path
 from advocc_ros.planning import PLANNERS, Planner, PlanningConfig, PlanStatus
-from advocc_ros.robot import RobotError
+from advocc_ros.robot import RobotError, resolve_path
 from advocc_ros.scene import Scene, SceneError, apply_operation, load_scene
 
 # Parameters that map onto PlanningConfig fields (defaults come from the dataclass).
@@ -55,12 +55,22 @@ class PlannerShim(Node):
         defaults = PlanningConfig()
         self.declare_parameter('scene_file', 'table_pick')
         self.declare_parameter('default_planner', 'rrtconnect')
+        self.declare_parameter('allowed_dirs', [''])  # ['']: the defaults, see paths.py
         for name in _CONFIG_PARAMS:
             self.declare_parameter(name, getattr(defaults, name))
         self.add_on_set_parameters_callback(self._check_parameters)
 
         scene_arg = self.get_parameter('scene_file').value
-        self._static: Scene = load_scene(scene_path(scene_arg)) if scene_arg else Scene()
+        allowed = allowed_dirs(self.get_parameter('allowed_dirs').value)
+        if scene_arg:
+            self._static: Scene = load_scene(confine(scene_path(scene_arg), allowed,
+                                                     'scene_file'))
+            for field in ('urdf', 'srdf'):  # a scene file names the robot files to read
+                confine(resolve_path(getattr(self._static.robot, field)),
+                        allowed + [resolve_path('example-robot-data://')],
+                        f'scene_file robot.{field}')
+        else:
+            self._static = Scene()
         self._injected: dict = {}
         self._scene_lock = threading.Lock()
         self._planner = Planner(self._static, self._config())
@@ -86,9 +96,9 @@ class PlannerShim(Node):
 
     def _check_parameters(self, params) -> SetParametersResult:
         for p in params:
-            if p.name == 'scene_file' and hasattr(self, '_planner'):
+            if p.name in ('scene_file', 'allowed_dirs') and hasattr(self, '_planner'):
                 return SetParametersResult(successful=False,
-                                           reason='scene_file is read at start-up only')
+                                           reason=f'{p.name} is read at start-up only')
             if p.name in ('time_budget_s', 'max_time_budget_s', 'motion_step_rad',
                           'waypoint_step_rad', 'watchdog_margin_s') and \
                     not (isinstance(p.value, float) and math.isfinite(p.value) and p.value > 0):
