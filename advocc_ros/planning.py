@@ -241,8 +241,10 @@ class GoalSampler:
         self.T_link_tool = goal.tool_offset.to_se3()
         self.T_tool_link = self.T_link_tool.inverse()
         self.T_center = goal.center.to_se3()
-        self.tol_p = np.asarray(goal.position_tolerance_m)
-        self.tol_r = np.asarray(goal.orientation_tolerance_rad)
+        # abs: -0.0 passes '>= 0' but makes rng.uniform(-t, t) raise; huge tolerances overflow
+        # its range (and mean nothing beyond a full turn or the robot's reach).
+        self.tol_p = np.clip(np.abs(goal.position_tolerance_m), 0.0, 10.0)
+        self.tol_r = np.clip(np.abs(goal.orientation_tolerance_rad), 0.0, math.pi)
         self.attempts = self.converged = self.colliding = 0
 
     def tool_pose(self, q: np.ndarray) -> pin.SE3:
@@ -372,7 +374,7 @@ def solve(robot: RobotModel, in_collision, q_start: np.ndarray, goal: GoalRegion
     if not _OMPL_SEEDED:
         ou.RNG.setSeed(int(seed) % (2 ** 31 - 1) + 1)
         _OMPL_SEEDED = True
-    rng = np.random.default_rng(seed)
+    rng = np.random.default_rng(int(seed) % 2 ** 64)  # int64 message seeds may be < 0
     sampler = GoalSampler(robot, in_collision, goal, rng, config)
 
     if sampler.region_distance(q_start) == 0.0:
