@@ -78,6 +78,7 @@ from scipy.spatial import cKDTree
 
 from advocc_ros.attack import (AttackConfig, AttackError, AttackStatus, MethodContext,
                                SearchRegion, _Coverage, register_method)
+from advocc_ros.limits import MAX_PLANNER_QUERIES
 from advocc_ros.planning import Planner, PlanningConfig, PlanResult, planner_class_name
 from advocc_ros.scene import GoalRegion, Scene, SceneObject, make_box
 
@@ -110,7 +111,8 @@ class PfaConfig:
     """Stop after this many generations in a row that decode only to scored placements."""
 
     def __post_init__(self):
-        checks = {'queries': self.queries >= 2 * self.queries_per_placement,
+        checks = {'queries': 2 * self.queries_per_placement <= self.queries
+                  <= MAX_PLANNER_QUERIES,
                   'queries_per_placement': self.queries_per_placement >= 1,
                   'query_time_s': 0 < self.query_time_s <= 600,
                   'sigma0': 0 < self.sigma0 <= 1,
@@ -119,8 +121,8 @@ class PfaConfig:
         for name, ok in checks.items():
             if not ok:
                 raise ValueError(f'PFA parameter {name}={getattr(self, name)!r} is out of range'
-                                 + (' (needs >= 2 K: baseline + one placement)'
-                                    if name == 'queries' else ''))
+                                 + (f' (needs 2 K .. {MAX_PLANNER_QUERIES}: baseline + at '
+                                    'least one placement)' if name == 'queries' else ''))
         if planner_class_name(self.planner_id) is None:
             raise ValueError(f'unknown planner {self.planner_id!r}')
 

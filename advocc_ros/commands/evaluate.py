@@ -58,8 +58,9 @@ def run(args: argparse.Namespace) -> int:
     from advocc_ros.metrics import evaluate_planner, format_value
     from advocc_ros.planning import PlanningConfig, planner_class_name
 
-    if args.trials < 1:
-        raise UserError('--trials must be >= 1')
+    from advocc_ros.limits import MAX_TRIALS
+    if not 1 <= args.trials <= MAX_TRIALS:
+        raise UserError(f'--trials must be in 1..{MAX_TRIALS}')
     if not 0 < args.time <= PlanningConfig().max_time_budget_s:
         raise UserError(f'--time must be in (0, {PlanningConfig().max_time_budget_s:g}]')
     if planner_class_name(args.planner) is None:

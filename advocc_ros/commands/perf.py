@@ -37,7 +37,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     heat.add_argument('--json', action='store_true')
     heat.set_defaults(func=_heatmap)
     from advocc_ros.commands.perf_attack import register_attack
+    from advocc_ros.commands.perf_load import register_load
     register_attack(psub)
+    register_load(psub)
 
 
 def _heatmap(args) -> int:
