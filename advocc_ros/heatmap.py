@@ -7,7 +7,8 @@ gets ``H[v] += w(q)`` (once per q even where links overlap), with
     w(q) = s_man(q)^gamma1 * s_clr(q)^gamma2,  s_man = m / (m + kappa),  m = sqrt(det(J J^T)),
     s_clr = min(d_clr / d_safe, 1),  d_clr = min distance between links and E.
 
-Speed: candidate validity is checked in parallel in C++ (``pinocchio.computeCollisionsInParallel``);
+Speed: candidate validity is checked in parallel in C++
+(``pinocchio.computeCollisionsInParallel``);
 links are rasterized with precomputed look-up tables (``voxels.SolidLUT``), so a batch of
 configurations costs a handful of numpy operations. Samples are split into fixed chunks, each
 with its own seed stream, and chunk results are summed in chunk order: the file is identical for
@@ -261,7 +262,7 @@ def _accumulate(H, stamp, free, grid_origin, voxel, grid_shape, R, t, weights, s
     over the voxels of its rotated bounding box only; a voxel is counted once per sample even
     where links overlap (``stamp`` remembers the last sample that added to it).
     """
-    nx, ny, nz = grid_shape[0], grid_shape[1], grid_shape[2]
+    ny, nz = grid_shape[1], grid_shape[2]
     for s in range(R.shape[0]):
         sid = sample0 + s
         w = weights[s]

@@ -12,7 +12,8 @@ def config_dir() -> pathlib.Path:
 
 
 def scene_path(name_or_path: str) -> pathlib.Path:
-    """A scene file path; a bare name like ``table_pick`` means ``config/scenes/table_pick.yaml``."""
+    """A scene file path; a bare name like ``table_pick`` means
+    ``config/scenes/table_pick.yaml``."""
     path = pathlib.Path(name_or_path)
     if path.suffix or path.exists():
         return path

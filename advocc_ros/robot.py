@@ -64,7 +64,8 @@ class RobotSpec:
         fields = {f.name for f in dataclasses.fields(cls)}
         unknown = set(data) - fields
         if unknown:
-            raise RobotError(f'{where}: unknown field(s) {sorted(unknown)}; known: {sorted(fields)}')
+            raise RobotError(f'{where}: unknown field(s) {sorted(unknown)}; '
+                             f'known: {sorted(fields)}')
         for key, value in data.items():
             if not isinstance(value, str):
                 raise RobotError(f'{where}.{key}: expected a string, got {value!r}')
@@ -150,7 +151,8 @@ class RobotModel:
                 q_ref[full.joints[jid].idx_q] = state[name]
         missing = [j for j in group if not full.existJointName(j)]
         if missing:
-            raise RobotError(f'{srdf}: group {spec.group!r} names joints not in the URDF: {missing}')
+            raise RobotError(f'{srdf}: group {spec.group!r} names joints not in the URDF: '
+                             f'{missing}')
         self.model, self.collision_model = pin.buildReducedModel(full, full_geom, lock_ids, q_ref)
         if self.model.nq != self.model.nv:
             raise RobotError('continuous/multi-DoF joints in the planning group are not supported')

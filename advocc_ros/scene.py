@@ -67,7 +67,8 @@ class Pose:
         norm = np.linalg.norm(quat / np.max(np.abs(quat))) * np.max(np.abs(quat)) \
             if np.any(quat) else 0.0  # scaled: components near 1e308 must not overflow to inf
         if not 1e-6 <= norm < np.inf:
-            raise SceneError(f'{where}.orientation: zero or overflowing quaternion {quat.tolist()}')
+            raise SceneError(f'{where}.orientation: zero or overflowing quaternion '
+                             f'{quat.tolist()}')
         return cls(tuple(pos.tolist()), tuple((quat / norm).tolist()))
 
     @classmethod
@@ -171,7 +172,8 @@ class GoalRegion:
         known = {'link', 'center', 'position_tolerance', 'orientation_tolerance', 'tool_offset'}
         unknown = set(data) - known
         if unknown:
-            raise SceneError(f'{where}: unknown field(s) {sorted(unknown)}; known: {sorted(known)}')
+            raise SceneError(f'{where}: unknown field(s) {sorted(unknown)}; '
+                             f'known: {sorted(known)}')
         if 'center' not in data:
             raise SceneError(f'{where}.center: missing')
         link = data.get('link', 'panda_hand')

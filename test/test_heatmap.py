@@ -153,7 +153,8 @@ def test_bad_values_and_versions_are_rejected(small_table_heatmap, tmp_path):
     path = tmp_path / 'neg.npz'
     bad = small_table_heatmap.values.copy()
     bad[0, 0, 0] = -1
-    arrays = dict(format_version=np.array(1), origin_m=np.asarray(small_table_heatmap.grid.origin_m),
+    arrays = dict(format_version=np.array(1),
+                  origin_m=np.asarray(small_table_heatmap.grid.origin_m),
                   voxel_m=np.array(0.02), shape=np.asarray(small_table_heatmap.grid.shape),
                   values=bad, free=small_table_heatmap.free,
                   meta_json=np.frombuffer(json.dumps({}).encode(), np.uint8))

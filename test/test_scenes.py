@@ -5,7 +5,6 @@ import dataclasses
 import pathlib
 
 import numpy as np
-import pinocchio as pin
 import pytest
 
 from advocc_ros.collision import CollisionWorld

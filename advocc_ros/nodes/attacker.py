@@ -20,16 +20,15 @@ from __future__ import annotations
 import sys
 import time
 
-import rclpy
 from advocc_msgs.msg import CollisionObject, ErrorCodes, GoalRegion, Scene
 from advocc_msgs.srv import Attack
 from rcl_interfaces.msg import SetParametersResult
-from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from shape_msgs.msg import SolidPrimitive
 from visualization_msgs.msg import Marker, MarkerArray
 
 from advocc_ros.attack import AttackConfig
+from advocc_ros.nodes import run
 from advocc_ros.nodes.qos import (COLLISION_OBJECT_TOPIC, GOAL_REGION_TOPIC, LATCHED_QOS,
                                   SCENE_TOPIC)
 
@@ -183,18 +182,7 @@ class Attacker(Node):
 
 
 def main(args=None) -> int:
-    rclpy.init(args=args)
-    node = None
-    try:
-        node = Attacker()
-        rclpy.spin(node)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    finally:
-        if node is not None:
-            node.destroy_node()
-        rclpy.try_shutdown()
-    return 0
+    return run(Attacker, 'attacker', args)
 
 
 if __name__ == '__main__':

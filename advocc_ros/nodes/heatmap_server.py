@@ -21,11 +21,9 @@ import json
 import math
 import sys
 
-import rclpy
 from advocc_msgs.msg import ErrorCodes
 from advocc_msgs.srv import Attack, GetInfo
 from rcl_interfaces.msg import SetParametersResult
-from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 
 from advocc_ros.attack import (METHODS, PLUGIN_METHODS, AttackConfig, AttackStatus, attack,
@@ -33,6 +31,7 @@ from advocc_ros.attack import (METHODS, PLUGIN_METHODS, AttackConfig, AttackStat
 from advocc_ros.conversions import (goal_region_from_msg, obstacle_to_msg, q_from_joint_state,
                                     scene_from_msgs)
 from advocc_ros.heatmap import HeatmapError, load_heatmap
+from advocc_ros.nodes import run
 from advocc_ros.paths import allowed_dirs, confine
 from advocc_ros.robot import RobotError, RobotSpec, load_robot, resolve_path
 from advocc_ros.scene import SceneError
@@ -246,22 +245,8 @@ class HeatmapServer(Node):
 
 
 def main(args=None) -> int:
-    rclpy.init(args=args)
-    node = None
-    try:
-        try:
-            node = HeatmapServer()
-        except (HeatmapError, RobotError, ValueError) as exc:  # bad file or parameters
-            rclpy.logging.get_logger('heatmap_server').fatal(f'cannot start: {exc}')
-            return 1
-        rclpy.spin(node)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    finally:
-        if node is not None:
-            node.destroy_node()
-        rclpy.try_shutdown()
-    return 0
+    return run(HeatmapServer, 'heatmap_server', args,
+               startup_errors=(HeatmapError, RobotError, ValueError))
 
 
 if __name__ == '__main__':

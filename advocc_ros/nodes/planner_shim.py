@@ -25,16 +25,15 @@ import math
 import sys
 import threading
 
-import rclpy
 from advocc_msgs.msg import CollisionObject, ErrorCodes
 from advocc_msgs.srv import GetInfo, Plan
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
-from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
 from rclpy.node import Node
 
 from advocc_ros.conversions import (collision_object_from_msg, goal_region_from_msg,
                                     q_from_joint_state, trajectory_to_msg)
+from advocc_ros.nodes import run
 from advocc_ros.nodes.qos import COLLISION_OBJECT_TOPIC, LATCHED_QOS
 from advocc_ros.paths import allowed_dirs, confine, scene_path
 from advocc_ros.planning import PLANNERS, Planner, PlanningConfig, PlanStatus
@@ -237,23 +236,8 @@ class PlannerShim(Node):
 
 
 def main(args=None) -> int:
-    rclpy.init(args=args)
-    node = None
-    try:
-        node = PlannerShim()
-        executor = MultiThreadedExecutor(num_threads=3)
-        executor.add_node(node)
-        executor.spin()
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    except (SceneError, RobotError, ValueError) as exc:  # bad scene_file or parameters
-        rclpy.logging.get_logger('planner_shim').fatal(f'cannot start: {exc}')
-        return 1
-    finally:
-        if node is not None:
-            node.destroy_node()
-        rclpy.try_shutdown()
-    return 0
+    return run(PlannerShim, 'planner_shim', args,
+               startup_errors=(SceneError, RobotError, ValueError), threads=3)
 
 
 if __name__ == '__main__':
