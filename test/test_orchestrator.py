@@ -226,3 +226,32 @@ def test_planner_in_the_loop_attack_queries_the_shims(tmp_path, heatmap_file, ro
         served += (out / 'logs' / f'advocc_shim_table_pick_{i}.log').read_text().count('plan #')
     assert served == 9 + 2
     assert len(_lines(out)) == 2
+
+
+def test_external_shim_is_discovered_and_used(tmp_path, heatmap_file, ros_env):
+    """A shim the orchestrator did not start (another host, same domain) serves trials."""
+    out = tmp_path / 'run'
+    remote = subprocess.Popen(
+        [sys.executable, '-m', 'advocc_ros.nodes.planner_shim', '--ros-args', '-r',
+         '__node:=remote_shim', '-p', 'scene_file:=table_pick'],
+        env=ros_env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    try:
+        args = [sys.executable, '-m', 'advocc_ros.orchestrator', '--profile', 'quick',
+                '--out', str(out), '--scenes', 'table_pick', '--planners', 'rrtconnect',
+                '--methods', 'ours', '--budgets', '1', '--trials', '6', '--time-budget', '1',
+                '--shims', '1', '--external-shims', '--heatmap', f'table_pick={heatmap_file}']
+        code, text = _finish(subprocess.Popen(args, env=ros_env, stdout=subprocess.PIPE,
+                                              stderr=subprocess.STDOUT, text=True))
+        assert code == 0, text
+        assert remote.poll() is None, 'the orchestrator must not stop a shim it did not start'
+    finally:
+        remote.send_signal(signal.SIGINT)
+        try:
+            remote.communicate(timeout=20)
+        except subprocess.TimeoutExpired:
+            remote.kill()
+            remote.communicate()
+    records = [json.loads(line) for line in _lines(out)]
+    assert len(records) == 12
+    shims = {r['shim'] for r in records}
+    assert shims == {'/advocc_shim_table_pick_0', '/remote_shim'}, shims
