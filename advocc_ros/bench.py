@@ -33,6 +33,7 @@ from typing import Any, Iterable
 
 import yaml
 
+from advocc_ros.limits import MAX_TRIALS
 from advocc_ros.metrics import aggregate
 
 log = logging.getLogger(__name__)
@@ -125,9 +126,11 @@ class BenchConfig:
             if isinstance(value, bool) or not isinstance(value, int) or value < (
                     0 if name == 'shims' else 1):
                 fail(f'{name}={value!r} is out of range')
+        if self.trials > MAX_TRIALS:
+            fail(f'trials={self.trials} exceeds the limit {MAX_TRIALS} (limits.MAX_TRIALS)')
         if self.sweep_trials is not None and (not isinstance(self.sweep_trials, int)
-                                              or self.sweep_trials < 1):
-            fail(f'sweep_trials={self.sweep_trials!r} must be an integer >= 1')
+                                              or not 1 <= self.sweep_trials <= MAX_TRIALS):
+            fail(f'sweep_trials={self.sweep_trials!r} must be an integer in 1..{MAX_TRIALS}')
         if self.shims == 0 and not self.external_shims:
             fail('shims=0 needs external_shims: nobody would plan')
         for name in ('time_budget_s', 'attack_timeout_s', 'start_timeout_s',

@@ -43,7 +43,8 @@ def test_shipped_profiles_load():
 
 @pytest.mark.parametrize('changes, words', [
     (dict(budgets=(0,)), 'budgets'), (dict(budgets=(1, 'x')), 'budgets'),
-    (dict(trials=0), 'trials'), (dict(time_budget_s=float('nan')), 'time_budget_s'),
+    (dict(trials=0), 'trials'), (dict(trials=10**9), 'MAX_TRIALS'),
+    (dict(sweep_trials=0), 'sweep_trials'), (dict(time_budget_s=float('nan')), 'time_budget_s'),
     (dict(scenes=()), 'scenes'), (dict(planners=('a', 'a')), 'duplicates'),
     (dict(shims=0), 'external_shims'), (dict(variants={'random': 0}), 'variants'),
     (dict(skip=('pfa++',)), 'skip'), (dict(box_size_m=-1.0), 'box_size_m'),
