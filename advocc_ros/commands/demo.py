@@ -2,7 +2,9 @@
 
 1. offline: build (or reuse) the kinematic occupancy heatmap and plot its slices;
 2. online: attack through the ROS graph (heatmap_server + attacker processes);
-3. evaluation: the three OMPL planners without and with the attack, as a Table I excerpt.
+3. benchmark: the orchestrator runs a short version of the paper's protocol on the scene
+   (heatmap_server + planner shims as processes; ours and random, budgets 1/3/5, the three
+   OMPL planners, an unattacked baseline) and prints Table I.
 """
 
 from __future__ import annotations
@@ -26,8 +28,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     parser.add_argument('--workers', type=int, default=os.cpu_count() or 1)
     parser.add_argument('--rebuild', action='store_true', help='rebuild an existing heatmap')
     parser.add_argument('--budget', type=int, default=3, help='boxes for the attack stage')
-    parser.add_argument('--trials', type=int, default=10, help='plans per planner and attack')
-    parser.add_argument('--time', type=float, default=5.0, help='planning budget [s]')
+    parser.add_argument('--trials', type=int, default=6, help='trials per table cell')
+    parser.add_argument('--time', type=float, default=2.0,
+                        help='planning budget [s] (the paper: 5)')
+    parser.add_argument('--shims', type=int, default=2, help='planner_shim processes')
     parser.add_argument('--planners', default='rrtconnect,prmstar,bkpiece1')
     parser.set_defaults(func=run)
 
@@ -73,34 +77,23 @@ def run(args) -> int:
     plot_heatmap_slices(heatmap, out / f'attack_{scene.name}.png', scene=scene,
                         obstacles=obstacles)
 
-    _stage(f'3. evaluation: {args.trials} plans per planner, {args.time:g} s budget, '
-           'without and with the attack')
-    from advocc_ros.metrics import evaluate_planner, format_value
-    rows = []
-    for planner_id in [p for p in args.planners.split(',') if p]:
-        for label, attacked in (('none', scene),
-                                (f'ours M={args.budget}', scene.with_objects(obstacles))):
-            row = evaluate_planner(attacked, planner_id, args.trials, args.time, seed=0,
-                                   workers=args.workers)
-            rows.append((planner_id, label, row))
-            print(f'  {planner_id:<10} {label:<10} PSR {format_value(row["psr"], 2)}',
-                  flush=True)
-    table = _table(scene.name, rows)
-    (out / 'table.md').write_text(table)
+    _stage(f'3. benchmark through the nodes: orchestrator, {args.shims} planner shims, '
+           f'{args.trials} trials per cell, {args.time:g} s budget')
+    from advocc_ros.bench import load_profile
+    from advocc_ros.orchestrator import Orchestrator
+    from advocc_ros.paths import config_dir
+    data = load_profile(config_dir() / 'bench.yaml', 'quick').to_data()
+    data.update(scenes=[args.scene], planners=[p for p in args.planners.split(',') if p],
+                methods=['ours', 'random'], budgets=[1, 3, 5], trials=args.trials,
+                time_budget_s=args.time, shims=args.shims)
+    from advocc_ros.bench import BenchConfig
+    cfg = BenchConfig.from_data(data, 'advocc demo')
+    run_dir = out / 'bench'
+    summary = Orchestrator(cfg, run_dir, {'*': [str(heatmap_file.resolve())]}).run()
+    print(f'{summary["done"]}/{summary["planned"]} trials ({summary["status"]}, '
+          f'{summary["wall_s"]:.0f} s); tables and figures in {run_dir}')
+    for note in summary['notes']:
+        print(f'note: {note}')
     print()
-    print(table)
-    return 0
-
-
-def _table(scene_name: str, rows: list) -> str:
-    """Markdown table with the paper's Table I columns (SMR and CMR x10^-2)."""
-    from advocc_ros.metrics import format_value
-    lines = [f'Scene {scene_name}', '',
-             '| planner | attack | trials | PSR | SMR | CMR | JDS | PT [s] |',
-             '|---|---|---|---|---|---|---|---|']
-    for planner_id, label, row in rows:
-        lines.append(f'| {planner_id} | {label} | {row["trials"]} | '
-                     f'{format_value(row["psr"], 2)} | {format_value(row["smr"])} | '
-                     f'{format_value(row["cmr"])} | {format_value(row["jds"])} | '
-                     f'{format_value(row["pt"])} |')
-    return '\n'.join(lines) + '\n'
+    print((run_dir / 'table1.md').read_text())
+    return 0 if summary['missing'] == 0 else 1
