@@ -17,8 +17,14 @@ $(PY):
 	$(PYTHON) -m venv $(VENV)
 
 # One stamp for the whole environment: pinned wheels, OMPL fix-up, interfaces, our package.
-$(STAMP): $(PY) setup.py setup.cfg package.xml tools/install.sh $(MSGS)
-	tools/install.sh $(VENV)
+# ompl 1.7.0's wheel ships a stray second libompl next to the one its extensions link; loading
+# both destroys OMPL's statics twice and every interpreter segfaults at exit: remove the stray.
+$(STAMP): $(PY) setup.py setup.cfg package.xml Makefile $(MSGS)
+	$(PY) -m pip install --quiet --disable-pip-version-check -e '.[build,test]'
+	rm -f $$($(PY) -c 'import sysconfig; print(sysconfig.get_paths()["purelib"])')/libompl.so*
+	msg_defs/build_into_venv.sh $(VENV) build/advocc_msgs
+	$(PY) -c 'import advocc_msgs.srv, rclpy, pinocchio, coal, ompl.geometric'
+	@echo "advocc_ros installed in $(VENV)"
 	touch $@
 
 demo: $(STAMP)

@@ -1,11 +1,11 @@
 #!/usr/bin/env bash
 # Build the advocc_msgs interface package (msg_defs/) into the venv with plain cmake + make.
-# Usage: tools/build_msgs.sh VENV_DIR BUILD_DIR
-# See ENVIRONMENT notes in README "How the install works" for why each step is needed.
+# Usage: msg_defs/build_into_venv.sh VENV_DIR BUILD_DIR (the Makefile calls it).
+# README "How the install works" says why each step is needed.
 set -euo pipefail
 venv=$(cd "$1" && pwd)
 build=$2
-src=$(cd "$(dirname "$0")/../msg_defs" && pwd)
+src=$(cd "$(dirname "$0")" && pwd)
 py="$venv/bin/python"
 
 # The ROS wheels' exported CMake targets name include dirs of the machine that built them;
