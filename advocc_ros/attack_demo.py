@@ -10,24 +10,13 @@ from __future__ import annotations
 
 import os
 import pathlib
-import signal
 import subprocess
 import sys
 import tempfile
 import time
 
+from advocc_ros.processes import stop
 from advocc_ros.scene import Scene, make_box, objects_to_data, save_yaml_atomic
-
-
-def _stop(proc: subprocess.Popen, timeout_s: float = 15.0) -> int:
-    if proc.poll() is None:
-        proc.send_signal(signal.SIGINT)
-        try:
-            proc.wait(timeout_s)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.wait(5)
-    return proc.returncode
 
 
 def run_attack_nodes(heatmap_file: str | pathlib.Path, scene: Scene, out: str | pathlib.Path,
@@ -90,7 +79,7 @@ def run_attack_nodes(heatmap_file: str | pathlib.Path, scene: Scene, out: str | 
         executor.shutdown()
         node.destroy_node()
         rclpy.try_shutdown(context=context)
-        codes = [_stop(p) for p in procs]
+        codes = [stop(p) for p in procs]
     output = []
     for log in logs:
         log.seek(0)

@@ -620,7 +620,6 @@ class Orchestrator:
     def _generate(self, spec: AttackSpec) -> tuple[tuple, dict]:
         """Ask the heatmap server; a dead or hung server is restarted and asked again."""
         from advocc_msgs.msg import ErrorCodes
-        from advocc_msgs.srv import Attack
 
         from advocc_ros.commands.call import attack_request, response_data
         from advocc_ros.scene import make_box, objects_to_data
@@ -1045,7 +1044,6 @@ def write_report(run_dir: str | pathlib.Path, cfg: BenchConfig, summary: dict | 
     put('table4.csv', csv4)
 
     # Figures: PSR vs budget per scene (one panel per planner); heatmap slice + obstacles.
-    fig_dir = run_dir / 'figures'
     for i, scene in enumerate(cfg.scenes):
         curves = {}
         for planner in cfg.planners:

@@ -9,7 +9,6 @@ import argparse
 import json
 import os
 import pathlib
-import signal
 import subprocess
 import sys
 import tempfile
@@ -19,6 +18,7 @@ import numpy as np
 
 from advocc_ros.cli import UserError
 from advocc_ros.commands.common import add_scene_args
+from advocc_ros.processes import stop
 
 PAPER_ONLINE_S = 1.27  # paper §V: online attack generation time
 
@@ -111,13 +111,7 @@ def _service(heatmap_path, scene, budgets, method, calls, domain) -> dict:
                                     'server_compute': _stats_ms(compute)}
             return out
     finally:
-        if proc.poll() is None:
-            proc.send_signal(signal.SIGINT)
-            try:
-                proc.wait(15)
-            except subprocess.TimeoutExpired:
-                proc.kill()
-                proc.wait(5)
+        stop(proc)
         log.close()
 
 

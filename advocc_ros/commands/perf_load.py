@@ -16,7 +16,6 @@ import argparse
 import json
 import os
 import pathlib
-import signal
 import subprocess
 import sys
 import tempfile
@@ -26,6 +25,7 @@ import time
 import numpy as np
 
 from advocc_ros.cli import UserError
+from advocc_ros.processes import stop
 
 
 def register_load(sub: argparse._SubParsersAction) -> None:
@@ -207,16 +207,6 @@ def _start_node(module: str, env: dict, ns: str, log, *params) -> subprocess.Pop
     return subprocess.Popen(args, env=env, stdout=log, stderr=subprocess.STDOUT, text=True)
 
 
-def _stop(proc: subprocess.Popen) -> None:
-    if proc.poll() is None:
-        proc.send_signal(signal.SIGINT)
-        try:
-            proc.wait(15)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.wait(5)
-
-
 def _warm_up(kind: str, service: str, scene: str, budget: float, env: dict) -> None:
     """One request through a client process, so 'before' is measured on a warm node."""
     _run_load(kind, service, scene, 1, 1, budget, env, os.getpid())
@@ -269,7 +259,7 @@ def run_load(scene: str = 'table_pick', heatmap: str | None = None, samples: int
         finally:
             for proc in (server, shim):
                 if proc is not None:
-                    _stop(proc)
+                    stop(proc)
             for log in logs.values():
                 log.close()
     return report
