@@ -107,6 +107,7 @@ class Heatmap:
         peak = np.unravel_index(int(np.argmax(self.values)), self.values.shape)
         return {
             'format_version': FORMAT_VERSION, **self.grid.to_data(),
+            'voxel': self.grid.voxel_m,
             'valid_samples': self.meta.get('valid_samples'),
             'candidates': self.meta.get('candidates'),
             'build_s': self.meta.get('build_s'), 'robot_hash': self.meta.get('robot_hash'),

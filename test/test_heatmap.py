@@ -120,6 +120,9 @@ def test_round_trip_and_corrupted_files_are_rejected(small_table_heatmap, tmp_pa
     save_heatmap(small_table_heatmap, path)
     loaded = load_heatmap(path, robot_hash=panda.hash)
     assert np.array_equal(loaded.values, small_table_heatmap.values)
+    summary = loaded.summary()
+    assert summary['valid_samples'] == 600 and summary['voxel'] == 0.02
+    assert summary['shape'] == list(loaded.grid.shape) and summary['build_s'] > 0
     assert loaded.grid == small_table_heatmap.grid
     raw = path.read_bytes()
 
