@@ -178,9 +178,6 @@ def q_from_joint_state(robot: RobotModel, msg: JointState, where: str = 'start_s
     return robot.q_from_names(list(msg.name), list(msg.position), where)
 
 
-def joint_state_from_q(robot: RobotModel, q: np.ndarray) -> JointState:
-    return JointState(name=list(robot.joint_names), position=[float(v) for v in q])
-
 
 def obstacle_to_msg(obj: SceneObject, covered_mass: float) -> ObstacleMsg:
     shape = obj.shapes[0]

@@ -450,11 +450,6 @@ def save_yaml_atomic(path: str | pathlib.Path, data: Any) -> None:
     atomic_write_text(path, yaml.safe_dump(data, sort_keys=False))
 
 
-def rpy_to_quat_xyzw(roll: float, pitch: float, yaw: float) -> tuple[float, float, float, float]:
-    """Quaternion of fixed-axis roll/pitch/yaw angles [rad] (URDF convention)."""
-    q = pin.Quaternion(pin.rpy.rpyToMatrix(roll, pitch, yaw)).coeffs()
-    return tuple(float(v) for v in q)
-
 
 class Operation:
     """Collision-object operations, with the values of moveit_msgs/CollisionObject."""

@@ -231,16 +231,3 @@ def vary_scene(scene: Scene, index: int, seed: int,
         return Variation(candidate, index, draw + 1, redrawn)
     raise SceneError(f'{scene.name}: no valid variation {index} (seed {seed}) in '
                      f'{config.max_draws} draws; reduce the jitter')
-
-
-def vary_scenes(scene: Scene, count: int, seed: int,
-                config: VariationConfig = VariationConfig(), progress=None
-                ) -> list[Variation]:
-    """Variations ``0 .. count-1``; ``progress(variation)`` is called after each."""
-    out = []
-    for index in range(count):
-        variation = vary_scene(scene, index, seed, config)
-        out.append(variation)
-        if progress:
-            progress(variation)
-    return out

@@ -36,6 +36,15 @@ def register(sub: argparse._SubParsersAction) -> None:
     heat.add_argument('--repeats', type=int, default=3)
     heat.add_argument('--json', action='store_true')
     heat.set_defaults(func=_heatmap)
+    plan = psub.add_parser('planning', help='validity checks/s, planning time and PSR per '
+                           'planner, worker overhead')
+    add_scene_args(plan, required=False)
+    plan.set_defaults(scene='table_pick')
+    plan.add_argument('--planners', default='rrtconnect,prmstar,bkpiece1')
+    plan.add_argument('--trials', type=int, default=20)
+    plan.add_argument('--time', type=float, default=5.0, help='planning budget [s]')
+    plan.add_argument('--json', action='store_true')
+    plan.set_defaults(func=_planning)
     from advocc_ros.commands.perf_attack import register_attack
     from advocc_ros.commands.perf_load import register_load
     register_attack(psub)
@@ -71,4 +80,15 @@ def _heatmap(args) -> int:
     else:
         for key, value in report.items():
             print(f'{key:>22}: {value}')
+    return 0
+
+
+def _planning(args) -> int:
+    from advocc_ros.planning import benchmark_planning
+
+    report = benchmark_planning(scene_from_args(args),
+                                tuple(p for p in args.planners.split(',') if p),
+                                trials=args.trials, time_budget_s=args.time)
+    report['machine'] = machine()
+    print(json.dumps(report, indent=2) if args.json else report)
     return 0
