@@ -31,7 +31,7 @@ import pinocchio as pin
 
 from advocc_ros.robot import RobotError, RobotModel, RobotSpec, load_robot
 from advocc_ros.scene import (GoalRegion, Pose, Scene, SceneError, SceneObject, Shape,
-                              make_mesh_shape, read_yaml)
+                              finite_array, make_mesh_shape, read_yaml)
 
 _PRIMITIVES = {'box': 'box', 'sphere': 'sphere', 'cylinder': 'cylinder',
                1: 'box', 2: 'sphere', 3: 'cylinder'}
@@ -105,26 +105,14 @@ def _numbers(data: Any, where: str, keys: str) -> np.ndarray:
     if not isinstance(data, (list, tuple)) or len(data) != len(keys):
         raise SceneError(f'{where}: expected {len(keys)} numbers ({",".join(keys)}), got '
                          f'{data!r}')
-    try:
-        arr = np.asarray(data, dtype=float)
-    except (TypeError, ValueError):
-        raise SceneError(f'{where}: expected numbers, got {data!r}') from None
-    if not np.all(np.isfinite(arr)):
-        raise SceneError(f'{where}: values must be finite, got {data!r}')
-    return arr
+    return finite_array(data, where)
 
 
 def _floats(data: Any, where: str) -> np.ndarray:
     """A list of finite numbers of any length."""
     if not isinstance(data, list):
         raise SceneError(f'{where}: expected a list of numbers, got {data!r}')
-    try:
-        arr = np.asarray(data, dtype=float).reshape(len(data))
-    except (TypeError, ValueError):
-        raise SceneError(f'{where}: expected numbers, got {data!r}') from None
-    if not np.all(np.isfinite(arr)):
-        raise SceneError(f'{where}: values must be finite, got {data!r}')
-    return arr
+    return finite_array(data, where, n=len(data))
 
 
 def _pose(data: Any, where: str) -> pin.SE3:

@@ -29,8 +29,10 @@ class SceneError(ValueError):
     """A malformed scene, goal region or obstacles file; the message names file and field."""
 
 
-def _finite(values, where: str, n: int | None = None, positive: bool = False,
-            nonneg: bool = False) -> np.ndarray:
+def finite_array(values, where: str, n: int | None = None, positive: bool = False,
+                 nonneg: bool = False) -> np.ndarray:
+    """``values`` as a float array, or a ``SceneError`` naming ``where``: numbers, finite,
+    optionally ``n`` of them and positive / non-negative."""
     try:
         arr = np.asarray(values, dtype=float)
     except (TypeError, ValueError):
@@ -62,8 +64,8 @@ class Pose:
         unknown = set(data) - {'position', 'orientation'}
         if unknown:
             raise SceneError(f'{where}: unknown field(s) {sorted(unknown)}')
-        pos = _finite(data.get('position', [0, 0, 0]), f'{where}.position', 3)
-        quat = _finite(data.get('orientation', [0, 0, 0, 1]), f'{where}.orientation', 4)
+        pos = finite_array(data.get('position', [0, 0, 0]), f'{where}.position', 3)
+        quat = finite_array(data.get('orientation', [0, 0, 0, 1]), f'{where}.orientation', 4)
         norm = np.linalg.norm(quat / np.max(np.abs(quat))) * np.max(np.abs(quat)) \
             if np.any(quat) else 0.0  # scaled: components near 1e308 must not overflow to inf
         if not 1e-6 <= norm < np.inf:
@@ -160,8 +162,8 @@ class GoalRegion:
     """Pose of the tool point in ``link``; the region constrains the tool point."""
 
     def __post_init__(self):
-        _finite(self.position_tolerance_m, 'goal.position_tolerance', 3, nonneg=True)
-        _finite(self.orientation_tolerance_rad, 'goal.orientation_tolerance', 3, nonneg=True)
+        finite_array(self.position_tolerance_m, 'goal.position_tolerance', 3, nonneg=True)
+        finite_array(self.orientation_tolerance_rad, 'goal.orientation_tolerance', 3, nonneg=True)
         if not self.link:
             raise SceneError('goal.link: empty link name')
 
@@ -181,10 +183,10 @@ class GoalRegion:
             raise SceneError(f'{where}.link: expected a link name, got {link!r}')
         return cls(
             center=Pose.from_data(data['center'], f'{where}.center'),
-            position_tolerance_m=tuple(_finite(
+            position_tolerance_m=tuple(finite_array(
                 data.get('position_tolerance', [0.02] * 3), f'{where}.position_tolerance', 3,
                 nonneg=True).tolist()),
-            orientation_tolerance_rad=tuple(_finite(
+            orientation_tolerance_rad=tuple(finite_array(
                 data.get('orientation_tolerance', [0.1] * 3), f'{where}.orientation_tolerance',
                 3, nonneg=True).tolist()),
             link=link,
@@ -290,25 +292,25 @@ def _shape_from_data(entry: dict, where: str, base_dir: pathlib.Path | None) -> 
     if kind == 'box':
         if 'size' not in entry:
             raise SceneError(f'{where}.size: missing (box edge lengths [x, y, z])')
-        dims = _finite(entry['size'], f'{where}.size', 3, positive=True)
+        dims = finite_array(entry['size'], f'{where}.size', 3, positive=True)
         return Shape('box', tuple(dims.tolist()), pose)
     if kind == 'sphere':
         if 'radius' not in entry:
             raise SceneError(f'{where}.radius: missing')
-        return Shape('sphere', tuple(_finite([entry['radius']], f'{where}.radius', 1,
+        return Shape('sphere', tuple(finite_array([entry['radius']], f'{where}.radius', 1,
                                              positive=True).tolist()), pose)
     if kind == 'cylinder':
         for key in ('height', 'radius'):
             if key not in entry:
                 raise SceneError(f'{where}.{key}: missing')
-        h = _finite([entry['height']], f'{where}.height', 1, positive=True)[0]
-        r = _finite([entry['radius']], f'{where}.radius', 1, positive=True)[0]
+        h = finite_array([entry['height']], f'{where}.height', 1, positive=True)[0]
+        r = finite_array([entry['radius']], f'{where}.radius', 1, positive=True)[0]
         return Shape('cylinder', (float(h), float(r)), pose)
     return _mesh_shape(entry, where, base_dir, pose)
 
 
 def _mesh_shape(entry: dict, where: str, base_dir: pathlib.Path | None, pose: Pose) -> Shape:
-    scale = _finite(entry.get('scale', [1, 1, 1]), f'{where}.scale', 3, positive=True)
+    scale = finite_array(entry.get('scale', [1, 1, 1]), f'{where}.scale', 3, positive=True)
     if 'file' in entry:
         path = pathlib.Path(str(entry['file']))
         if not path.is_absolute() and base_dir is not None:
@@ -326,7 +328,7 @@ def _mesh_shape(entry: dict, where: str, base_dir: pathlib.Path | None, pose: Po
             raise SceneError(f'{where}.file: {path} could not be read ({exc})') from exc
         vertices, faces = np.asarray(mesh.vertices, float), np.asarray(mesh.faces, np.int64)
     elif 'vertices' in entry and 'faces' in entry:
-        vertices = _finite(entry['vertices'], f'{where}.vertices')
+        vertices = finite_array(entry['vertices'], f'{where}.vertices')
         try:
             faces = np.asarray(entry['faces'], dtype=np.int64)
         except (TypeError, ValueError):
@@ -386,7 +388,7 @@ def _start_from_data(data: Any, where: str) -> dict[str, float]:
         raise SceneError(f'{where}: expected a mapping joint_name: position')
     out = {}
     for name, value in data.items():
-        out[str(name)] = float(_finite([value], f'{where}.{name}', 1)[0])
+        out[str(name)] = float(finite_array([value], f'{where}.{name}', 1)[0])
     return out
 
 

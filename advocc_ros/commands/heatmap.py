@@ -77,6 +77,10 @@ def _build(args) -> int:
               disable=None, leave=False) as bar:
         heatmap = build_heatmap(scene, cfg, seed=args.seed, workers=args.workers,
                                 progress=bar.update, shard=shard)
+    return _save_and_report(heatmap, args)
+
+
+def _save_and_report(heatmap, args) -> int:
     save_heatmap(heatmap, args.out)
     summary = heatmap.summary()
     summary['file'] = str(args.out)
@@ -90,12 +94,7 @@ def _info(args) -> int:
 
 
 def _merge(args) -> int:
-    merged = merge_heatmaps([load_heatmap(path) for path in args.inputs])
-    save_heatmap(merged, args.out)
-    summary = merged.summary()
-    summary['file'] = str(args.out)
-    _print_summary(summary, args.json)
-    return 0
+    return _save_and_report(merge_heatmaps([load_heatmap(p) for p in args.inputs]), args)
 
 
 def _plot(args) -> int:
