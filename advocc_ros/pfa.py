@@ -24,8 +24,10 @@ CMA-ES), initial mean = M distinct seeded random candidates, sigma0 = 0.2, popul
 library default 4 + floor(3 ln 3M). A sample is decoded box by box: the nearest candidate
 centre (k-d tree) that passes the exact check and keeps d_min from the boxes already placed.
 CMA-ES is told the decoded (snapped) point, not the raw sample (Lamarckian repair), so its
-distribution follows placements that exist. The result is the best placement scored (the
-latest on ties: with K noisy queries an early tie is more likely luck than a real blocker).
+distribution follows placements that exist. The last ``rescore_top`` (3) placements' worth of
+queries (at most a third of the budget) is kept back: the best-scored placements are queried K more
+times and their two scores averaged, because the top of many 3-query scores is often a lucky draw.
+The result is the best placement after that (the latest on ties).
 No restarts: with a few hundred queries there is no budget for them.
 
 Budget. ``queries`` (Q) counts every planner call, the K baseline queries included, and is
@@ -109,6 +111,9 @@ class PfaConfig:
     """CMA-ES population; None: the library default 4 + floor(3 ln 3M)."""
     max_idle_generations: int = 20
     """Stop after this many generations in a row that decode only to scored placements."""
+    rescore_top: int = 3
+    """Placements re-scored with K more queries at the end (reserved from the budget): with
+    K = 3 noisy queries the top score is often a lucky draw; the pooled score is not."""
 
     def __post_init__(self):
         checks = {'queries': 2 * self.queries_per_placement <= self.queries
@@ -117,7 +122,8 @@ class PfaConfig:
                   'query_time_s': 0 < self.query_time_s <= 600,
                   'sigma0': 0 < self.sigma0 <= 1,
                   'population_size': self.population_size is None or self.population_size >= 2,
-                  'max_idle_generations': self.max_idle_generations >= 1}
+                  'max_idle_generations': self.max_idle_generations >= 1,
+                  'rescore_top': self.rescore_top >= 0}
         for name, ok in checks.items():
             if not ok:
                 raise ValueError(f'PFA parameter {name}={getattr(self, name)!r} is out of range'
@@ -291,8 +297,13 @@ class OptimiseResult:
 
 def optimise(decoder: _Decoder, objective: Objective, budget: int, seed: int,
              sigma0: float = 0.2, population_size: int | None = None,
-             max_idle_generations: int = 20) -> OptimiseResult:
-    """CMA-ES over placements of ``budget`` boxes (see the module docstring)."""
+             max_idle_generations: int = 20, rescore_top: int = 0) -> OptimiseResult:
+    """CMA-ES over placements of ``budget`` boxes (see the module docstring).
+
+    ``rescore_top`` placements' worth of budget (at most a third of it, so small budgets
+    still search) is kept back; at the end the best-scored placements are scored again and
+    their two scores averaged before the best is chosen.
+    """
     rng = np.random.default_rng(seed)
     start = decoder.random_placement(budget, rng)
     m = len(start)
@@ -308,13 +319,14 @@ def optimise(decoder: _Decoder, objective: Objective, budget: int, seed: int,
     opt = CMA(mean=np.clip(decoder.normalise(start), 1e-6, 1 - 1e-6), sigma=sigma0,
               bounds=np.tile([0.0, 1.0], (3 * m, 1)), seed=int(seed) % (2 ** 31),
               population_size=population_size)
+    rescore_top = min(rescore_top, objective.affordable() // 3)
     generations = idle = 0
     stopped = 'budget'
     while True:
         xs = [opt.ask() for _ in range(opt.population_size)]
         placements = [decoder.decode(x) for x in xs]
         new = list(dict.fromkeys(key(p) for p in placements if key(p) not in scores))
-        affordable = objective.affordable()
+        affordable = max(objective.affordable() - rescore_top, 0)
         todo = [next(p for p in placements if key(p) == k) for k in new[:affordable]]
         if todo:
             for p, s in zip(todo, objective(todo)):
@@ -337,13 +349,21 @@ def optimise(decoder: _Decoder, objective: Objective, budget: int, seed: int,
         if idle >= max_idle_generations:
             stopped = 'idle'
             break
-        if objective.affordable() == 0:
+        if objective.affordable() <= rescore_top:
             break
+    if rescore_top and history:
+        top = sorted(scores, key=scores.get, reverse=True)[:min(rescore_top,
+                                                              objective.affordable())]
+        placement = {key(p): p for p, _ in history}
+        for k, s in zip(top, objective([placement[k] for k in top])):
+            scores[k] = (scores[k] + s) / 2
+            history.append((placement[k], scores[k]))
     # Ties go to the latest: later generations are better informed, and an early tie is more
     # likely a lucky draw of a noisy score (K queries) than a real blocker.
-    best, best_score = max(reversed(history), key=lambda h: h[1]) if history else (
-        start, -math.inf)
-    return OptimiseResult(best, best_score, len(history), generations, stopped, history)
+    best, best_score = max(reversed(history), key=lambda h: scores[key(h[0])]) if history \
+        else (start, -math.inf)
+    best_score = scores.get(key(best), best_score)
+    return OptimiseResult(best, best_score, len(scores), generations, stopped, history)
 
 
 # --------------------------------------------------------------------------------------------
@@ -456,7 +476,7 @@ def _select(region: SearchRegion, budget: int, seed: int, cfg: AttackConfig,
         if len(cand):
             objective.baseline()
         result = optimise(decoder, objective, budget, seed, pcfg.sigma0, pcfg.population_size,
-                          pcfg.max_idle_generations)
+                          pcfg.max_idle_generations, pcfg.rescore_top)
     finally:
         objective.close()
     K = pcfg.queries_per_placement
