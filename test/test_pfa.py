@@ -169,15 +169,18 @@ def test_pfa_beats_random_on_the_bin(panda, bin_task, planners):
     assert stats['placements_scored'] >= 20 and res.compute_s >= stats['optimise_s']
     _assert_constraints(res, panda, heatmap, scene.objects, q, scene.goal, CFG)
 
-    # Failure rates measured afresh (goal region, RRT-Connect): PFA's box against Random's.
+    # Failure rates measured afresh with fresh seeds, on the task PFA attacks (RRT-Connect to
+    # the exact goal pose): PFA's box against Random's. How the box transfers to the goal
+    # region is what the benchmark measures; a few trials cannot, so it is not asserted here.
     region = search_region(heatmap, panda, scene.objects, q, scene.goal, CFG, BOX)
-    pfa_rate = _failure_rate(planners, q, scene.goal, res.obstacles, 6, 100)
+    exact = exact_goal(scene.goal)
+    pfa_rate = _failure_rate(planners, q, exact, res.obstacles, 6, 100)
     rnd_rates = []
     for seed in (1, 2, 3):
         picks, _ = METHODS['random'](region, 1, seed, CFG)
         boxes = tuple(make_box(f'adv_{i}', region.center_m(c), (BOX,) * 3)
                       for i, (c, _) in enumerate(picks))
-        rnd_rates.append(_failure_rate(planners, q, scene.goal, boxes, 4, 200 + 10 * seed))
+        rnd_rates.append(_failure_rate(planners, q, exact, boxes, 4, 200 + 10 * seed))
     assert pfa_rate >= 0.65, (pfa_rate, rnd_rates, res.centers_m, stats)
     assert pfa_rate >= np.mean(rnd_rates) + 0.3, (pfa_rate, rnd_rates, res.centers_m)
 
