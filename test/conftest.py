@@ -18,13 +18,13 @@ def _seed():
 
 @pytest.fixture(scope='session')
 def panda():
-    from advocc_ros.robot import load_robot
+    from advocc_ros.model.robot import load_robot
     return load_robot()
 
 
 @pytest.fixture(scope='session')
 def table_scene():
-    from advocc_ros.scene import load_scene
+    from advocc_ros.model.scene import load_scene
     return load_scene(REPO / 'config' / 'scenes' / 'table_pick.yaml')
 
 

@@ -124,7 +124,7 @@ def _scene_docs():
 @settings(**SETTINGS)
 @given(data=st.data())
 def test_scene_data(data):
-    from advocc_ros.scene import Scene, SceneError, scene_from_data
+    from advocc_ros.model.scene import Scene, SceneError, scene_from_data
     doc = mutate(data, data.draw(st.sampled_from(_scene_docs()), label='scene'))
     _count('scene_yaml')
     with _Timer():
@@ -137,7 +137,7 @@ def test_scene_data(data):
 @settings(**SETTINGS)
 @given(data=st.data())
 def test_scene_file_bytes(data, tmp_path):
-    from advocc_ros.scene import SceneError, load_scene
+    from advocc_ros.model.scene import SceneError, load_scene
     raw = data.draw(st.sampled_from(sorted(SCENES.glob('*.yaml')))).read_bytes()
     path = tmp_path / 'scene.yaml'
     path.write_bytes(_flip(data, raw))
@@ -169,7 +169,7 @@ YAML_BOMB = _yaml_bomb()
 ])
 def test_scene_file_hostile(tmp_path, text):
     """YAML aliases that expand to 10^9 numbers, cycles, deep nesting and Python tags."""
-    from advocc_ros.scene import SceneError, load_scene
+    from advocc_ros.model.scene import SceneError, load_scene
     path = tmp_path / 'hostile.yaml'
     path.write_text(text)
     _count('scene_yaml_hostile')
@@ -180,7 +180,7 @@ def test_scene_file_hostile(tmp_path, text):
 
 def test_scene_mesh_file_too_large(tmp_path):
     from advocc_ros.limits import MAX_FILE_BYTES
-    from advocc_ros.scene import SceneError, load_scene
+    from advocc_ros.model.scene import SceneError, load_scene
     big = tmp_path / 'big.stl'
     with open(big, 'wb') as handle:
         handle.truncate(MAX_FILE_BYTES + 1)  # sparse: no disk used
@@ -196,8 +196,8 @@ def test_scene_mesh_file_too_large(tmp_path):
 @settings(**SETTINGS)
 @given(data=st.data())
 def test_mbm_scene(data, tmp_path):
-    from advocc_ros.mbm import load_mbm_scene
-    from advocc_ros.scene import Scene, SceneError
+    from advocc_ros.model.mbm import load_mbm_scene
+    from advocc_ros.model.scene import Scene, SceneError
     src = data.draw(st.sampled_from(sorted(MBM.glob('scene*.yaml'))), label='file')
     path = tmp_path / 'scene.yaml'
     if data.draw(st.booleans(), label='bytes'):
@@ -215,8 +215,8 @@ def test_mbm_scene(data, tmp_path):
 @settings(**SETTINGS)
 @given(data=st.data())
 def test_mbm_request(data, tmp_path, panda):
-    from advocc_ros.mbm import load_request
-    from advocc_ros.scene import SceneError
+    from advocc_ros.model.mbm import load_request
+    from advocc_ros.model.scene import SceneError
     src = data.draw(st.sampled_from(sorted(MBM.glob('request*.yaml'))), label='file')
     path = tmp_path / 'request.yaml'
     if data.draw(st.booleans(), label='bytes'):
@@ -237,8 +237,8 @@ def test_mbm_request(data, tmp_path, panda):
 
 @pytest.fixture(scope='module')
 def obstacles_doc():
-    from advocc_ros.attack import AttackResult, AttackStatus, obstacles_data
-    from advocc_ros.scene import make_box
+    from advocc_ros.attack.api import AttackResult, AttackStatus, obstacles_data
+    from advocc_ros.model.scene import make_box
     boxes = tuple(make_box(f'adv_{i}', (0.5, 0.1 * i, 0.3), (0.05,) * 3) for i in range(3))
     return obstacles_data(AttackResult(AttackStatus.SUCCESS, 'placed 3 boxes', boxes,
                                        (1.0, 0.5, 0.25), 1.75, 0.01, 'ours', 3, 0.05))
@@ -247,8 +247,8 @@ def obstacles_doc():
 @settings(**SETTINGS)
 @given(data=st.data())
 def test_obstacles_file(data, tmp_path, obstacles_doc):
-    from advocc_ros.attack import load_obstacles
-    from advocc_ros.scene import SceneError
+    from advocc_ros.attack.api import load_obstacles
+    from advocc_ros.model.scene import SceneError
     path = tmp_path / 'obstacles.yaml'
     text = yaml.safe_dump(obstacles_doc)
     if data.draw(st.booleans(), label='bytes'):
@@ -269,7 +269,7 @@ def test_obstacles_file(data, tmp_path, obstacles_doc):
 
 @pytest.fixture(scope='module')
 def heatmap_bytes(tmp_path_factory, table_scene):
-    from advocc_ros.heatmap import HeatmapConfig, build_heatmap, save_heatmap
+    from advocc_ros.heatmap.build import HeatmapConfig, build_heatmap, save_heatmap
     path = tmp_path_factory.mktemp('fuzz_heatmap') / 'h.npz'
     save_heatmap(build_heatmap(table_scene, HeatmapConfig(samples=50, voxel_m=0.05), seed=3),
                  path)
@@ -279,7 +279,7 @@ def heatmap_bytes(tmp_path_factory, table_scene):
 @settings(**dict(SETTINGS, max_examples=50))
 @given(data=st.data())
 def test_heatmap_bytes(data, tmp_path, heatmap_bytes):
-    from advocc_ros.heatmap import Heatmap, HeatmapError, load_heatmap
+    from advocc_ros.heatmap.build import Heatmap, HeatmapError, load_heatmap
     path = tmp_path / 'h.npz'
     path.write_bytes(_flip(data, heatmap_bytes))
     _count('heatmap_bytes')
@@ -305,7 +305,7 @@ _ARRAYS = st.one_of(
 @given(data=st.data())
 def test_heatmap_crafted(data, tmp_path):
     """Well-formed npz files whose arrays lie about the grid: wrong shapes, types, values."""
-    from advocc_ros.heatmap import Heatmap, HeatmapError, load_heatmap
+    from advocc_ros.heatmap.build import Heatmap, HeatmapError, load_heatmap
     arrays = dict(format_version=np.array(1), origin_m=np.zeros(3), voxel_m=np.array(0.02),
                   shape=np.array([2, 2, 2]), values=np.zeros((2, 2, 2)),
                   free=np.ones((2, 2, 2), bool),
@@ -333,7 +333,7 @@ def test_heatmap_crafted(data, tmp_path):
 def test_heatmap_zip_bomb(tmp_path):
     """8 MB on disk that would inflate to 1.7 GB is refused from the zip header, unread."""
     import zipfile
-    from advocc_ros.heatmap import HeatmapError, load_heatmap
+    from advocc_ros.heatmap.build import HeatmapError, load_heatmap
     path = tmp_path / 'bomb.npz'
     header = np.lib.format.header_data_from_array_1_0(np.zeros((2, 2, 2)))
     header['shape'] = (600, 600, 600)
@@ -361,9 +361,9 @@ _CONFIG_VALUES = st.one_of(st.floats(allow_nan=True, allow_infinity=True),
 @settings(**SETTINGS)
 @given(data=st.data())
 def test_config_dataclasses(data):
-    from advocc_ros.attack import AttackConfig
-    from advocc_ros.heatmap import HeatmapConfig
-    from advocc_ros.planning import PlanningConfig
+    from advocc_ros.attack.api import AttackConfig
+    from advocc_ros.heatmap.build import HeatmapConfig
+    from advocc_ros.planning.worker import PlanningConfig
     import dataclasses
     cls = data.draw(st.sampled_from([AttackConfig, HeatmapConfig, PlanningConfig]))
     names = [f.name for f in dataclasses.fields(cls)]
@@ -384,8 +384,8 @@ def _node_config(node: str, params: dict):
     """The core config a node builds from its parameters (what start-up validates)."""
     import dataclasses
 
-    from advocc_ros.attack import AttackConfig
-    from advocc_ros.planning import PlanningConfig
+    from advocc_ros.attack.api import AttackConfig
+    from advocc_ros.planning.worker import PlanningConfig
     cls = {'/heatmap_server': AttackConfig, '/planner_shim': PlanningConfig}.get(node)
     if cls is None:
         return None
@@ -397,7 +397,7 @@ def _node_config(node: str, params: dict):
 @given(data=st.data())
 def test_node_params_files(data, tmp_path):
     """The shipped params YAML files, mutated: read (bounded) and validated like the nodes do."""
-    from advocc_ros.scene import SceneError, read_yaml
+    from advocc_ros.model.scene import SceneError, read_yaml
     src = data.draw(st.sampled_from(sorted((REPO / 'config').glob('*.yaml'))), label='file')
     path = tmp_path / src.name
     if data.draw(st.booleans(), label='bytes'):
@@ -426,9 +426,9 @@ def test_node_params_files(data, tmp_path):
                              NASTY, max_size=3),
        tol=st.text(alphabet='posrt=;,.0123456789-einfa ', max_size=30))
 def test_robot_spec_and_goal_tolerance(robot, tol):
-    from advocc_ros.mbm import parse_goal_tolerance
-    from advocc_ros.robot import RobotError, RobotSpec
-    from advocc_ros.scene import SceneError
+    from advocc_ros.model.mbm import parse_goal_tolerance
+    from advocc_ros.model.robot import RobotError, RobotSpec
+    from advocc_ros.model.scene import SceneError
     _count('config')
     try:
         RobotSpec.from_dict(robot)
@@ -451,9 +451,9 @@ def test_collision_object_messages(data):
     from geometry_msgs.msg import Point, Pose
     from shape_msgs.msg import Mesh, MeshTriangle, SolidPrimitive
 
-    from advocc_ros.conversions import collision_object_from_msg, scene_from_msgs
-    from advocc_ros.robot import RobotError
-    from advocc_ros.scene import SceneError
+    from advocc_ros.ros.conversions import collision_object_from_msg, scene_from_msgs
+    from advocc_ros.model.robot import RobotError
+    from advocc_ros.model.scene import SceneError
 
     floats = st.floats(allow_nan=True, allow_infinity=True)
 
@@ -497,8 +497,8 @@ def test_huge_mesh_message_is_refused_quickly():
     from geometry_msgs.msg import Point
     from shape_msgs.msg import Mesh, MeshTriangle
 
-    from advocc_ros.conversions import collision_object_from_msg
-    from advocc_ros.scene import SceneError
+    from advocc_ros.ros.conversions import collision_object_from_msg
+    from advocc_ros.model.scene import SceneError
     point = Point(x=1.0, y=2.0, z=3.0)
     msg = CollisionObject(id='big', operation=CollisionObject.ADD)
     msg.pose.orientation.w = 1.0

@@ -41,7 +41,7 @@ def ros_module(tmp_path_factory, table_scene):
     """A heatmap, both nodes as child processes, and an rclpy client node on their domain."""
     import rclpy
 
-    from advocc_ros.heatmap import HeatmapConfig, build_heatmap, save_heatmap
+    from advocc_ros.heatmap.build import HeatmapConfig, build_heatmap, save_heatmap
     tmp = tmp_path_factory.mktemp('fuzz_services')
     heatmap = tmp / 'h.npz'
     save_heatmap(build_heatmap(table_scene, HeatmapConfig(samples=300), seed=4), heatmap)
@@ -230,7 +230,7 @@ def test_attack_requests(ros_module, table_scene, data):
     from advocc_msgs.msg import ErrorCodes
     from advocc_msgs.srv import Attack
 
-    from advocc_ros.commands.call import attack_request
+    from advocc_ros.ros.conversions import attack_request
     ros = ros_module
     client = _client(ros, Attack, 'heatmap_server', 'attack')
     req = attack_request(table_scene, 2)
@@ -276,7 +276,7 @@ def test_attack_huge_mesh_is_refused_quickly(ros_module, table_scene):
     from geometry_msgs.msg import Point, Pose
     from shape_msgs.msg import Mesh, MeshTriangle
 
-    from advocc_ros.commands.call import attack_request
+    from advocc_ros.ros.conversions import attack_request
     ros = ros_module
     client = _client(ros, Attack, 'heatmap_server', 'attack')
     req = attack_request(table_scene, 2)
@@ -297,7 +297,7 @@ def test_zz_attack_server_still_serves(ros_module, table_scene):
     from advocc_msgs.msg import ErrorCodes
     from advocc_msgs.srv import Attack, GetInfo
 
-    from advocc_ros.commands.call import attack_request
+    from advocc_ros.ros.conversions import attack_request
     ros = ros_module
     client = _client(ros, Attack, 'heatmap_server', 'attack')
     first = _call(ros, client, attack_request(table_scene, 2), 'heatmap_server')
@@ -321,7 +321,7 @@ def test_plan_requests(ros_module, table_scene, data):
     from advocc_msgs.srv import Plan
     from sensor_msgs.msg import JointState
 
-    from advocc_ros.conversions import goal_region_to_msg
+    from advocc_ros.ros.conversions import goal_region_to_msg
     ros = ros_module
     client = _client(ros, Plan, 'planner_shim', 'plan')
     req = Plan.Request()
@@ -358,7 +358,7 @@ def test_zz_planner_shim_still_serves(ros_module, table_scene):
     from advocc_msgs.srv import GetInfo, Plan
     from sensor_msgs.msg import JointState
 
-    from advocc_ros.conversions import goal_region_to_msg
+    from advocc_ros.ros.conversions import goal_region_to_msg
     ros = ros_module
     client = _client(ros, Plan, 'planner_shim', 'plan')
     req = Plan.Request(planner_id='rrtconnect', time_budget_s=0.5)

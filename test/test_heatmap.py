@@ -9,12 +9,12 @@ import numpy as np
 import pinocchio as pin
 import pytest
 
-from advocc_ros.collision import CollisionWorld, coal_geometry
-from advocc_ros.heatmap import (HeatmapConfig, HeatmapError, build_heatmap, load_heatmap,
+from advocc_ros.model.collision import CollisionWorld, coal_geometry
+from advocc_ros.heatmap.build import (HeatmapConfig, HeatmapError, build_heatmap, load_heatmap,
                                 merge_heatmaps, sample_weights, save_heatmap)
-from advocc_ros.robot import RobotSpec, load_robot
-from advocc_ros.scene import Scene, make_box
-from advocc_ros.voxels import occupied_mask
+from advocc_ros.model.robot import RobotSpec, load_robot
+from advocc_ros.model.scene import Scene, make_box
+from advocc_ros.model.voxels import occupied_mask
 
 DATA = pathlib.Path(__file__).parent / 'data'
 BOX_BOT = RobotSpec(urdf=str(DATA / 'box_bot.urdf'), srdf=str(DATA / 'box_bot.srdf'),

@@ -14,16 +14,16 @@ import time
 
 import pytest
 
-from advocc_ros.bench import RecordStore
+from advocc_ros.bench.protocol import RecordStore
 
 PLANNERS = ('rrtconnect', 'bkpiece1')
 
 
 @pytest.fixture(scope='module')
 def heatmap_file(tmp_path_factory):
-    from advocc_ros.heatmap import HeatmapConfig, build_heatmap, save_heatmap
+    from advocc_ros.heatmap.build import HeatmapConfig, build_heatmap, save_heatmap
     from advocc_ros.paths import scene_path
-    from advocc_ros.scene import load_scene
+    from advocc_ros.model.scene import load_scene
 
     path = tmp_path_factory.mktemp('heatmap') / 'table_pick.npz'
     save_heatmap(build_heatmap(load_scene(scene_path('table_pick')),

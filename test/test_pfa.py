@@ -11,12 +11,12 @@ import threading
 import numpy as np
 import pytest
 
-from advocc_ros.attack import METHODS, AttackConfig, AttackStatus, attack, search_region
-from advocc_ros.heatmap import HeatmapConfig, build_heatmap
-from advocc_ros.pfa import (LocalPlanners, PfaConfig, PfaOptions, _Decoder, exact_goal,
+from advocc_ros.attack.api import METHODS, AttackConfig, AttackStatus, attack, search_region
+from advocc_ros.heatmap.build import HeatmapConfig, build_heatmap
+from advocc_ros.attack.pfa import (LocalPlanners, PfaConfig, PfaOptions, _Decoder, exact_goal,
                             optimise)
-from advocc_ros.planning import start_configuration
-from advocc_ros.scene import GoalRegion, Pose, Scene, make_box
+from advocc_ros.planning.worker import start_configuration
+from advocc_ros.model.scene import GoalRegion, Pose, Scene, make_box
 from test_attack import _assert_constraints
 
 # ---------------------------------------------------------------------------------------------

@@ -80,8 +80,8 @@ def test_planner_shim_end_to_end(ros, table_scene):
     from advocc_msgs.srv import GetInfo, Plan
     from sensor_msgs.msg import JointState
 
-    from advocc_ros.conversions import goal_region_to_msg
-    from advocc_ros.nodes.qos import COLLISION_OBJECT_TOPIC, LATCHED_QOS
+    from advocc_ros.ros.conversions import goal_region_to_msg
+    from advocc_ros.ros.qos import COLLISION_OBJECT_TOPIC, LATCHED_QOS
 
     proc, node, executor = ros
     plan = node.create_client(Plan, '/planner_shim/plan')

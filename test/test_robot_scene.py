@@ -6,9 +6,9 @@ import numpy as np
 import pinocchio as pin
 import pytest
 
-from advocc_ros.collision import CollisionWorld
-from advocc_ros.robot import RobotError, RobotSpec, load_robot
-from advocc_ros.scene import (GoalRegion, Pose, SceneError, apply_operation, load_scene,
+from advocc_ros.model.collision import CollisionWorld
+from advocc_ros.model.robot import RobotError, RobotSpec, load_robot
+from advocc_ros.model.scene import (GoalRegion, Pose, SceneError, apply_operation, load_scene,
                               make_box, objects_from_data, Operation)
 
 UR5 = RobotSpec(urdf='example-robot-data://ur_description/urdf/ur5_robot.urdf',

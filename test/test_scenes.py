@@ -7,13 +7,13 @@ import pathlib
 import numpy as np
 import pytest
 
-from advocc_ros.collision import CollisionWorld
+from advocc_ros.model.collision import CollisionWorld
 from advocc_ros.commands.common import add_scene_args, scene_from_args
-from advocc_ros.mbm import (GoalTolerance, is_mbm_scene, load_any_scene, load_mbm_scene,
+from advocc_ros.model.mbm import (GoalTolerance, is_mbm_scene, load_any_scene, load_mbm_scene,
                             parse_goal_tolerance)
-from advocc_ros.planning import GoalSampler, start_configuration
-from advocc_ros.scene import GoalRegion, Pose, Scene, SceneError, load_scene, make_box, read_yaml
-from advocc_ros.scenegen import VariationConfig, vary_scene
+from advocc_ros.planning.worker import GoalSampler, start_configuration
+from advocc_ros.model.scene import GoalRegion, Pose, Scene, SceneError, load_scene, make_box, read_yaml
+from advocc_ros.model.scenegen import VariationConfig, vary_scene
 
 REPO = pathlib.Path(__file__).resolve().parents[1]
 MBM = REPO / 'test' / 'data' / 'mbm'

@@ -6,13 +6,13 @@ import argparse
 import json
 import sys
 
-from advocc_ros.attack import (KNOWN_METHODS, AttackConfig, AttackStatus, attack, load_method,
+from advocc_ros.attack.api import (KNOWN_METHODS, AttackConfig, AttackStatus, attack, load_method,
                                obstacles_data, save_obstacles)
 from advocc_ros.cli import UserError
-from advocc_ros.heatmap import HeatmapError, load_heatmap
+from advocc_ros.heatmap.build import HeatmapError, load_heatmap
 from advocc_ros.paths import scene_path
-from advocc_ros.robot import RobotError, load_robot
-from advocc_ros.scene import SceneError, load_scene
+from advocc_ros.model.robot import RobotError, load_robot
+from advocc_ros.model.scene import SceneError, load_scene
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -23,7 +23,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument('--scene', required=True, help='scene YAML (or a name in config/scenes) '
                    'with start and goal')
     p.add_argument('--budget', type=int, required=True, help='M, number of boxes')
-    # pfa / pfa++ are planner-in-the-loop baselines provided by advocc_ros.pfa when present.
+    # pfa / pfa++ are planner-in-the-loop baselines provided by advocc_ros.attack.pfa when present.
     p.add_argument('--method', default='ours', choices=KNOWN_METHODS)
     p.add_argument('--size', type=float, default=defaults.box_size_m,
                    help='box edge s [m] (default %(default)s)')
@@ -103,7 +103,7 @@ def _attack(args: argparse.Namespace) -> int:
 def _attack_in_the_loop(args: argparse.Namespace, heatmap, robot, scene, q_init,
                         cfg: AttackConfig):
     """PFA / PFA++ with ``--workers`` local planner processes and a progress bar."""
-    from advocc_ros.pfa import PFA_PLANNER, LocalPlanners, PfaConfig, PfaOptions
+    from advocc_ros.attack.pfa import PFA_PLANNER, LocalPlanners, PfaConfig, PfaOptions
 
     if args.method == 'pfa' and args.planner not in (None, PFA_PLANNER):
         raise UserError(f'pfa always queries {PFA_PLANNER} with the exact goal pose; use '

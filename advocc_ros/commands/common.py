@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-from advocc_ros.scene import Scene
+from advocc_ros.model.scene import Scene
 
 GOAL_TOL_HELP = ('tolerances of the goal region: "pos=X[,Y,Z];rot=R[,P,Y]" (half-extents [m] '
                  'and rotation-vector tolerances [rad] in the end-effector frame; one value = '
@@ -28,7 +28,7 @@ def add_scene_args(parser: argparse.ArgumentParser, required: bool = True) -> No
 def scene_from_args(args: argparse.Namespace) -> Scene | None:
     """The scene named by ``--scene/--request/--goal-tol``; None if ``--scene`` was optional
     and not given. Errors are ``SceneError`` naming the file and field."""
-    from advocc_ros.mbm import load_any_scene
+    from advocc_ros.model.mbm import load_any_scene
 
     if args.scene is None:
         if getattr(args, 'request', None) or getattr(args, 'goal_tol', None):

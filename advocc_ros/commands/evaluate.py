@@ -37,7 +37,7 @@ def register(subparsers) -> None:
 
 def load_task(args, obstacles: str | None):
     """The scene of ``--scene/--request/--goal-tol`` with the obstacles file's objects added."""
-    from advocc_ros.scene import objects_from_data, read_yaml
+    from advocc_ros.model.scene import objects_from_data, read_yaml
 
     scene = scene_from_args(args)
     if scene.goal is None or scene.start is None:
@@ -55,8 +55,8 @@ def load_task(args, obstacles: str | None):
 def run(args: argparse.Namespace) -> int:
     import dataclasses
 
-    from advocc_ros.metrics import evaluate_planner, format_value
-    from advocc_ros.planning import PlanningConfig, planner_class_name
+    from advocc_ros.evaluation.metrics import evaluate_planner, format_value
+    from advocc_ros.planning.worker import PlanningConfig, planner_class_name
 
     from advocc_ros.limits import MAX_TRIALS
     if not 1 <= args.trials <= MAX_TRIALS:

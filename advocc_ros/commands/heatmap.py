@@ -7,7 +7,7 @@ import json
 import sys
 
 from advocc_ros.cli import UserError
-from advocc_ros.heatmap import (HeatmapConfig, build_heatmap, load_heatmap, merge_heatmaps,
+from advocc_ros.heatmap.build import (HeatmapConfig, build_heatmap, load_heatmap, merge_heatmaps,
                                 save_heatmap)
 from advocc_ros.commands.common import add_scene_args, scene_from_args
 
@@ -98,7 +98,7 @@ def _merge(args) -> int:
 
 
 def _plot(args) -> int:
-    from advocc_ros.figures import plot_heatmap_slices
+    from advocc_ros.bench.protocol.figures import plot_heatmap_slices
 
     at = None
     if args.at:
@@ -111,7 +111,7 @@ def _plot(args) -> int:
     scene = scene_from_args(args)
     obstacles = None
     if args.obstacles:
-        from advocc_ros.scene import objects_from_data, read_yaml
+        from advocc_ros.model.scene import objects_from_data, read_yaml
         data = read_yaml(args.obstacles)
         if not isinstance(data, dict):
             raise UserError(f'{args.obstacles}: expected a mapping with objects')

@@ -5,24 +5,12 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import platform
 import statistics
 import time
 
-from advocc_ros.heatmap import HeatmapConfig, build_heatmap
+from advocc_ros.heatmap.build import HeatmapConfig, build_heatmap
 from advocc_ros.commands.common import add_scene_args, scene_from_args
-
-
-def machine() -> dict:
-    """What the numbers were measured on."""
-    cpu = platform.processor()
-    try:
-        with open('/proc/cpuinfo') as handle:
-            cpu = next(line.split(':', 1)[1].strip() for line in handle
-                       if line.startswith('model name'))
-    except (OSError, StopIteration):
-        pass
-    return {'cpu': cpu, 'cores': os.cpu_count(), 'python': platform.python_version()}
+from advocc_ros.evaluation.perf import machine
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -84,7 +72,7 @@ def _heatmap(args) -> int:
 
 
 def _planning(args) -> int:
-    from advocc_ros.planning import benchmark_planning
+    from advocc_ros.evaluation.perf import benchmark_planning
 
     report = benchmark_planning(scene_from_args(args),
                                 tuple(p for p in args.planners.split(',') if p),

@@ -18,7 +18,7 @@ import numpy as np
 
 from advocc_ros.cli import UserError
 from advocc_ros.commands.common import add_scene_args
-from advocc_ros.processes import stop
+from advocc_ros.ros.spawn import stop
 
 PAPER_ONLINE_S = 1.27  # paper §V: online attack generation time
 
@@ -49,7 +49,7 @@ def _stats_ms(values_s: list[float]) -> dict:
 
 
 def _core(heatmap, robot, scene, q, budgets, method, repeats) -> dict:
-    from advocc_ros.attack import attack
+    from advocc_ros.attack.api import attack
 
     attack(heatmap, robot, scene.objects, q, scene.goal, budgets[0], method)  # warm caches
     out = {}
@@ -71,7 +71,8 @@ def _service(heatmap_path, scene, budgets, method, calls, domain) -> dict:
     from advocc_msgs.msg import ErrorCodes
     from advocc_msgs.srv import Attack
 
-    from advocc_ros.commands.call import ServiceClient, attack_request
+    from advocc_ros.ros.client import ServiceClient, ServiceError
+    from advocc_ros.ros.conversions import attack_request
 
     env = dict(os.environ, ROS_DOMAIN_ID=str(domain), PYTHONUNBUFFERED='1')
     os.environ['ROS_DOMAIN_ID'] = str(domain)  # this process's client joins the same domain
@@ -91,7 +92,7 @@ def _service(heatmap_path, scene, budgets, method, calls, domain) -> dict:
                 try:
                     client.client(Attack, service, 1.0)
                     break
-                except UserError:
+                except ServiceError:
                     if time.monotonic() > deadline:
                         raise
             startup_s = time.perf_counter() - t0
@@ -116,12 +117,12 @@ def _service(heatmap_path, scene, budgets, method, calls, domain) -> dict:
 
 
 def _perf_attack(args: argparse.Namespace) -> int:
-    from advocc_ros.commands.perf import machine
-    from advocc_ros.heatmap import HeatmapConfig, HeatmapError, build_heatmap, load_heatmap, \
+    from advocc_ros.evaluation.perf import machine
+    from advocc_ros.heatmap.build import HeatmapConfig, HeatmapError, build_heatmap, load_heatmap, \
         save_heatmap
     from advocc_ros.commands.common import scene_from_args
-    from advocc_ros.robot import load_robot
-    from advocc_ros.scene import SceneError
+    from advocc_ros.model.robot import load_robot
+    from advocc_ros.model.scene import SceneError
 
     try:
         budgets = [int(b) for b in args.budgets.split(',') if b.strip()]

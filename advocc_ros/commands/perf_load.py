@@ -25,7 +25,7 @@ import time
 import numpy as np
 
 from advocc_ros.cli import UserError
-from advocc_ros.processes import stop
+from advocc_ros.ros.spawn import stop
 
 
 def register_load(sub: argparse._SubParsersAction) -> None:
@@ -55,10 +55,11 @@ def _client_main(kind: str, service: str, scene_name: str, n: int, budget: float
     from advocc_msgs.srv import Attack, Plan
     from sensor_msgs.msg import JointState
 
-    from advocc_ros.commands.call import ServiceClient, attack_request
-    from advocc_ros.conversions import goal_region_to_msg
+    from advocc_ros.ros.client import ServiceClient, ServiceError
+    from advocc_ros.ros.conversions import attack_request
+    from advocc_ros.ros.conversions import goal_region_to_msg
     from advocc_ros.paths import scene_path
-    from advocc_ros.scene import load_scene
+    from advocc_ros.model.scene import load_scene
 
     scene = load_scene(scene_path(scene_name))
     if kind == 'attack':
@@ -83,7 +84,7 @@ def _client_main(kind: str, service: str, scene_name: str, n: int, budget: float
             try:
                 res = client.call(srv, service, req, 60.0 + budget)
                 code = res.error_code.val
-            except UserError:
+            except ServiceError:
                 code = 'no_answer'
             latencies.append(time.perf_counter() - t0)
             codes[str(code)] = codes.get(str(code), 0) + 1
@@ -216,9 +217,9 @@ def run_load(scene: str = 'table_pick', heatmap: str | None = None, samples: int
              clients: int = 8, requests: int = 500, budget: int = 1, plan_clients: int = 4,
              plan_requests: int = 25, plan_budget: float = 1.0, plan: bool = True) -> dict:
     """The whole benchmark; returns the report (also used by the scaled-down test)."""
-    from advocc_ros.heatmap import HeatmapConfig, build_heatmap, save_heatmap
+    from advocc_ros.heatmap.build import HeatmapConfig, build_heatmap, save_heatmap
     from advocc_ros.paths import scene_path
-    from advocc_ros.scene import load_scene
+    from advocc_ros.model.scene import load_scene
 
     ns = f'/load{os.getpid()}'
     env = dict(os.environ, ROS_DOMAIN_ID=os.environ.get('ROS_DOMAIN_ID',
@@ -266,7 +267,7 @@ def run_load(scene: str = 'table_pick', heatmap: str | None = None, samples: int
 
 
 def _perf_load(args: argparse.Namespace) -> int:
-    from advocc_ros.commands.perf import machine
+    from advocc_ros.evaluation.perf import machine
     if min(args.clients, args.requests, args.plan_clients, args.plan_requests) < 1:
         raise UserError('--clients, --requests, --plan-clients and --plan-requests must be >= 1')
     report = run_load(args.scene, args.heatmap, args.samples, args.clients, args.requests,

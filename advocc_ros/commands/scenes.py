@@ -63,7 +63,7 @@ def _patterns(text: str) -> tuple[str, ...]:
 
 def _list(args) -> int:
     from advocc_ros.paths import config_dir
-    from advocc_ros.scene import load_scene, read_yaml
+    from advocc_ros.model.scene import load_scene, read_yaml
 
     rows = []
     for path in sorted((config_dir() / 'scenes').glob('*.yaml')):
@@ -90,9 +90,9 @@ def _list(args) -> int:
 def _check(args) -> int:
     import numpy as np
 
-    from advocc_ros.collision import CollisionWorld
-    from advocc_ros.planning import GoalSampler, start_configuration
-    from advocc_ros.robot import load_robot
+    from advocc_ros.model.collision import CollisionWorld
+    from advocc_ros.planning.worker import GoalSampler, start_configuration
+    from advocc_ros.model.robot import load_robot
 
     if args.ik_attempts < 1:
         raise UserError('--ik-attempts must be >= 1')
@@ -122,7 +122,7 @@ def _check(args) -> int:
 
 
 def _convert(args) -> int:
-    from advocc_ros.scene import save_yaml_atomic
+    from advocc_ros.model.scene import save_yaml_atomic
 
     scene = scene_from_args(args)
     data = scene.to_data()
@@ -134,8 +134,8 @@ def _convert(args) -> int:
 
 
 def _vary(args) -> int:
-    from advocc_ros.scene import save_yaml_atomic
-    from advocc_ros.scenegen import VariationConfig, vary_scene
+    from advocc_ros.model.scene import save_yaml_atomic
+    from advocc_ros.model.scenegen import VariationConfig, vary_scene
 
     if args.count < 1:
         raise UserError('--count must be >= 1')

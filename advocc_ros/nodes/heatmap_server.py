@@ -1,6 +1,6 @@
 """heatmap_server: answers online attack requests from a heatmap loaded at start-up.
 
-Parameters (defaults = ``advocc_ros.attack.AttackConfig`` and ``RobotSpec``; see
+Parameters (defaults = ``advocc_ros.attack.api.AttackConfig`` and ``RobotSpec``; see
 ``config/heatmap_server.yaml``): ``heatmap_file`` (required), the attack parameters, the robot
 description and ``base_frame``. A heatmap that cannot be loaded, or was built for another robot,
 stops the node at start-up with a clear message and exit code 1.
@@ -26,15 +26,15 @@ from advocc_msgs.srv import Attack, GetInfo
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.node import Node
 
-from advocc_ros.attack import (METHODS, PLUGIN_METHODS, AttackConfig, AttackStatus, attack,
+from advocc_ros.attack.api import (METHODS, PLUGIN_METHODS, AttackConfig, AttackStatus, attack,
                                link_luts, load_method)
-from advocc_ros.conversions import (goal_region_from_msg, obstacle_to_msg, q_from_joint_state,
+from advocc_ros.ros.conversions import (goal_region_from_msg, obstacle_to_msg, q_from_joint_state,
                                     scene_from_msgs)
-from advocc_ros.heatmap import HeatmapError, load_heatmap
+from advocc_ros.heatmap.build import HeatmapError, load_heatmap
 from advocc_ros.nodes import run
 from advocc_ros.paths import allowed_dirs, confine
-from advocc_ros.robot import RobotError, RobotSpec, load_robot, resolve_path
-from advocc_ros.scene import SceneError
+from advocc_ros.model.robot import RobotError, RobotSpec, load_robot, resolve_path
+from advocc_ros.model.scene import SceneError
 
 # AttackConfig fields exposed as parameters (same names, same defaults).
 _CONFIG_PARAMS = tuple(f.name for f in dataclasses.fields(AttackConfig))

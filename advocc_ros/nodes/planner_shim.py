@@ -9,7 +9,7 @@ static object is rejected, so an attacker can reset its boxes without deleting t
 Services:
 - ``~/plan`` (advocc_msgs/srv/Plan): start state, goal region, planner id, budget, seed ->
   MoveIt error code + message + trajectory + planning time. Requests run in a watched worker
-  process (``advocc_ros.planning.Planner``): a request never holds the node longer than its
+  process (``advocc_ros.planning.worker.Planner``): a request never holds the node longer than its
   budget + ``watchdog_margin_s``; bad requests get an error code and the node keeps serving.
 - ``~/get_info`` (advocc_msgs/srv/GetInfo): what is loaded, as JSON.
 
@@ -31,14 +31,14 @@ from rcl_interfaces.msg import SetParametersResult
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
 from rclpy.node import Node
 
-from advocc_ros.conversions import (collision_object_from_msg, goal_region_from_msg,
+from advocc_ros.ros.conversions import (collision_object_from_msg, goal_region_from_msg,
                                     q_from_joint_state, trajectory_to_msg)
 from advocc_ros.nodes import run
-from advocc_ros.nodes.qos import COLLISION_OBJECT_TOPIC, LATCHED_QOS
+from advocc_ros.ros.qos import COLLISION_OBJECT_TOPIC, LATCHED_QOS
 from advocc_ros.paths import allowed_dirs, confine, scene_path
-from advocc_ros.planning import PLANNERS, Planner, PlanningConfig, PlanStatus
-from advocc_ros.robot import RobotError, resolve_path
-from advocc_ros.scene import Scene, SceneError, apply_operation, load_scene
+from advocc_ros.planning.worker import PLANNERS, Planner, PlanningConfig, PlanStatus
+from advocc_ros.model.robot import RobotError, resolve_path
+from advocc_ros.model.scene import Scene, SceneError, apply_operation, load_scene
 
 # Parameters that map onto PlanningConfig fields (defaults come from the dataclass).
 _CONFIG_PARAMS = ('time_budget_s', 'max_time_budget_s', 'motion_step_rad', 'ik_goals',

@@ -20,7 +20,7 @@ import yaml
 
 from advocc_ros.limits import (MAX_FILE_BYTES, MAX_MESH_TRIANGLES, MAX_MESH_VERTICES,
                                MAX_OBJECTS, yaml_size)  # MAX_*: re-exported
-from advocc_ros.robot import RobotSpec
+from advocc_ros.model.robot import RobotSpec
 
 SHAPES = ('box', 'sphere', 'cylinder', 'mesh')
 

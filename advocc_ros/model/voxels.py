@@ -13,7 +13,7 @@ import dataclasses
 import numpy as np
 import trimesh
 
-from advocc_ros.scene import Shape
+from advocc_ros.model.scene import Shape
 
 
 @dataclasses.dataclass(frozen=True)

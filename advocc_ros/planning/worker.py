@@ -8,7 +8,7 @@ configurations with damped-least-squares IK inside the region.
 Why a worker process. OMPL's ``solve`` runs in C++ and cannot be interrupted from Python; a
 planner that ignores its termination condition, or a pathological scene (a huge mesh), would hold
 the caller forever. ``Planner`` therefore runs every request in one long-lived child process
-(``python -c 'from advocc_ros.planning import _worker_main; _worker_main()'``) that it reuses
+(``python -c 'from advocc_ros.planning.worker import _worker_main; _worker_main()'``) that it reuses
 across requests (imports and the robot model load once; the per-request cost is one JSON line
 each way, measured ~1 ms). The parent waits for the answer with a watchdog deadline of
 ``time_budget_s + watchdog_margin_s``; past it, the child is killed (SIGKILL), the request is
@@ -48,8 +48,8 @@ from typing import Any
 import numpy as np
 import pinocchio as pin
 
-from advocc_ros.robot import RobotError, RobotModel, load_robot
-from advocc_ros.scene import GoalRegion, Scene, SceneError, scene_from_data
+from advocc_ros.model.robot import RobotError, RobotModel, load_robot
+from advocc_ros.model.scene import GoalRegion, Scene, SceneError, scene_from_data
 
 log = logging.getLogger(__name__)
 
@@ -475,7 +475,7 @@ def _worker_main() -> None:
     sys.stdout = sys.stderr
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # the parent decides when we stop
     logging.basicConfig(level=logging.WARNING, format='planning worker: %(message)s')
-    from advocc_ros.collision import CollisionWorld
+    from advocc_ros.model.collision import CollisionWorld
     ob, og, ou = _ompl()
     ou.setLogLevel(ou.LOG_ERROR)
     cache: dict[str, Any] = {}
@@ -526,7 +526,7 @@ class _Worker:
         env = dict(os.environ)
         env['PYTHONPATH'] = os.pathsep.join(p for p in (src, env.get('PYTHONPATH')) if p)
         self.proc = subprocess.Popen(
-            [sys.executable, '-c', 'from advocc_ros.planning import _worker_main; '
+            [sys.executable, '-c', 'from advocc_ros.planning.worker import _worker_main; '
              '_worker_main()'], stdin=subprocess.PIPE, stdout=subprocess.PIPE, env=env,
             close_fds=True)
         self._buf = b''
@@ -719,45 +719,3 @@ def start_configuration(scene: Scene, robot: RobotModel) -> np.ndarray:
         raise SceneError(f'scene {scene.name!r} has no start configuration')
     return robot.q_from_names(list(scene.start), list(scene.start.values()),
                               f'{scene.name}.start')
-
-
-def benchmark_planning(scene: Scene, planner_ids=('rrtconnect', 'prmstar', 'bkpiece1'),
-                       trials: int = 20, time_budget_s: float = 5.0, seed: int = 0,
-                       config: PlanningConfig = PlanningConfig(), progress=None) -> dict:
-    """Speed figures: validity checks/s, planning time and PSR per planner, worker overhead."""
-    from advocc_ros.collision import CollisionWorld
-    robot = load_robot(scene.robot)
-    world = CollisionWorld(robot, scene.shapes)
-    rng = np.random.default_rng(seed)
-    Q = robot.sample_q(rng, 5000)
-    t = time.perf_counter()
-    for q in Q:
-        world.in_collision(q)
-    checks_per_s = len(Q) / (time.perf_counter() - t)
-    q0 = start_configuration(scene, robot)
-    out: dict[str, Any] = {'scene': scene.name, 'objects': len(scene.shapes),
-                           'validity_checks_per_s_python_loop': checks_per_s,
-                           'time_budget_s': time_budget_s, 'trials': trials, 'planners': {}}
-    overheads = []
-    with Planner(scene, config) as planner:
-        t = time.perf_counter()
-        planner.start()
-        out['worker_start_s'] = time.perf_counter() - t
-        for pid in planner_ids:
-            times, ok, rates = [], 0, []
-            for k in range(trials):
-                res = planner.plan(q0, scene.goal, pid, time_budget_s, seed + k)
-                ok += res.success
-                times.append(res.planning_time_s if res.success else time_budget_s)
-                if 'overhead_s' in res.stats:
-                    overheads.append(res.stats['overhead_s'])
-                if res.stats.get('solve_time_s'):
-                    rates.append(res.stats['validity_checks'] / res.stats['solve_time_s'])
-                if progress:
-                    progress(pid, k, res)
-            out['planners'][pid] = {
-                'psr': ok / trials, 'median_pt_s': float(np.median(times)),
-                'mean_pt_s': float(np.mean(times)),
-                'validity_checks_per_s_in_ompl': float(np.median(rates)) if rates else None}
-    out['worker_overhead_s_median'] = float(np.median(overheads)) if overheads else None
-    return out

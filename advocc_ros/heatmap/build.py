@@ -36,12 +36,12 @@ from typing import Callable
 import numba
 import numpy as np
 
-from advocc_ros.collision import CollisionWorld
+from advocc_ros.model.collision import CollisionWorld
 from advocc_ros.fileio import atomic_open
 from advocc_ros.limits import MAX_HEATMAP_BYTES, MAX_HEATMAP_VOXELS
-from advocc_ros.robot import RobotModel, load_robot
-from advocc_ros.scene import Scene
-from advocc_ros.voxels import SolidLUT, VoxelGrid, occupied_mask
+from advocc_ros.model.robot import RobotModel, load_robot
+from advocc_ros.model.scene import Scene
+from advocc_ros.model.voxels import SolidLUT, VoxelGrid, occupied_mask
 
 log = logging.getLogger(__name__)
 

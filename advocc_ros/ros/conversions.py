@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 from advocc_msgs.msg import CollisionObject, GoalRegion as GoalRegionMsg, Obstacle as ObstacleMsg
+from advocc_msgs.srv import Attack
 from builtin_interfaces.msg import Duration
 from geometry_msgs.msg import Point, Pose as PoseMsg, Quaternion
 from sensor_msgs.msg import JointState
@@ -17,9 +18,10 @@ from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
 from advocc_ros.limits import (MAX_JOINTS, MAX_MESH_TRIANGLES, MAX_MESH_VERTICES, MAX_OBJECTS,
                                MAX_SCENE_VERTICES, MAX_SHAPES)
-from advocc_ros.robot import RobotError, RobotModel
-from advocc_ros.scene import (GoalRegion, Operation, Pose, SceneError, SceneObject, Shape,
-                              make_mesh_shape)
+from advocc_ros.model.robot import RobotError, RobotModel
+from advocc_ros.model.scene import (GoalRegion, Operation, Pose, Scene, SceneError, SceneObject,
+                                    Shape, make_box, make_mesh_shape, objects_to_data)
+from advocc_ros.ros.errors import code_name
 
 
 def pose_from_msg(msg: PoseMsg, where: str = 'pose') -> Pose:
@@ -203,3 +205,42 @@ def trajectory_from_msg(robot: RobotModel, msg: JointTrajectory) -> np.ndarray:
     return np.array([robot.q_from_names(list(msg.joint_names), list(p.positions),
                                         f'trajectory.points[{i}]')
                      for i, p in enumerate(msg.points)]).reshape(-1, robot.nq)
+
+
+def joint_state_from_dict(positions: dict[str, float]) -> JointState:
+    """A JointState naming the joints of ``positions`` (a scene's ``start``)."""
+    return JointState(name=list(positions), position=[float(v) for v in positions.values()])
+
+
+def attack_request(scene: Scene, budget: int, method: str = 'ours', box_size_m: float = 0.0,
+                   seed: int = 0) -> Attack.Request:
+    """Attack.Request for a scene's objects, start and goal."""
+    if scene.start is None or scene.goal is None:
+        raise SceneError(f'scene {scene.name!r} needs a start and a goal to attack')
+    req = Attack.Request()
+    req.scene = [collision_object_to_msg(o, scene.frame) for o in scene.objects]
+    req.start_state = joint_state_from_dict(scene.start)
+    req.goal_region = goal_region_to_msg(scene.goal, scene.frame)
+    req.budget, req.method, req.box_size, req.seed = int(budget), method, float(box_size_m), \
+        int(seed)
+    return req
+
+
+def obstacles_from_msgs(obstacles: list[ObstacleMsg], prefix: str | None = None
+                        ) -> tuple[SceneObject, ...]:
+    """The boxes of an Attack response; ``prefix`` renames them ``{prefix}_{i}``."""
+    return tuple(make_box(o.id if prefix is None else f'{prefix}_{i}',
+                          (o.pose.position.x, o.pose.position.y, o.pose.position.z),
+                          tuple(o.size)) for i, o in enumerate(obstacles))
+
+
+def attack_response_data(res: Attack.Response, round_trip_s: float | None = None) -> dict:
+    """JSON-able answer of an Attack response; ``obstacles`` in the scene-file format."""
+    data = {'error_code': res.error_code.val, 'status': code_name(res.error_code.val),
+            'message': res.message, 'obstacles': objects_to_data(obstacles_from_msgs(
+                res.obstacles)),
+            'masses': [float(o.covered_mass) for o in res.obstacles],
+            'total_mass': float(res.total_mass), 'compute_ms': round(res.compute_time_s * 1e3, 3)}
+    if round_trip_s is not None:
+        data['round_trip_ms'] = round(round_trip_s * 1e3, 3)
+    return data

@@ -29,8 +29,8 @@ from typing import Any
 import numpy as np
 import pinocchio as pin
 
-from advocc_ros.robot import RobotError, RobotModel, RobotSpec, load_robot
-from advocc_ros.scene import (GoalRegion, Pose, Scene, SceneError, SceneObject, Shape,
+from advocc_ros.model.robot import RobotError, RobotModel, RobotSpec, load_robot
+from advocc_ros.model.scene import (GoalRegion, Pose, Scene, SceneError, SceneObject, Shape,
                               finite_array, make_mesh_shape, read_yaml)
 
 _PRIMITIVES = {'box': 'box', 'sphere': 'sphere', 'cylinder': 'cylinder',
@@ -339,7 +339,7 @@ def load_any_scene(scene: str | pathlib.Path, request: str | pathlib.Path | None
     ``goal_tol`` replaces the tolerances of the scene's own goal region.
     """
     from advocc_ros.paths import scene_path
-    from advocc_ros.scene import scene_from_data
+    from advocc_ros.model.scene import scene_from_data
 
     path = scene_path(str(scene))
     data = read_yaml(path)

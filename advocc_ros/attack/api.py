@@ -43,12 +43,12 @@ import coal
 import numpy as np
 import pinocchio as pin
 
-from advocc_ros.collision import CollisionWorld, coal_geometry
-from advocc_ros.heatmap import Heatmap
-from advocc_ros.robot import RobotError, RobotModel
-from advocc_ros.scene import (GoalRegion, SceneError, SceneObject, Shape, make_box,
+from advocc_ros.model.collision import CollisionWorld, coal_geometry
+from advocc_ros.heatmap.build import Heatmap
+from advocc_ros.model.robot import RobotError, RobotModel
+from advocc_ros.model.scene import (GoalRegion, SceneError, SceneObject, Shape, make_box,
                               objects_from_data, objects_to_data, read_yaml, save_yaml_atomic)
-from advocc_ros.voxels import SolidLUT, VoxelGrid, occupied_mask, points_in_shape
+from advocc_ros.model.voxels import SolidLUT, VoxelGrid, occupied_mask, points_in_shape
 
 log = logging.getLogger(__name__)
 
@@ -628,7 +628,7 @@ METHODS: dict[str, Selector] = {'ours': _select_greedy, 'random': _select_random
 themselves with :func:`register_method` when their module is imported."""
 
 
-PLUGIN_METHODS = {'pfa': 'advocc_ros.pfa', 'pfa++': 'advocc_ros.pfa'}
+PLUGIN_METHODS = {'pfa': 'advocc_ros.attack.pfa', 'pfa++': 'advocc_ros.attack.pfa'}
 """Methods whose module registers them on import (loaded on first use)."""
 KNOWN_METHODS = ('ours', 'random', 'pfa', 'pfa++')
 
@@ -702,7 +702,7 @@ def attack(heatmap: Heatmap, robot: RobotModel, objects: tuple[SceneObject, ...]
            seed: int = 0, method_options: Any = None) -> AttackResult:
     """Place at most ``budget`` boxes for one task. Never raises for a bad request: the result
     carries the status and message instead. ``method_options``: settings of a
-    planner-in-the-loop method (``advocc_ros.pfa.PfaOptions``)."""
+    planner-in-the-loop method (``advocc_ros.attack.pfa.PfaOptions``)."""
     link_luts(robot, heatmap.grid.voxel_m / 4)  # model loading (~1 s once), not attack time
     t0 = time.perf_counter()
     s = cfg.box_size_m if box_size_m is None or box_size_m == 0 else float(box_size_m)

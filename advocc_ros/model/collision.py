@@ -17,8 +17,8 @@ import coal
 import numpy as np
 import pinocchio as pin
 
-from advocc_ros.robot import RobotModel
-from advocc_ros.scene import Shape
+from advocc_ros.model.robot import RobotModel
+from advocc_ros.model.scene import Shape
 
 
 def coal_geometry(shape: Shape) -> coal.CollisionGeometry:

@@ -5,7 +5,7 @@ keeping the placements that make it fail. Their text is not available here, so t
 implements the baseline as our paper describes it; every choice is listed below.
 
 What is optimised. M axis-aligned boxes of edge s, in the same search region as Ours and
-Random (:func:`advocc_ros.attack.search_region`, constraints C1-C3): every centre is a valid
+Random (:func:`advocc_ros.attack.api.search_region`, constraints C1-C3): every centre is a valid
 candidate voxel centre that passes the exact coal check, and centres are >= d_min apart. So
 the three methods differ only in how they choose among the same candidates.
 
@@ -50,7 +50,7 @@ region), it is not aliased to ``pfa``.
 Planner queries go through :class:`QueryPlanner`: a thread-safe callable
 ``(q_start, obstacles, goal, planner_id, time_budget_s, seed) -> PlanResult`` with a
 ``workers`` attribute (how many calls may run at once). :class:`LocalPlanners` backs it with
-one or more :class:`~advocc_ros.planning.Planner` worker processes; an orchestrator can back it
+one or more :class:`~advocc_ros.planning.worker.Planner` worker processes; an orchestrator can back it
 with planner-shim services instead. Per-query budgets are short (``query_time_s``, default
 1 s) because the optimiser needs many queries; the victim is still evaluated with its own
 budget (5 s). A failing query costs its whole budget, and a successful one nearly so (OMPL's
@@ -78,11 +78,11 @@ import numpy as np
 from cmaes import CMA
 from scipy.spatial import cKDTree
 
-from advocc_ros.attack import (AttackConfig, AttackError, AttackStatus, MethodContext,
+from advocc_ros.attack.api import (AttackConfig, AttackError, AttackStatus, MethodContext,
                                SearchRegion, _Coverage, register_method)
 from advocc_ros.limits import MAX_PLANNER_QUERIES
-from advocc_ros.planning import Planner, PlanningConfig, PlanResult, planner_class_name
-from advocc_ros.scene import GoalRegion, Scene, SceneObject, make_box
+from advocc_ros.planning.worker import Planner, PlanningConfig, PlanResult, planner_class_name
+from advocc_ros.model.scene import GoalRegion, Scene, SceneObject, make_box
 
 log = logging.getLogger(__name__)
 

@@ -25,9 +25,9 @@ import logging
 import numpy as np
 import pinocchio as pin
 
-from advocc_ros.collision import CollisionWorld
-from advocc_ros.robot import load_robot
-from advocc_ros.scene import GoalRegion, Pose, Scene, SceneError, SceneObject, Shape
+from advocc_ros.model.collision import CollisionWorld
+from advocc_ros.model.robot import load_robot
+from advocc_ros.model.scene import GoalRegion, Pose, Scene, SceneError, SceneObject, Shape
 
 log = logging.getLogger(__name__)
 
@@ -166,7 +166,7 @@ def vary_scene(scene: Scene, index: int, seed: int,
 
     Raises ``SceneError`` if ``config.max_draws`` draws give no valid variation.
     """
-    from advocc_ros.planning import GoalSampler, start_configuration
+    from advocc_ros.planning.worker import GoalSampler, start_configuration
 
     robot = load_robot(scene.robot)
     q_init = start_configuration(scene, robot)

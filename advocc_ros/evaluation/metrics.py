@@ -34,8 +34,8 @@ from typing import Any, Iterable
 import numpy as np
 import pinocchio as pin
 
-from advocc_ros.collision import CollisionWorld
-from advocc_ros.robot import RobotModel
+from advocc_ros.model.collision import CollisionWorld
+from advocc_ros.model.robot import RobotModel
 
 log = logging.getLogger(__name__)
 
@@ -236,8 +236,8 @@ def evaluate_planner(scene, planner_id: str, trials: int, time_budget_s: float =
     import queue
     import threading
 
-    from advocc_ros.planning import Planner, PlanningConfig, start_configuration
-    from advocc_ros.robot import load_robot
+    from advocc_ros.planning.worker import Planner, PlanningConfig, start_configuration
+    from advocc_ros.model.robot import load_robot
 
     if scene.goal is None:
         raise ValueError(f'scene {scene.name!r} has no goal region')

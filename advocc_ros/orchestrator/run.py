@@ -6,7 +6,7 @@ A plain Python program (there is no ``launch`` wheel) that, per scene,
    processes as children, each in its own process group, on a unique node name, and waits until
    their services answer; with ``external_shims`` it also uses shims of the same ROS domain found
    by their ``*/plan`` services (other hosts), after checking they hold the same scene;
-2. for each unit of the run plan (``advocc_ros.bench.plan_units``): takes the attack from the
+2. for each unit of the run plan (``advocc_ros.bench.protocol.plan_units``): takes the attack from the
    run folder's cache or asks the heatmap server for it (and caches it), injects it into every
    shim on ``/advocc/collision_object`` (REMOVE all injected objects, ADD the boxes under ids
    unique to the attack), waits until each shim's ``~/get_info`` lists exactly those ids (no
@@ -44,7 +44,7 @@ from typing import Any
 
 import numpy as np
 
-from advocc_ros.bench import (BASELINE, AttackSpec, BenchConfig, BenchError, RecordStore, Trial,
+from advocc_ros.bench.protocol import (BASELINE, AttackSpec, BenchConfig, BenchError, RecordStore, Trial,
                               Unit, cell_rows, check_run_config, plan_units, progress_summary,
                               run_lock, table1, table2, table4, baseline_table)
 from advocc_ros.fileio import atomic_write_text
@@ -63,14 +63,6 @@ _LIBC = ctypes.CDLL(None, use_errno=True)
 
 class Interrupted(KeyboardInterrupt):
     """SIGTERM (or SIGINT): stop children, keep finished trials."""
-
-
-def _code_name(val: int) -> str:
-    from advocc_msgs.msg import ErrorCodes
-    for name in dir(ErrorCodes):
-        if name.isupper() and getattr(ErrorCodes, name) == val:
-            return name
-    return str(val)
 
 
 def _die_with_parent() -> None:  # runs in the child between fork and exec
@@ -176,7 +168,7 @@ class Graph:
         from rclpy.executors import SingleThreadedExecutor
         from rclpy.signals import SignalHandlerOptions
 
-        from advocc_ros.nodes.qos import COLLISION_OBJECT_TOPIC, LATCHED_QOS
+        from advocc_ros.ros.qos import COLLISION_OBJECT_TOPIC, LATCHED_QOS
 
         self._rclpy = rclpy
         self.context = rclpy.Context()
@@ -246,8 +238,8 @@ class _Query:
 
     def done(self, res, robot) -> None:
         """Turn a Plan response into the ``PlanResult`` the optimiser expects."""
-        from advocc_ros.conversions import trajectory_from_msg
-        from advocc_ros.planning import PlanResult, PlanStatus
+        from advocc_ros.ros.conversions import trajectory_from_msg
+        from advocc_ros.planning.worker import PlanResult, PlanStatus
 
         try:
             status = PlanStatus(int(res.error_code.val))
@@ -263,7 +255,7 @@ class _Query:
 
 
 class ShimQueries:
-    """:class:`advocc_ros.pfa.QueryPlanner` backed by the planner shims.
+    """:class:`advocc_ros.attack.pfa.QueryPlanner` backed by the planner shims.
 
     Called from the optimiser's threads; the orchestrator's main thread (which owns every ROS
     handle) injects each query's obstacles into all shims, waits until they hold them, and plans
@@ -388,7 +380,7 @@ class Orchestrator:
             self.graph = None
 
     def _available_methods(self) -> list[str]:
-        from advocc_ros.attack import load_method
+        from advocc_ros.attack.api import load_method
         return [m for m in self.cfg.methods if load_method(m)]
 
     def _write_config(self) -> None:
@@ -406,10 +398,10 @@ class Orchestrator:
 
     def _prepare_heatmaps(self, units: list[Unit]) -> dict[str, pathlib.Path]:
         """Heatmap file per scene that still needs a generated attack."""
-        from advocc_ros.heatmap import (HeatmapConfig, build_heatmap, load_heatmap,
+        from advocc_ros.heatmap.build import (HeatmapConfig, build_heatmap, load_heatmap,
                                         merge_heatmaps, save_heatmap)
         from advocc_ros.paths import scene_path
-        from advocc_ros.scene import load_scene
+        from advocc_ros.model.scene import load_scene
 
         need = []
         for unit in units:
@@ -464,9 +456,9 @@ class Orchestrator:
         from advocc_msgs.srv import Attack, GetInfo
 
         from advocc_ros.paths import scene_path
-        from advocc_ros.planning import start_configuration
-        from advocc_ros.robot import load_robot
-        from advocc_ros.scene import load_scene
+        from advocc_ros.planning.worker import start_configuration
+        from advocc_ros.model.robot import load_robot
+        from advocc_ros.model.scene import load_scene
 
         self.scene_file = pathlib.Path(scene_path(scene_name)).resolve()
         self.scene = load_scene(self.scene_file)
@@ -596,8 +588,8 @@ class Orchestrator:
 
     def _obstacles(self, spec: AttackSpec) -> tuple:
         """The attack's boxes: from the run folder, or generated now and cached there."""
-        from advocc_ros.attack import load_obstacles, save_obstacles
-        from advocc_ros.scene import SceneError
+        from advocc_ros.attack.api import load_obstacles, save_obstacles
+        from advocc_ros.model.scene import SceneError
 
         path = self._attack_path(spec)
         if path.exists():
@@ -608,7 +600,7 @@ class Orchestrator:
                 log.warning('%s does not match %s: regenerating', path, spec)
             except SceneError as exc:
                 log.warning('%s unreadable (%s): regenerating', path, exc)
-        from advocc_ros.attack import CONTEXT_METHODS, load_method
+        from advocc_ros.attack.api import CONTEXT_METHODS, load_method
         load_method(spec.method)
         if spec.method in CONTEXT_METHODS:
             objects, meta = self._generate_in_the_loop(spec)
@@ -619,10 +611,10 @@ class Orchestrator:
 
     def _generate(self, spec: AttackSpec) -> tuple[tuple, dict]:
         """Ask the heatmap server; a dead or hung server is restarted and asked again."""
-        from advocc_msgs.msg import ErrorCodes
-
-        from advocc_ros.commands.call import attack_request, response_data
-        from advocc_ros.scene import make_box, objects_to_data
+        from advocc_ros.model.scene import objects_to_data
+        from advocc_ros.ros.conversions import (attack_request, attack_response_data,
+                                                obstacles_from_msgs)
+        from advocc_ros.ros.errors import ATTACK_OK
 
         if self.server is None:
             raise BenchError(f'no heatmap server for {spec} (internal error)')
@@ -643,13 +635,11 @@ class Orchestrator:
                     self._reset_server_clients()
         else:
             raise BenchError(f'no attack for {spec}: the heatmap server never answered')
-        data = response_data(res, round_trip)
-        if res.error_code.val not in (ErrorCodes.SUCCESS, ErrorCodes.PARTIAL):
+        data = attack_response_data(res, round_trip)
+        if res.error_code.val not in ATTACK_OK:
             raise BenchError(f'attack {spec.tag} on {spec.scene} failed: {data["status"]}: '
                              f'{res.message}')
-        boxes = tuple(make_box(f'{spec.tag}_{i}', (o.pose.position.x, o.pose.position.y,
-                                                   o.pose.position.z), tuple(o.size))
-                      for i, o in enumerate(res.obstacles))
+        boxes = obstacles_from_msgs(res.obstacles, prefix=spec.tag)
         meta = {'format': 'advocc_obstacles', 'version': 1, 'status': data['status'].lower(),
                 'message': res.message, 'method': spec.method, 'budget': spec.budget,
                 'variant': spec.variant, 'seed': spec.seed, 'planner': spec.planner,
@@ -668,10 +658,10 @@ class Orchestrator:
 
     def _generate_in_the_loop(self, spec: AttackSpec) -> tuple[tuple, dict]:
         """PFA / PFA++: the optimiser runs in a thread; its planner queries run on the shims."""
-        from advocc_ros.attack import AttackConfig, attack
-        from advocc_ros.heatmap import load_heatmap
-        from advocc_ros.pfa import PFA_PLANNER, PfaConfig, PfaOptions
-        from advocc_ros.scene import make_box, objects_to_data
+        from advocc_ros.attack.api import AttackConfig, attack
+        from advocc_ros.heatmap.build import load_heatmap
+        from advocc_ros.attack.pfa import PFA_PLANNER, PfaConfig, PfaOptions
+        from advocc_ros.model.scene import make_box, objects_to_data
 
         if self.heatmap_file is None:
             raise BenchError(f'no heatmap for {spec} (internal error)')
@@ -776,16 +766,16 @@ class Orchestrator:
     # -- injection ---------------------------------------------------------------------------
 
     def _publish(self, obj, operation) -> None:
-        from advocc_ros.conversions import collision_object_to_msg
+        from advocc_ros.ros.conversions import collision_object_to_msg
         self.graph.publisher.publish(collision_object_to_msg(obj, self.scene.frame, operation))
 
     def _publish_remove_all(self) -> None:
-        from advocc_ros.scene import Operation, SceneObject
+        from advocc_ros.model.scene import Operation, SceneObject
         self._publish(SceneObject('', ()), Operation.REMOVE)
 
     def _inject(self, objects: tuple) -> None:
         """REMOVE every injected object, ADD the attack's boxes; every shim must re-sync."""
-        from advocc_ros.scene import Operation
+        from advocc_ros.model.scene import Operation
         self._publish_remove_all()
         for obj in objects:
             self._publish(obj, Operation.ADD)
@@ -826,7 +816,7 @@ class Orchestrator:
     # -- trials ------------------------------------------------------------------------------
 
     def _run_unit(self, unit: Unit) -> None:
-        from advocc_ros.collision import CollisionWorld
+        from advocc_ros.model.collision import CollisionWorld
 
         if all(t.key in self.store for t in unit.trials):
             return
@@ -889,7 +879,7 @@ class Orchestrator:
 
     def _sync(self, shim: Shim, info: dict, now: float) -> None:
         """Idle once the shim's injected objects are exactly the current attack's."""
-        from advocc_ros.scene import Operation, SceneObject
+        from advocc_ros.model.scene import Operation, SceneObject
         have = set(info.get('injected_objects', []))
         want = set(self.expected)
         if have == want:
@@ -907,7 +897,7 @@ class Orchestrator:
         from advocc_msgs.srv import Plan
         from sensor_msgs.msg import JointState
 
-        from advocc_ros.conversions import goal_region_to_msg
+        from advocc_ros.ros.conversions import goal_region_to_msg
 
         if isinstance(job, _Query):
             q, goal, planner, budget = job.q_start, job.goal, job.planner_id, job.time_budget_s
@@ -926,8 +916,9 @@ class Orchestrator:
         shim.deadline = now + budget + self.cfg.plan_timeout_margin_s
 
     def _finish(self, shim: Shim) -> None:
-        from advocc_ros.conversions import trajectory_from_msg
-        from advocc_ros.metrics import trial_metrics
+        from advocc_ros.ros.conversions import trajectory_from_msg
+        from advocc_ros.ros.errors import code_name
+        from advocc_ros.evaluation.metrics import trial_metrics
 
         future, trial = shim.future, shim.trial
         shim.future, shim.trial, shim.state = None, None, 'idle'
@@ -938,7 +929,7 @@ class Orchestrator:
             log.warning('%s: plan call failed (%s); trial requeued', shim.name, exc)
             self.pending.appendleft(trial)
             return
-        status = _code_name(res.error_code.val)
+        status = code_name(res.error_code.val)
         if isinstance(trial, _Query):
             trial.done(res, self.robot)
             return
@@ -975,7 +966,7 @@ class Orchestrator:
 # Report
 
 def _attack_metas(run_dir: pathlib.Path) -> list[dict]:
-    from advocc_ros.scene import read_yaml
+    from advocc_ros.model.scene import read_yaml
     metas = []
     for path in sorted((run_dir / 'attacks').glob('*/*.yaml')):
         try:
@@ -991,11 +982,11 @@ def _attack_metas(run_dir: pathlib.Path) -> list[dict]:
 def write_report(run_dir: str | pathlib.Path, cfg: BenchConfig, summary: dict | None = None
                  ) -> dict[str, pathlib.Path]:
     """Tables I, II, IV (+ baseline) as Markdown and CSV, figures, summary; all atomic."""
-    from advocc_ros import figures
-    from advocc_ros.attack import load_obstacles
-    from advocc_ros.heatmap import HeatmapError, load_heatmap
+    from advocc_ros.bench import figures
+    from advocc_ros.attack.api import load_obstacles
+    from advocc_ros.heatmap.build import HeatmapError, load_heatmap
     from advocc_ros.paths import scene_path
-    from advocc_ros.scene import SceneError, load_scene
+    from advocc_ros.model.scene import SceneError, load_scene
 
     run_dir = pathlib.Path(run_dir)
     store = RecordStore(run_dir / 'records.jsonl')
@@ -1084,30 +1075,3 @@ def write_report(run_dir: str | pathlib.Path, cfg: BenchConfig, summary: dict | 
     if summary is not None:
         put('summary.json', json.dumps(summary, indent=2) + '\n')
     return out
-
-
-def main(argv: list[str] | None = None) -> int:
-    """The ``orchestrator`` executable: same options as ``advocc bench``."""
-    import argparse
-
-    from advocc_ros.commands.bench import add_bench_args, run
-
-    parser = argparse.ArgumentParser(prog='orchestrator', description=__doc__.splitlines()[0])
-    parser.add_argument('-v', '--verbose', action='store_true', help='debug logging')
-    add_bench_args(parser)
-    args = parser.parse_args(argv)
-    logging.basicConfig(level=logging.DEBUG if args.verbose else logging.WARNING,
-                        format='%(levelname)s %(name)s: %(message)s')
-    try:
-        return run(args)
-    except (BenchError, ValueError, OSError) as exc:
-        print(f'orchestrator: error: {exc}', file=sys.stderr)
-        return 2
-    except KeyboardInterrupt:
-        print('orchestrator: interrupted; finished trials are kept (re-run to resume)',
-              file=sys.stderr)
-        return 130
-
-
-if __name__ == '__main__':
-    sys.exit(main())

@@ -1,6 +1,6 @@
 """Benchmark bookkeeping (paper §V, SPEC §4/§7): protocol, run plan, records, tables. No ROS.
 
-The orchestrator (``advocc_ros.orchestrator``) drives real nodes; everything it needs to decide
+The orchestrator (``advocc_ros.orchestrator.run``) drives real nodes; everything it needs to decide
 *what* to run and to turn results into the paper's tables lives here, so it can be tested on
 hand-made records:
 
@@ -34,7 +34,7 @@ from typing import Any, Iterable
 import yaml
 
 from advocc_ros.limits import MAX_TRIALS
-from advocc_ros.metrics import aggregate
+from advocc_ros.evaluation.metrics import aggregate
 
 log = logging.getLogger(__name__)
 
@@ -102,7 +102,7 @@ class BenchConfig:
     max_restarts: int = 5
     """Restarts of one node per scene before the benchmark gives up."""
     pfa: dict = dataclasses.field(default_factory=dict)
-    """Settings of the planner-in-the-loop methods (``advocc_ros.pfa.PfaConfig`` fields:
+    """Settings of the planner-in-the-loop methods (``advocc_ros.attack.pfa.PfaConfig`` fields:
     queries, queries_per_placement, query_time_s, ...); their queries run on the shims."""
 
     def __post_init__(self):

@@ -15,8 +15,8 @@ import sys
 import tempfile
 import time
 
-from advocc_ros.processes import stop
-from advocc_ros.scene import Scene, make_box, objects_to_data, save_yaml_atomic
+from advocc_ros.ros.spawn import stop
+from advocc_ros.model.scene import Scene, make_box, objects_to_data, save_yaml_atomic
 
 
 def run_attack_nodes(heatmap_file: str | pathlib.Path, scene: Scene, out: str | pathlib.Path,
@@ -31,8 +31,8 @@ def run_attack_nodes(heatmap_file: str | pathlib.Path, scene: Scene, out: str | 
     from rclpy.executors import SingleThreadedExecutor
     from sensor_msgs.msg import JointState
 
-    from advocc_ros.conversions import collision_object_to_msg, goal_region_to_msg
-    from advocc_ros.nodes.qos import (COLLISION_OBJECT_TOPIC, GOAL_REGION_TOPIC, LATCHED_QOS,
+    from advocc_ros.ros.conversions import collision_object_to_msg, goal_region_to_msg
+    from advocc_ros.ros.qos import (COLLISION_OBJECT_TOPIC, GOAL_REGION_TOPIC, LATCHED_QOS,
                                       SCENE_TOPIC)
 
     if scene.start is None or scene.goal is None:

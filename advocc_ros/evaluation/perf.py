@@ -1,0 +1,68 @@
+"""Speed figures that ``advocc perf`` reports (measured numbers, never timed unit tests)."""
+
+from __future__ import annotations
+
+import os
+import platform
+import time
+from typing import Any
+
+import numpy as np
+
+from advocc_ros.model.collision import CollisionWorld
+from advocc_ros.model.robot import load_robot
+from advocc_ros.model.scene import Scene
+from advocc_ros.planning.worker import Planner, PlanningConfig, start_configuration
+
+
+def machine() -> dict:
+    """What the numbers were measured on."""
+    cpu = platform.processor()
+    try:
+        with open('/proc/cpuinfo') as handle:
+            cpu = next(line.split(':', 1)[1].strip() for line in handle
+                       if line.startswith('model name'))
+    except (OSError, StopIteration):
+        pass
+    return {'cpu': cpu, 'cores': os.cpu_count(), 'python': platform.python_version()}
+
+
+def benchmark_planning(scene: Scene, planner_ids=('rrtconnect', 'prmstar', 'bkpiece1'),
+                       trials: int = 20, time_budget_s: float = 5.0, seed: int = 0,
+                       config: PlanningConfig = PlanningConfig(), progress=None) -> dict:
+    """Speed figures: validity checks/s, planning time and PSR per planner, worker overhead."""
+    robot = load_robot(scene.robot)
+    world = CollisionWorld(robot, scene.shapes)
+    rng = np.random.default_rng(seed)
+    Q = robot.sample_q(rng, 5000)
+    t = time.perf_counter()
+    for q in Q:
+        world.in_collision(q)
+    checks_per_s = len(Q) / (time.perf_counter() - t)
+    q0 = start_configuration(scene, robot)
+    out: dict[str, Any] = {'scene': scene.name, 'objects': len(scene.shapes),
+                           'validity_checks_per_s_python_loop': checks_per_s,
+                           'time_budget_s': time_budget_s, 'trials': trials, 'planners': {}}
+    overheads = []
+    with Planner(scene, config) as planner:
+        t = time.perf_counter()
+        planner.start()
+        out['worker_start_s'] = time.perf_counter() - t
+        for pid in planner_ids:
+            times, ok, rates = [], 0, []
+            for k in range(trials):
+                res = planner.plan(q0, scene.goal, pid, time_budget_s, seed + k)
+                ok += res.success
+                times.append(res.planning_time_s if res.success else time_budget_s)
+                if 'overhead_s' in res.stats:
+                    overheads.append(res.stats['overhead_s'])
+                if res.stats.get('solve_time_s'):
+                    rates.append(res.stats['validity_checks'] / res.stats['solve_time_s'])
+                if progress:
+                    progress(pid, k, res)
+            out['planners'][pid] = {
+                'psr': ok / trials, 'median_pt_s': float(np.median(times)),
+                'mean_pt_s': float(np.mean(times)),
+                'validity_checks_per_s_in_ompl': float(np.median(rates)) if rates else None}
+    out['worker_overhead_s_median'] = float(np.median(overheads)) if overheads else None
+    return out
