@@ -9,11 +9,11 @@ import numpy as np
 import pinocchio as pin
 import pytest
 
-from advocc_ros.attack.api import (AttackConfig, AttackStatus, attack, box_distance, box_sum,
+from advocc_ros.attack import (AttackConfig, AttackStatus, attack, box_distance, box_sum,
                                greedy_cover, load_obstacles, obstacles_data, random_cover,
                                save_obstacles, search_region)
 from advocc_ros.model.collision import CollisionWorld, coal_geometry
-from advocc_ros.heatmap.build import HeatmapConfig, build_heatmap
+from advocc_ros.heatmap import HeatmapConfig, build_heatmap
 from advocc_ros.model.scene import GoalRegion, Pose, make_box, objects_from_data, read_yaml
 
 # ---------------------------------------------------------------------------------------------
@@ -330,7 +330,7 @@ def test_cli_attack_writes_the_obstacles_file(heatmaps, tmp_path, capsys):
     import json
 
     from advocc_ros.cli import main
-    from advocc_ros.heatmap.build import save_heatmap
+    from advocc_ros.heatmap import save_heatmap
     save_heatmap(heatmaps['scene'], tmp_path / 'h.npz')
     out = tmp_path / 'obstacles.yaml'
     args = ['attack', '--heatmap', str(tmp_path / 'h.npz'), '--scene', 'table_pick',

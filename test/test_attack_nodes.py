@@ -15,7 +15,7 @@ from conftest import REPO
 
 @pytest.fixture(scope='module')
 def heatmap_file(tmp_path_factory, table_scene):
-    from advocc_ros.heatmap.build import HeatmapConfig, build_heatmap, save_heatmap
+    from advocc_ros.heatmap import HeatmapConfig, build_heatmap, save_heatmap
     path = tmp_path_factory.mktemp('heatmap') / 'h500.npz'
     save_heatmap(build_heatmap(table_scene, HeatmapConfig(samples=500), seed=2), path)
     return path
@@ -92,11 +92,11 @@ def test_attacker_publishes_what_the_core_computes(ros, ros_env, heatmap_file, t
     from sensor_msgs.msg import JointState
     from visualization_msgs.msg import Marker, MarkerArray
 
-    from advocc_ros.attack.api import attack
+    from advocc_ros.attack import attack
     from advocc_ros.ros.conversions import collision_object_to_msg, goal_region_to_msg
-    from advocc_ros.heatmap.build import load_heatmap
+    from advocc_ros.heatmap import load_heatmap
     from advocc_ros.ros.qos import (COLLISION_OBJECT_TOPIC, GOAL_REGION_TOPIC, LATCHED_QOS,
-                                      SCENE_TOPIC)
+                                    SCENE_TOPIC)
     from advocc_ros.model.scene import Pose, make_box
 
     node, executor, children = ros
@@ -274,7 +274,7 @@ def test_server_refuses_a_corrupted_heatmap(ros_env, tmp_path):
 def test_config_files_match_the_core_defaults():
     import yaml
 
-    from advocc_ros.attack.api import AttackConfig
+    from advocc_ros.attack import AttackConfig
     server = yaml.safe_load((REPO / 'config' / 'heatmap_server.yaml').read_text())
     params = server['/heatmap_server']['ros__parameters']
     for field in dataclasses.fields(AttackConfig):
@@ -286,7 +286,7 @@ def test_config_files_match_the_core_defaults():
 
 def test_run_attack_nodes_for_the_demo(ros_env, monkeypatch, heatmap_file, table_scene,
                                        tmp_path):
-    from advocc_ros.attack.api import load_obstacles
+    from advocc_ros.attack import load_obstacles
     from advocc_ros.ros.feeder import run_attack_nodes
 
     monkeypatch.setenv('ROS_LOCALHOST_ONLY', ros_env['ROS_LOCALHOST_ONLY'])

@@ -4,7 +4,7 @@ import json
 
 import pytest
 
-from advocc_ros.bench.protocol import (BASELINE, BenchConfig, BenchError, RecordStore, budget_to_failure,
+from advocc_ros.bench import (BASELINE, BenchConfig, BenchError, RecordStore, budget_to_failure,
                               cell_rows, check_run_config, load_profile, plan_units, run_lock,
                               table1, table2, table4, trial_key)
 from conftest import REPO

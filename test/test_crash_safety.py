@@ -30,7 +30,7 @@ def _kill(proc):
 
 
 def test_heatmap_build_killed_mid_write_keeps_the_old_file(tmp_path, table_scene):
-    from advocc_ros.heatmap.build import HeatmapConfig, build_heatmap, load_heatmap, save_heatmap
+    from advocc_ros.heatmap import HeatmapConfig, build_heatmap, load_heatmap, save_heatmap
     out = tmp_path / 'existing.npz'
     save_heatmap(build_heatmap(table_scene, HeatmapConfig(samples=30, voxel_m=0.05), seed=1), out)
     old = out.read_bytes()
@@ -65,7 +65,7 @@ def test_heatmap_build_killed_mid_write_keeps_the_old_file(tmp_path, table_scene
 
 _WRITER = r'''
 import sys
-from advocc_ros.attack.api import AttackResult, AttackStatus, obstacles_data, save_obstacles
+from advocc_ros.attack import AttackResult, AttackStatus, obstacles_data, save_obstacles
 from advocc_ros.fileio import atomic_write_text
 from advocc_ros.model.scene import make_box
 out, js = sys.argv[1], sys.argv[2]
@@ -86,7 +86,7 @@ while True:
 
 
 def test_obstacles_and_json_writers_killed_at_random(tmp_path):
-    from advocc_ros.attack.api import load_obstacles
+    from advocc_ros.attack import load_obstacles
     out, js = tmp_path / 'obstacles.yaml', tmp_path / 'summary.json'
     rng = random.Random(7)
     versions = set()
@@ -109,7 +109,7 @@ def test_obstacles_and_json_writers_killed_at_random(tmp_path):
 
 _APPENDER = r'''
 import sys
-from advocc_ros.bench.protocol import RecordStore
+from advocc_ros.bench import RecordStore
 store = RecordStore(sys.argv[1])
 k = len(store)
 print('ready', k, flush=True)
@@ -121,7 +121,7 @@ while True:
 
 def test_records_jsonl_killed_mid_append(tmp_path):
     """Every kill leaves whole records 0..n-1, each once; the next writer resumes at n."""
-    bench = pytest.importorskip('advocc_ros.bench.protocol')
+    bench = pytest.importorskip('advocc_ros.bench')
     path = tmp_path / 'records.jsonl'
     rng = random.Random(3)
     previous = 0

@@ -237,7 +237,7 @@ def test_mbm_request(data, tmp_path, panda):
 
 @pytest.fixture(scope='module')
 def obstacles_doc():
-    from advocc_ros.attack.api import AttackResult, AttackStatus, obstacles_data
+    from advocc_ros.attack import AttackResult, AttackStatus, obstacles_data
     from advocc_ros.model.scene import make_box
     boxes = tuple(make_box(f'adv_{i}', (0.5, 0.1 * i, 0.3), (0.05,) * 3) for i in range(3))
     return obstacles_data(AttackResult(AttackStatus.SUCCESS, 'placed 3 boxes', boxes,
@@ -247,7 +247,7 @@ def obstacles_doc():
 @settings(**SETTINGS)
 @given(data=st.data())
 def test_obstacles_file(data, tmp_path, obstacles_doc):
-    from advocc_ros.attack.api import load_obstacles
+    from advocc_ros.attack import load_obstacles
     from advocc_ros.model.scene import SceneError
     path = tmp_path / 'obstacles.yaml'
     text = yaml.safe_dump(obstacles_doc)
@@ -269,7 +269,7 @@ def test_obstacles_file(data, tmp_path, obstacles_doc):
 
 @pytest.fixture(scope='module')
 def heatmap_bytes(tmp_path_factory, table_scene):
-    from advocc_ros.heatmap.build import HeatmapConfig, build_heatmap, save_heatmap
+    from advocc_ros.heatmap import HeatmapConfig, build_heatmap, save_heatmap
     path = tmp_path_factory.mktemp('fuzz_heatmap') / 'h.npz'
     save_heatmap(build_heatmap(table_scene, HeatmapConfig(samples=50, voxel_m=0.05), seed=3),
                  path)
@@ -279,7 +279,7 @@ def heatmap_bytes(tmp_path_factory, table_scene):
 @settings(**dict(SETTINGS, max_examples=50))
 @given(data=st.data())
 def test_heatmap_bytes(data, tmp_path, heatmap_bytes):
-    from advocc_ros.heatmap.build import Heatmap, HeatmapError, load_heatmap
+    from advocc_ros.heatmap import Heatmap, HeatmapError, load_heatmap
     path = tmp_path / 'h.npz'
     path.write_bytes(_flip(data, heatmap_bytes))
     _count('heatmap_bytes')
@@ -305,7 +305,7 @@ _ARRAYS = st.one_of(
 @given(data=st.data())
 def test_heatmap_crafted(data, tmp_path):
     """Well-formed npz files whose arrays lie about the grid: wrong shapes, types, values."""
-    from advocc_ros.heatmap.build import Heatmap, HeatmapError, load_heatmap
+    from advocc_ros.heatmap import Heatmap, HeatmapError, load_heatmap
     arrays = dict(format_version=np.array(1), origin_m=np.zeros(3), voxel_m=np.array(0.02),
                   shape=np.array([2, 2, 2]), values=np.zeros((2, 2, 2)),
                   free=np.ones((2, 2, 2), bool),
@@ -333,7 +333,7 @@ def test_heatmap_crafted(data, tmp_path):
 def test_heatmap_zip_bomb(tmp_path):
     """8 MB on disk that would inflate to 1.7 GB is refused from the zip header, unread."""
     import zipfile
-    from advocc_ros.heatmap.build import HeatmapError, load_heatmap
+    from advocc_ros.heatmap import HeatmapError, load_heatmap
     path = tmp_path / 'bomb.npz'
     header = np.lib.format.header_data_from_array_1_0(np.zeros((2, 2, 2)))
     header['shape'] = (600, 600, 600)
@@ -361,9 +361,9 @@ _CONFIG_VALUES = st.one_of(st.floats(allow_nan=True, allow_infinity=True),
 @settings(**SETTINGS)
 @given(data=st.data())
 def test_config_dataclasses(data):
-    from advocc_ros.attack.api import AttackConfig
-    from advocc_ros.heatmap.build import HeatmapConfig
-    from advocc_ros.planning.worker import PlanningConfig
+    from advocc_ros.attack import AttackConfig
+    from advocc_ros.heatmap import HeatmapConfig
+    from advocc_ros.planning import PlanningConfig
     import dataclasses
     cls = data.draw(st.sampled_from([AttackConfig, HeatmapConfig, PlanningConfig]))
     names = [f.name for f in dataclasses.fields(cls)]
@@ -384,8 +384,8 @@ def _node_config(node: str, params: dict):
     """The core config a node builds from its parameters (what start-up validates)."""
     import dataclasses
 
-    from advocc_ros.attack.api import AttackConfig
-    from advocc_ros.planning.worker import PlanningConfig
+    from advocc_ros.attack import AttackConfig
+    from advocc_ros.planning import PlanningConfig
     cls = {'/heatmap_server': AttackConfig, '/planner_shim': PlanningConfig}.get(node)
     if cls is None:
         return None

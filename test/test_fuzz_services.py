@@ -41,7 +41,7 @@ def ros_module(tmp_path_factory, table_scene):
     """A heatmap, both nodes as child processes, and an rclpy client node on their domain."""
     import rclpy
 
-    from advocc_ros.heatmap.build import HeatmapConfig, build_heatmap, save_heatmap
+    from advocc_ros.heatmap import HeatmapConfig, build_heatmap, save_heatmap
     tmp = tmp_path_factory.mktemp('fuzz_services')
     heatmap = tmp / 'h.npz'
     save_heatmap(build_heatmap(table_scene, HeatmapConfig(samples=300), seed=4), heatmap)

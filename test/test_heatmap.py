@@ -10,7 +10,7 @@ import pinocchio as pin
 import pytest
 
 from advocc_ros.model.collision import CollisionWorld, coal_geometry
-from advocc_ros.heatmap.build import (HeatmapConfig, HeatmapError, build_heatmap, load_heatmap,
+from advocc_ros.heatmap import (HeatmapConfig, HeatmapError, build_heatmap, load_heatmap,
                                 merge_heatmaps, sample_weights, save_heatmap)
 from advocc_ros.model.robot import RobotSpec, load_robot
 from advocc_ros.model.scene import Scene, make_box
@@ -108,8 +108,8 @@ def test_shards_merge_to_the_full_build(table_scene, tmp_path):
 
 
 def test_merge_refuses_other_scene_or_robot(small_table_heatmap, table_scene):
-    other_scene = table_scene.without_objects().with_objects([make_box('b', [0.5, 0, 0.2],
-                                                                        [0.1, 0.1, 0.1])])
+    box = make_box('b', [0.5, 0, 0.2], [0.1, 0.1, 0.1])
+    other_scene = table_scene.without_objects().with_objects([box])
     other = build_heatmap(other_scene, HeatmapConfig(samples=100), seed=8)
     with pytest.raises(HeatmapError, match='differ'):
         merge_heatmaps([small_table_heatmap, other])

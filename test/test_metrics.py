@@ -4,9 +4,9 @@ import numpy as np
 import pytest
 
 from advocc_ros.model.collision import CollisionWorld
-from advocc_ros.evaluation.metrics import (MetricsConfig, TrialRecord, aggregate, densify, format_value,
-                                joint_deviation, min_clearance, min_manipulability,
-                                random_directions)
+from advocc_ros.evaluation.metrics import (MetricsConfig, TrialRecord, aggregate, densify,
+                                           format_value, joint_deviation, min_clearance,
+                                           min_manipulability, random_directions)
 from advocc_ros.model.scene import make_box
 
 Q_READY = np.array([0.0, -0.785, 0.0, -2.356, 0.0, 1.571, 0.785])

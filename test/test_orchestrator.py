@@ -14,14 +14,14 @@ import time
 
 import pytest
 
-from advocc_ros.bench.protocol import RecordStore
+from advocc_ros.bench import RecordStore
 
 PLANNERS = ('rrtconnect', 'bkpiece1')
 
 
 @pytest.fixture(scope='module')
 def heatmap_file(tmp_path_factory):
-    from advocc_ros.heatmap.build import HeatmapConfig, build_heatmap, save_heatmap
+    from advocc_ros.heatmap import HeatmapConfig, build_heatmap, save_heatmap
     from advocc_ros.paths import scene_path
     from advocc_ros.model.scene import load_scene
 
@@ -105,10 +105,10 @@ def test_tiny_benchmark_end_to_end(tmp_path, heatmap_file, ros_env):
     code, text = _finish(proc)
     assert code == 0, text
     records = _check_complete(out, 3)
-    assert {(r['method'], r['budget']) for r in records} == {('none', 0), ('ours', 1),
-                                                            ('random', 1)}
-    assert {r['shim'] for r in records} == {'/advocc_shim_table_pick_0',
-                                             '/advocc_shim_table_pick_1'}
+    assert {(r['method'], r['budget']) for r in records} \
+        == {('none', 0), ('ours', 1), ('random', 1)}
+    assert {r['shim'] for r in records} \
+        == {'/advocc_shim_table_pick_0', '/advocc_shim_table_pick_1'}
     for r in records:
         assert r['time_budget_s'] == 1.0
         if r['success']:

@@ -11,11 +11,11 @@ import threading
 import numpy as np
 import pytest
 
-from advocc_ros.attack.api import METHODS, AttackConfig, AttackStatus, attack, search_region
-from advocc_ros.heatmap.build import HeatmapConfig, build_heatmap
+from advocc_ros.attack import METHODS, AttackConfig, AttackStatus, attack, search_region
+from advocc_ros.heatmap import HeatmapConfig, build_heatmap
 from advocc_ros.attack.pfa import (LocalPlanners, PfaConfig, PfaOptions, _Decoder, exact_goal,
-                            optimise)
-from advocc_ros.planning.worker import start_configuration
+                                   optimise)
+from advocc_ros.planning import start_configuration
 from advocc_ros.model.scene import GoalRegion, Pose, Scene, make_box
 from test_attack import _assert_constraints
 
@@ -69,8 +69,6 @@ def test_decoder_keeps_d_min_and_the_exact_check():
         for a, b in itertools.combinations(p, 2):
             assert np.linalg.norm(centers[a] - centers[b]) >= 0.05 - 1e-9
     assert dec.rejected == len([r for r in dec._checked if r in vetoed])
-
-
 
 
 def test_pfa_config_checks_its_values():

@@ -8,7 +8,7 @@ import pytest
 
 from advocc_ros.model.collision import CollisionWorld
 from advocc_ros.evaluation.metrics import densify
-from advocc_ros.planning.worker import (Planner, PlanningConfig, PlanStatus, planner_class_name,
+from advocc_ros.planning import (Planner, PlanningConfig, PlanStatus, planner_class_name,
                                  start_configuration)
 from advocc_ros.model.scene import GoalRegion, Pose, SceneObject, Shape, make_box
 

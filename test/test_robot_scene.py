@@ -9,7 +9,7 @@ import pytest
 from advocc_ros.model.collision import CollisionWorld
 from advocc_ros.model.robot import RobotError, RobotSpec, load_robot
 from advocc_ros.model.scene import (GoalRegion, Pose, SceneError, apply_operation, load_scene,
-                              make_box, objects_from_data, Operation)
+                                    make_box, objects_from_data, Operation)
 
 UR5 = RobotSpec(urdf='example-robot-data://ur_description/urdf/ur5_robot.urdf',
                 srdf='example-robot-data://ur_description/srdf/ur5.srdf', group='',

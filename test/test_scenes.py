@@ -10,9 +10,10 @@ import pytest
 from advocc_ros.model.collision import CollisionWorld
 from advocc_ros.commands.common import add_scene_args, scene_from_args
 from advocc_ros.model.mbm import (GoalTolerance, is_mbm_scene, load_any_scene, load_mbm_scene,
-                            parse_goal_tolerance)
-from advocc_ros.planning.worker import GoalSampler, start_configuration
-from advocc_ros.model.scene import GoalRegion, Pose, Scene, SceneError, load_scene, make_box, read_yaml
+                                  parse_goal_tolerance)
+from advocc_ros.planning import GoalSampler, start_configuration
+from advocc_ros.model.scene import (GoalRegion, Pose, Scene, SceneError, load_scene, make_box,
+                                    read_yaml)
 from advocc_ros.model.scenegen import VariationConfig, vary_scene
 
 REPO = pathlib.Path(__file__).resolve().parents[1]

@@ -1,18 +1,26 @@
-"""The online phase: search region, coverage, attack methods and the obstacles file.
+"""The online phase: search region, coverage, attack methods and the obstacles file. No ROS.
 
-PFA (``advocc_ros.attack.pfa``) is a plugin: ``load_method('pfa')`` imports it on demand.
+Methods are listed once, in ``advocc_ros.attack.methods.REGISTRY``; a method's module is
+imported on first use (``load_method``), so PFA (``advocc_ros.attack.pfa``) is not imported here.
 """
 
-from advocc_ros.attack.api import (attack, AttackConfig, AttackError, AttackResult, AttackStatus,
-                                   box_distance, box_sum, CONTEXT_METHODS, goal_configuration,
-                                   greedy_cover, KNOWN_METHODS, load_method, load_obstacles,
-                                   MethodContext, METHODS, obstacles_data, random_cover,
-                                   register_method, save_obstacles, search_region, SearchRegion,
-                                   validate_request)
+from advocc_ros.attack.types import AttackConfig, AttackError, AttackResult, AttackStatus
+from advocc_ros.attack.coverage import (Accept, box_distance, box_half_voxels, box_sum,
+                                        greedy_cover, random_cover)
+from advocc_ros.attack.region import SearchRegion, link_luts, robot_occupancy, search_region
+from advocc_ros.attack.methods import (CONTEXT_METHODS, KNOWN_METHODS, METHODS, MethodContext,
+                                       MethodSpec, REGISTRY, Selector, available_methods,
+                                       load_method, register_method)
+from advocc_ros.attack.api import attack, validate_request
+from advocc_ros.attack.obstacles import (OBSTACLES_FORMAT, OBSTACLES_VERSION, load_obstacles,
+                                         obstacles_data, obstacles_file_data, obstacles_meta,
+                                         save_obstacles)
 
 __all__ = [
-    'attack', 'AttackConfig', 'AttackError', 'AttackResult', 'AttackStatus', 'box_distance',
-    'box_sum', 'CONTEXT_METHODS', 'goal_configuration', 'greedy_cover', 'KNOWN_METHODS',
-    'load_method', 'load_obstacles', 'MethodContext', 'METHODS', 'obstacles_data',
-    'random_cover', 'register_method', 'save_obstacles', 'search_region', 'SearchRegion',
+    'Accept', 'AttackConfig', 'AttackError', 'AttackResult', 'AttackStatus', 'CONTEXT_METHODS',
+    'KNOWN_METHODS', 'METHODS', 'MethodContext', 'MethodSpec', 'OBSTACLES_FORMAT',
+    'OBSTACLES_VERSION', 'REGISTRY', 'SearchRegion', 'Selector', 'attack', 'available_methods',
+    'box_distance', 'box_half_voxels', 'box_sum', 'greedy_cover', 'link_luts', 'load_method',
+    'load_obstacles', 'obstacles_data', 'obstacles_file_data', 'obstacles_meta',
+    'random_cover', 'register_method', 'robot_occupancy', 'save_obstacles', 'search_region',
     'validate_request']

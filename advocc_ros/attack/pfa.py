@@ -5,7 +5,7 @@ keeping the placements that make it fail. Their text is not available here, so t
 implements the baseline as our paper describes it; every choice is listed below.
 
 What is optimised. M axis-aligned boxes of edge s, in the same search region as Ours and
-Random (:func:`advocc_ros.attack.api.search_region`, constraints C1-C3): every centre is a valid
+Random (:func:`advocc_ros.attack.search_region`, constraints C1-C3): every centre is a valid
 candidate voxel centre that passes the exact coal check, and centres are >= d_min apart. So
 the three methods differ only in how they choose among the same candidates.
 
@@ -49,9 +49,9 @@ region), it is not aliased to ``pfa``.
 
 Planner queries go through :class:`QueryPlanner`: a thread-safe callable
 ``(q_start, obstacles, goal, planner_id, time_budget_s, seed) -> PlanResult`` with a
-``workers`` attribute (how many calls may run at once). :class:`LocalPlanners` backs it with
-one or more :class:`~advocc_ros.planning.worker.Planner` worker processes; an orchestrator can back it
-with planner-shim services instead. Per-query budgets are short (``query_time_s``, default
+``workers`` attribute (how many calls may run at once). ``advocc_ros.planning.LocalPlanners``
+backs it with one or more ``Planner`` worker processes; an orchestrator can back it with
+planner-shim services instead. Per-query budgets are short (``query_time_s``, default
 1 s) because the optimiser needs many queries; the victim is still evaluated with its own
 budget (5 s). A failing query costs its whole budget, and a successful one nearly so (OMPL's
 simplifier uses what the budget leaves), so online time ~ Q * query_time_s / workers.
@@ -69,7 +69,6 @@ import concurrent.futures
 import dataclasses
 import logging
 import math
-import queue
 import threading
 import time
 from typing import Callable, Protocol, Sequence
@@ -78,11 +77,13 @@ import numpy as np
 from cmaes import CMA
 from scipy.spatial import cKDTree
 
-from advocc_ros.attack.api import (AttackConfig, AttackError, AttackStatus, MethodContext,
-                               SearchRegion, _Coverage, register_method)
+from advocc_ros.attack.coverage import _Coverage
+from advocc_ros.attack.methods import MethodContext, register_method
+from advocc_ros.attack.region import SearchRegion
+from advocc_ros.attack.types import AttackConfig, AttackError, AttackStatus
 from advocc_ros.limits import MAX_PLANNER_QUERIES
-from advocc_ros.planning.worker import Planner, PlanningConfig, PlanResult, planner_class_name
-from advocc_ros.model.scene import GoalRegion, Scene, SceneObject, make_box
+from advocc_ros.model.scene import GoalRegion, SceneObject, make_box
+from advocc_ros.planning import PlanResult, planner_class_name
 
 log = logging.getLogger(__name__)
 
@@ -152,44 +153,6 @@ class PfaOptions:
     config: PfaConfig = PfaConfig()
     progress: Callable[[int, int], None] | None = None
     """Called with (queries done, query budget) after each query."""
-
-
-class LocalPlanners:
-    """:class:`QueryPlanner` over ``workers`` local OMPL worker processes (one ``Planner``
-    each); a call takes a free planner, sets the scene plus obstacles, and plans."""
-
-    def __init__(self, scene: Scene, workers: int = 1, config: PlanningConfig = PlanningConfig()):
-        if workers < 1:
-            raise ValueError(f'workers must be >= 1, got {workers}')
-        self.scene, self.workers = scene, int(workers)
-        self._planners = [Planner(scene, config) for _ in range(self.workers)]
-        self._free: queue.SimpleQueue[Planner] = queue.SimpleQueue()
-        for p in self._planners:
-            self._free.put(p)
-
-    def start(self) -> 'LocalPlanners':
-        """Start every worker process now (in parallel; ~2 s each otherwise on first use)."""
-        with concurrent.futures.ThreadPoolExecutor(self.workers) as pool:
-            list(pool.map(Planner.start, self._planners))
-        return self
-
-    def __call__(self, q_start, obstacles, goal, planner_id, time_budget_s, seed) -> PlanResult:
-        planner = self._free.get()
-        try:
-            planner.set_scene(self.scene.with_objects(tuple(obstacles)))
-            return planner.plan(q_start, goal, planner_id, time_budget_s, seed)
-        finally:
-            self._free.put(planner)
-
-    def close(self) -> None:
-        for p in self._planners:
-            p.close()
-
-    def __enter__(self) -> 'LocalPlanners':
-        return self
-
-    def __exit__(self, *exc) -> None:
-        self.close()
 
 
 def exact_goal(goal: GoalRegion) -> GoalRegion:
@@ -352,8 +315,8 @@ def optimise(decoder: _Decoder, objective: Objective, budget: int, seed: int,
         if objective.affordable() <= rescore_top:
             break
     if rescore_top and history:
-        top = sorted(scores, key=scores.get, reverse=True)[:min(rescore_top,
-                                                              objective.affordable())]
+        top = sorted(scores, key=scores.get,
+                     reverse=True)[:min(rescore_top, objective.affordable())]
         placement = {key(p): p for p, _ in history}
         for k, s in zip(top, objective([placement[k] for k in top])):
             scores[k] = (scores[k] + s) / 2
@@ -516,9 +479,9 @@ def _select_pfa_pp(region, budget, seed, cfg, context):
     return _select(region, budget, seed, cfg, context, exact=False)
 
 
-register_method('pfa', _select_pfa, needs_context=True)
-register_method('pfa++', _select_pfa_pp, needs_context=True)
+register_method('pfa', _select_pfa)
+register_method('pfa++', _select_pfa_pp)
 
-__all__ = ['EXACT_ORIENTATION_TOL_RAD', 'EXACT_POSITION_TOL_M', 'PFA_PLANNER', 'LocalPlanners',
+__all__ = ['EXACT_ORIENTATION_TOL_RAD', 'EXACT_POSITION_TOL_M', 'PFA_PLANNER',
            'Objective', 'OptimiseResult', 'PfaConfig', 'PfaOptions', 'QueryPlanner', 'exact_goal',
            'optimise']

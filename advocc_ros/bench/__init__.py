@@ -1,18 +1,34 @@
-"""The benchmark's bookkeeping: protocol, run plan, records and tables (no ROS).
+"""Benchmark bookkeeping (paper §V, SPEC §4/§7): protocol, run plan, records, tables. No ROS.
 
-Figures (``advocc_ros.bench.figures``, matplotlib) are imported where they are drawn.
+The orchestrator (``advocc_ros.orchestrator``) drives real nodes; everything it needs to decide
+*what* to run and to turn results into the paper's tables lives here, so it can be tested on
+hand-made records:
+
+- ``BenchConfig`` (``protocol``): one protocol (a profile of ``config/bench.yaml`` plus
+  command-line overrides).
+- ``plan_units`` (``protocol``): the run plan of units (one planning scene to inject and the
+  trials to run in it).
+- ``RecordStore`` (``records``): per-trial JSON lines, appended with flush + fsync, so a re-run
+  resumes exactly.
+- ``cell_rows`` / ``table1`` / ``table2`` / ``table4`` (``tables``): the paper's Tables I, II
+  and IV as Markdown and CSV.
+- ``write_report`` (``report``): a run folder's tables, figures and summary.
+
+``figures`` (matplotlib) is imported where figures are drawn.
 """
 
-from advocc_ros.bench.protocol import (AttackSpec, BASELINE, baseline_table, BenchConfig,
-                                       BenchError, budget_to_failure, cell_rows, check_run_config,
-                                       IDENTITY_FIELDS, load_profile, log, MAX_BUDGET,
-                                       METHOD_LABELS, plan_units, PLANNER_LABELS, progress_summary,
-                                       RecordStore, run_lock, scene_label, table1, table2, table4,
-                                       THRESHOLDS, Trial, trial_key, Unit)
+from advocc_ros.bench.protocol import (AttackSpec, BASELINE, BenchConfig, BenchError,
+                                       IDENTITY_FIELDS, MAX_BUDGET, METHOD_LABELS, PLANNER_LABELS,
+                                       THRESHOLDS, Trial, Unit, load_profile, plan_units,
+                                       scene_label, trial_key)
+from advocc_ros.bench.records import RecordStore, check_run_config, progress_summary, run_lock
+from advocc_ros.bench.tables import (baseline_table, budget_to_failure, cell_rows, table1, table2,
+                                     table4)
+from advocc_ros.bench.report import write_report
 
 __all__ = [
-    'AttackSpec', 'BASELINE', 'baseline_table', 'BenchConfig', 'BenchError',
-    'budget_to_failure', 'cell_rows', 'check_run_config', 'IDENTITY_FIELDS', 'load_profile',
-    'log', 'MAX_BUDGET', 'METHOD_LABELS', 'plan_units', 'PLANNER_LABELS', 'progress_summary',
-    'RecordStore', 'run_lock', 'scene_label', 'table1', 'table2', 'table4', 'THRESHOLDS',
-    'Trial', 'trial_key', 'Unit']
+    'AttackSpec', 'BASELINE', 'BenchConfig', 'BenchError', 'IDENTITY_FIELDS', 'MAX_BUDGET',
+    'METHOD_LABELS', 'PLANNER_LABELS', 'RecordStore', 'THRESHOLDS', 'Trial', 'Unit',
+    'baseline_table', 'budget_to_failure', 'cell_rows', 'check_run_config', 'load_profile',
+    'plan_units', 'progress_summary', 'run_lock', 'scene_label', 'table1', 'table2', 'table4',
+    'trial_key', 'write_report']

@@ -14,7 +14,7 @@ from matplotlib.patches import Rectangle  # noqa: E402
 from matplotlib.ticker import MaxNLocator  # noqa: E402
 
 from advocc_ros.fileio import atomic_open  # noqa: E402
-from advocc_ros.heatmap.build import Heatmap  # noqa: E402
+from advocc_ros.heatmap import Heatmap  # noqa: E402
 from advocc_ros.model.scene import Scene, SceneObject  # noqa: E402
 
 _PLANES = (('XY', 2, (0, 1)), ('XZ', 1, (0, 2)), ('YZ', 0, (1, 2)))

@@ -1,8 +1,4 @@
-"""Benchmark bookkeeping (paper §V, SPEC §4/§7): protocol, run plan, records, tables. No ROS.
-
-The orchestrator (``advocc_ros.orchestrator.run``) drives real nodes; everything it needs to decide
-*what* to run and to turn results into the paper's tables lives here, so it can be tested on
-hand-made records:
+"""The benchmark's protocol and run plan (paper §V, SPEC §4/§7); see ``advocc_ros.bench``.
 
 - ``BenchConfig``: one protocol (a profile of ``config/bench.yaml`` plus command-line overrides).
 - ``plan_units``: the run plan. A *unit* is one planning scene to inject (an attack, or none for
@@ -10,31 +6,22 @@ hand-made records:
   (ours, random, pfa) serve every planner from one injection; planner-specific ones (pfa++) get
   one unit per planner. A method with ``variants: R`` splits a cell's trials into R contiguous
   blocks, each against its own attack (seed + v), so a Random cell is not one lucky draw.
-- ``RecordStore``: per-trial JSON lines, appended with flush + fsync, deduplicated by trial key
-  on load, tolerant of a truncated last line (a kill mid-write), so a re-run resumes exactly.
-- ``cell_rows`` / ``table1`` / ``table2`` / ``table4``: the paper's Tables I, II and IV as
-  Markdown and CSV.
 """
 
 from __future__ import annotations
 
-import contextlib
-import csv
 import dataclasses
-import fcntl
-import io
 import json
 import logging
 import math
-import os
 import pathlib
 import re
-from typing import Any, Iterable
+from typing import Iterable
 
 import yaml
 
+from advocc_ros.attack.methods import REGISTRY
 from advocc_ros.limits import MAX_TRIALS
-from advocc_ros.evaluation.metrics import aggregate
 
 log = logging.getLogger(__name__)
 
@@ -42,8 +29,7 @@ BASELINE = 'none'
 """Method name of the unattacked baseline (budget 0)."""
 THRESHOLDS = (80, 60, 40, 20, 0)
 """Table II: PSR thresholds [%]."""
-METHOD_LABELS = {'ours': 'Ours', 'random': 'Random', 'pfa': 'PFA', 'pfa++': 'PFA++',
-                 BASELINE: 'None'}
+METHOD_LABELS = {name: spec.label for name, spec in REGISTRY.items()} | {BASELINE: 'None'}
 PLANNER_LABELS = {'rrtconnect': 'RRT', 'prmstar': 'PRM*', 'bkpiece1': 'BKPIECE'}
 MAX_BUDGET = 90
 """Largest budget: one attack's REMOVE + ADDs must fit the latched topic's history (100)."""
@@ -305,314 +291,3 @@ def plan_units(cfg: BenchConfig, available: Iterable[str] | None = None
                                                               cfg.seed + k)
                                                         for p in group for k in ks]))
     return units, notes
-
-
-# --------------------------------------------------------------------------------------------
-# Records
-
-class RecordStore:
-    """Per-trial records as JSON lines; one line per finished trial, never two per key."""
-
-    def __init__(self, path: str | pathlib.Path):
-        self.path = pathlib.Path(path)
-        self.records: dict[str, dict] = {}
-        self.duplicates = 0
-        self.bad_lines = 0
-        self._load()
-
-    def _load(self) -> None:
-        if not self.path.exists():
-            return
-        raw = self.path.read_bytes()
-        lines = raw.split(b'\n')
-        tail = lines.pop()  # b'' when the file ends with a newline
-        for i, line in enumerate(lines):
-            self._take(line, i + 1)
-        if tail:
-            # A kill mid-append leaves a partial last line: keep it only if it is whole JSON.
-            if self._take(tail, len(lines) + 1, warn=False):
-                with open(self.path, 'ab') as handle:
-                    handle.write(b'\n')
-            else:
-                log.warning('%s: dropping a truncated last line (%d bytes)', self.path,
-                            len(tail))
-                with open(self.path, 'r+b') as handle:
-                    handle.truncate(len(raw) - len(tail))
-            with open(self.path, 'rb+') as handle:
-                os.fsync(handle.fileno())
-
-    def _take(self, line: bytes, number: int, warn: bool = True) -> bool:
-        if not line.strip():
-            return True
-        try:
-            rec = json.loads(line)
-            key = rec['key']
-        except (ValueError, KeyError, TypeError):
-            if warn:
-                log.warning('%s:%d: skipping an unreadable record', self.path, number)
-                self.bad_lines += 1
-            return False
-        if key in self.records:
-            self.duplicates += 1  # only a foreign writer could do this: keep the first
-        else:
-            self.records[key] = rec
-        return True
-
-    def __contains__(self, key: str) -> bool:
-        return key in self.records
-
-    def __len__(self) -> int:
-        return len(self.records)
-
-    def append(self, record: dict) -> bool:
-        """Append one finished trial durably; False if its key is already recorded."""
-        key = record['key']
-        if key in self.records:
-            return False
-        line = (json.dumps(record, sort_keys=True, allow_nan=False) + '\n').encode()
-        self.path.parent.mkdir(parents=True, exist_ok=True)
-        fd = os.open(self.path, os.O_WRONLY | os.O_APPEND | os.O_CREAT, 0o644)
-        try:
-            os.write(fd, line)
-            os.fsync(fd)
-        finally:
-            os.close(fd)
-        self.records[key] = record
-        return True
-
-
-@contextlib.contextmanager
-def run_lock(run_dir: pathlib.Path):
-    """Exclusive lock on a run folder: two orchestrators on one folder would duplicate trials.
-    The kernel drops it when the holder dies, even by SIGKILL."""
-    run_dir.mkdir(parents=True, exist_ok=True)
-    handle = open(run_dir / '.lock', 'w')
-    try:
-        try:
-            fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except BlockingIOError:
-            raise BenchError(f'{run_dir} is in use by another benchmark process') from None
-        handle.write(str(os.getpid()))
-        handle.flush()
-        yield
-    finally:
-        handle.close()
-
-
-def check_run_config(run_dir: pathlib.Path, cfg: BenchConfig) -> None:
-    """Refuse to resume a run folder whose trials were measured under other settings."""
-    path = run_dir / 'config.json'
-    if not path.exists():
-        return
-    try:
-        old = json.loads(path.read_text())['config']
-    except (OSError, ValueError, KeyError, TypeError) as exc:
-        raise BenchError(f'{path}: unreadable ({exc}); remove it to start over') from None
-    new = cfg.to_data()
-    diff = [f'{k}: {old.get(k)!r} -> {new[k]!r}' for k in IDENTITY_FIELDS if old.get(k) != new[k]]
-    if diff:
-        raise BenchError(f'{run_dir} holds trials measured with other settings ({"; ".join(diff)})'
-                         '; use another --out folder')
-
-
-# --------------------------------------------------------------------------------------------
-# Aggregation and tables
-
-def cell_rows(records: Iterable[dict], cfg: BenchConfig) -> dict[tuple, dict]:
-    """Table row per (scene, planner, method, budget) with ``expected`` trial counts."""
-    groups: dict[tuple, list] = {}
-    for rec in records:
-        cell = (rec['scene'], rec['planner'], rec['method'], int(rec['budget']))
-        groups.setdefault(cell, []).append(rec)
-    rows = {}
-    for cell, recs in groups.items():
-        row = aggregate(recs, float(recs[0].get('time_budget_s', cfg.time_budget_s)))
-        row['expected'] = cfg.trials_for(cell[3])
-        row['complete'] = row['trials'] >= row['expected']
-        rows[cell] = row
-    return rows
-
-
-def _fmt(value: float | None, digits: int) -> str:
-    return 'N/A' if value is None else f'{value:.{digits}f}'
-
-
-def _psr_cell(row: dict | None) -> str:
-    if row is None or row['psr'] is None:
-        return '--'
-    text = f'{100 * row["psr"]:.2f}'
-    return text if row['complete'] else f'{text}*'
-
-
-# Table I metric: (row key, digits, better is lower)
-_T1 = (('psr', 2, True), ('smr', 3, True), ('cmr', 3, True), ('jds', 3, False),
-       ('pt', 3, False))
-
-
-def table1(rows: dict[tuple, dict], cfg: BenchConfig) -> tuple[str, str]:
-    """Table I (Markdown, CSV): PSR [%], SMR and CMR x10^-2, JDS [rad], PT [s] per budget.
-
-    Bold marks the strongest attack per column like the paper (lowest PSR/SMR/CMR, highest
-    JDS/PT); ``N/A``: undefined because PSR = 0; ``--``: not run; ``*``: fewer trials than
-    planned.
-    """
-    budgets = list(cfg.budgets)
-    head = ['Scene', 'Planner', 'Method'] + [f'{m.upper()}@{b}' for b in budgets
-                                             for m, _, _ in _T1]
-    md = ['| ' + ' | '.join(head) + ' |', '|' + '---|' * len(head)]
-    methods = [m for m in cfg.methods]
-    for scene in cfg.scenes:
-        for planner in cfg.planners:
-            best: dict[tuple, float] = {}
-            for b in budgets:
-                for key, _, lower in _T1:
-                    vals = [rows[(scene, planner, m, b)][key] for m in methods
-                            if (scene, planner, m, b) in rows
-                            and rows[(scene, planner, m, b)][key] is not None]
-                    if len(vals) > 1:
-                        best[(b, key)] = min(vals) if lower else max(vals)
-            for method in methods:
-                cells = [scene_label(cfg, scene), PLANNER_LABELS.get(planner, planner),
-                         METHOD_LABELS.get(method, method)]
-                for b in budgets:
-                    row = rows.get((scene, planner, method, b))
-                    for key, digits, _ in _T1:
-                        if row is None:
-                            cells.append('--')
-                            continue
-                        text = _psr_cell(row) if key == 'psr' else _fmt(row[key], digits)
-                        value = row[key]
-                        if value is not None and (b, key) in best and \
-                                round(value, digits + (2 if key == 'psr' else 0)) == \
-                                round(best[(b, key)], digits + (2 if key == 'psr' else 0)):
-                            text = f'**{text}**'
-                        cells.append(text)
-                md.append('| ' + ' | '.join(cells) + ' |')
-    return '\n'.join(md) + '\n', _rows_csv(rows, cfg)
-
-
-def baseline_table(rows: dict[tuple, dict], cfg: BenchConfig) -> str:
-    """The unattacked scenes (budget 0), Markdown."""
-    md = ['| Scene | Planner | Trials | PSR | SMR | CMR | JDS | PT |', '|' + '---|' * 8]
-    for scene in cfg.scenes:
-        for planner in cfg.planners:
-            row = rows.get((scene, planner, BASELINE, 0))
-            if row is None:
-                continue
-            md.append('| ' + ' | '.join([
-                scene_label(cfg, scene), PLANNER_LABELS.get(planner, planner),
-                str(row['trials']), _psr_cell(row), _fmt(row['smr'], 3), _fmt(row['cmr'], 3),
-                _fmt(row['jds'], 3), _fmt(row['pt'], 3)]) + ' |')
-    return '\n'.join(md) + '\n'
-
-
-def _rows_csv(rows: dict[tuple, dict], cfg: BenchConfig) -> str:
-    out = io.StringIO()
-    writer = csv.writer(out, lineterminator='\n')
-    writer.writerow(['scene_index', 'scene', 'planner', 'method', 'budget', 'trials',
-                     'expected', 'successes', 'psr_percent', 'smr_x1e-2', 'cmr_x1e-2', 'jds_rad',
-                     'pt_s', 'time_budget_s'])
-    order = {s: i for i, s in enumerate(cfg.scenes)}
-    for cell in sorted(rows, key=lambda c: (order.get(c[0], 99), c[1], c[2], c[3])):
-        row = rows[cell]
-        writer.writerow([order.get(cell[0], -1) + 1, *cell, row['trials'], row['expected'],
-                         row['successes'], _csv_num(None if row['psr'] is None
-                                                    else 100 * row['psr']),
-                         *(_csv_num(row[k]) for k in ('smr', 'cmr', 'jds', 'pt')),
-                         row['time_budget_s']])
-    return out.getvalue()
-
-
-def _csv_num(value: float | None) -> str:
-    return 'N/A' if value is None else f'{value:.6g}'
-
-
-def budget_to_failure(psr_by_budget: dict[int, float], threshold_percent: float
-                      ) -> int | None:
-    """Smallest measured budget whose PSR is <= the threshold; None if none reaches it."""
-    for budget in sorted(psr_by_budget):
-        if 100 * psr_by_budget[budget] <= threshold_percent + 1e-9:
-            return budget
-    return None
-
-
-def table2(rows: dict[tuple, dict], cfg: BenchConfig) -> tuple[str, str]:
-    """Table II (Markdown, CSV): minimum measured budget reaching PSR <= 80/60/40/20/0 %.
-
-    The sweep is the measured budgets (0 = the unattacked scene, when run); ``> max`` when the
-    largest measured budget does not reach the threshold.
-    """
-    md = ['| Scene | Planner | Method | Budgets | ' + ' | '.join(f'{t}%' for t in THRESHOLDS)
-          + ' |', '|' + '---|' * (4 + len(THRESHOLDS))]
-    out = io.StringIO()
-    writer = csv.writer(out, lineterminator='\n')
-    writer.writerow(['scene', 'planner', 'method', 'budgets', 'max_budget',
-                     *[f'psr_le_{t}' for t in THRESHOLDS]])
-    for scene in cfg.scenes:
-        for planner in cfg.planners:
-            base = rows.get((scene, planner, BASELINE, 0))
-            for method in cfg.methods:
-                psr = {b: rows[(scene, planner, method, b)]['psr'] for b in cfg.all_budgets
-                       if (scene, planner, method, b) in rows}
-                labels = [scene_label(cfg, scene), PLANNER_LABELS.get(planner, planner),
-                          METHOD_LABELS.get(method, method)]
-                if not psr:
-                    md.append('| ' + ' | '.join(labels + ['--'] * (1 + len(THRESHOLDS)))
-                              + ' |')
-                    continue
-                if base is not None and base['psr'] is not None:
-                    psr[0] = base['psr']
-                top = max(psr)
-                values = [budget_to_failure(psr, t) for t in THRESHOLDS]
-                cells = [str(v) if v is not None else f'> {top}' for v in values]
-                swept = ','.join(str(b) for b in sorted(psr))
-                md.append('| ' + ' | '.join(labels + [swept] + cells) + ' |')
-                writer.writerow([scene, planner, method, swept, top,
-                                 *[v if v is not None else f'>{top}' for v in values]])
-    return '\n'.join(md) + '\n', out.getvalue()
-
-
-def table4(attacks: list[dict], heatmaps: dict[str, dict]) -> tuple[str, str]:
-    """Table IV (Markdown, CSV): offline and online time per method [s].
-
-    ``attacks``: metadata of the attack files (``method``, ``planner``, ``compute_s``);
-    ``heatmaps``: per scene, the heatmap's ``build_s`` (the offline cost of Ours).
-    Online = mean core compute time of one attack; offline = mean heatmap build time.
-    """
-    groups: dict[tuple, list] = {}
-    for meta in attacks:
-        if meta.get('compute_s') is None:
-            continue
-        planner = meta.get('planner') if meta.get('planner_specific') else None
-        groups.setdefault((meta['method'], planner), []).append(float(meta['compute_s']))
-    builds = [float(h['build_s']) for h in heatmaps.values() if h.get('build_s') is not None]
-    offline_ours = sum(builds) / len(builds) if builds else None
-    md = ['| Method | Offline time (s) | Online time (s) | Total time (s) | Attacks |',
-          '|---|---|---|---|---|']
-    out = io.StringIO()
-    writer = csv.writer(out, lineterminator='\n')
-    writer.writerow(['method', 'planner', 'offline_s', 'online_s', 'total_s', 'attacks'])
-    order = ['random', 'pfa', 'pfa++', 'ours']
-    for method, planner in sorted(groups, key=lambda g: (
-            order.index(g[0]) if g[0] in order else 99, g[0], g[1] or '')):
-        times = groups[(method, planner)]
-        online = sum(times) / len(times)
-        offline = offline_ours if method == 'ours' else None
-        total = online + (offline or 0.0)
-        label = METHOD_LABELS.get(method, method)
-        if planner:
-            label += f' ({PLANNER_LABELS.get(planner, planner)})'
-        md.append(f'| {label} | {_fmt(offline, 2) if offline is not None else "--"} | '
-                  f'{online:.3f} | {total:.2f} | {len(times)} |')
-        writer.writerow([method, planner or '', _csv_num(offline), f'{online:.6g}',
-                         f'{total:.6g}', len(times)])
-    return '\n'.join(md) + '\n', out.getvalue()
-
-
-def progress_summary(store: RecordStore, units: list[Unit]) -> dict[str, Any]:
-    """Planned, finished and missing trials of a run plan."""
-    planned = [t.key for u in units for t in u.trials]
-    done = sum(1 for k in planned if k in store)
-    return {'planned': len(planned), 'done': done, 'missing': len(planned) - done,
-            'records': len(store), 'duplicates_on_load': store.duplicates,
-            'bad_lines_on_load': store.bad_lines}

@@ -6,10 +6,10 @@ import argparse
 import json
 import sys
 
-from advocc_ros.attack.api import (KNOWN_METHODS, AttackConfig, AttackStatus, attack, load_method,
+from advocc_ros.attack import (KNOWN_METHODS, AttackConfig, AttackStatus, attack, load_method,
                                obstacles_data, save_obstacles)
 from advocc_ros.cli import UserError
-from advocc_ros.heatmap.build import HeatmapError, load_heatmap
+from advocc_ros.heatmap import HeatmapError, load_heatmap
 from advocc_ros.paths import scene_path
 from advocc_ros.model.robot import RobotError, load_robot
 from advocc_ros.model.scene import SceneError, load_scene
@@ -103,7 +103,8 @@ def _attack(args: argparse.Namespace) -> int:
 def _attack_in_the_loop(args: argparse.Namespace, heatmap, robot, scene, q_init,
                         cfg: AttackConfig):
     """PFA / PFA++ with ``--workers`` local planner processes and a progress bar."""
-    from advocc_ros.attack.pfa import PFA_PLANNER, LocalPlanners, PfaConfig, PfaOptions
+    from advocc_ros.attack.pfa import PFA_PLANNER, PfaConfig, PfaOptions
+    from advocc_ros.planning import LocalPlanners
 
     if args.method == 'pfa' and args.planner not in (None, PFA_PLANNER):
         raise UserError(f'pfa always queries {PFA_PLANNER} with the exact goal pose; use '

@@ -55,15 +55,15 @@ def _attack(args: argparse.Namespace) -> int:
         data = attack_response_data(res, time.perf_counter() - t0)
     ok = res.error_code.val in ATTACK_OK
     if args.out and ok:
-        from advocc_ros.model.scene import save_yaml_atomic
-        save_yaml_atomic(args.out, {
-            'format': 'advocc_obstacles', 'version': 1, 'status': data['status'].lower(),
-            'message': data['message'], 'method': args.method, 'budget': args.budget,
-            'box_size_m': float(res.obstacles[0].size[0]) if res.obstacles else args.size,
-            'masses': data['masses'], 'total_mass': data['total_mass'],
-            'compute_ms': data['compute_ms'], 'scene': {'name': scene.name,
-                                                       'objects_hash': scene.objects_hash()},
-            'server': args.server, 'seed': args.seed, 'objects': data['obstacles']})
+        from advocc_ros.attack.obstacles import obstacles_file_data, save_obstacles
+        from advocc_ros.ros.conversions import obstacles_from_msgs
+        save_obstacles(args.out, obstacles_file_data(
+            obstacles_from_msgs(res.obstacles), args.method, args.budget,
+            data['status'].lower(), data['message'],
+            box_size_m=None if res.obstacles else args.size, masses=data['masses'],
+            total_mass=data['total_mass'], compute_ms=data['compute_ms'],
+            scene={'name': scene.name, 'objects_hash': scene.objects_hash()},
+            extra={'server': args.server, 'seed': args.seed}))
     if args.json:
         print(json.dumps(data, indent=2))
     else:

@@ -15,7 +15,7 @@ import os
 import pathlib
 import time
 
-from advocc_ros.heatmap.build import HeatmapConfig, build_heatmap, load_heatmap, save_heatmap
+from advocc_ros.heatmap import HeatmapConfig, build_heatmap, load_heatmap, save_heatmap
 from advocc_ros.commands.common import add_scene_args, scene_from_args
 
 
@@ -59,12 +59,12 @@ def run(args) -> int:
     summary = heatmap.summary()
     print(json.dumps({k: summary[k] for k in ('valid_samples', 'candidates', 'build_s',
                                               'shape', 'nonzero_voxels', 'total_mass')}))
-    from advocc_ros.bench.protocol.figures import plot_heatmap_slices
+    from advocc_ros.bench.figures import plot_heatmap_slices
     plot_heatmap_slices(heatmap, out / f'heatmap_{scene.name}.png', scene=scene)
     print(f'slice figure: {out / f"heatmap_{scene.name}.png"}')
 
     _stage(f'2. online: attack with M={args.budget} through heatmap_server + attacker nodes')
-    from advocc_ros.attack.api import load_obstacles
+    from advocc_ros.attack import load_obstacles
     from advocc_ros.ros.feeder import run_attack_nodes
     obstacles_file = out / f'obstacles_{scene.name}_ours_{args.budget}.yaml'
     reply = run_attack_nodes(heatmap_file, scene, obstacles_file, budget=args.budget)
@@ -79,14 +79,14 @@ def run(args) -> int:
 
     _stage(f'3. benchmark through the nodes: orchestrator, {args.shims} planner shims, '
            f'{args.trials} trials per cell, {args.time:g} s budget')
-    from advocc_ros.bench.protocol import load_profile
-    from advocc_ros.orchestrator.run import Orchestrator
+    from advocc_ros.bench import load_profile
+    from advocc_ros.orchestrator import Orchestrator
     from advocc_ros.paths import config_dir
     data = load_profile(config_dir() / 'bench.yaml', 'quick').to_data()
     data.update(scenes=[args.scene], planners=[p for p in args.planners.split(',') if p],
                 methods=['ours', 'random'], budgets=[1, 3, 5], trials=args.trials,
                 time_budget_s=args.time, shims=args.shims)
-    from advocc_ros.bench.protocol import BenchConfig
+    from advocc_ros.bench import BenchConfig
     cfg = BenchConfig.from_data(data, 'advocc demo')
     run_dir = out / 'bench'
     summary = Orchestrator(cfg, run_dir, {'*': [str(heatmap_file.resolve())]}).run()

@@ -56,7 +56,7 @@ def run(args: argparse.Namespace) -> int:
     import dataclasses
 
     from advocc_ros.evaluation.metrics import evaluate_planner, format_value
-    from advocc_ros.planning.worker import PlanningConfig, planner_class_name
+    from advocc_ros.planning import PlanningConfig, planner_class_name
 
     from advocc_ros.limits import MAX_TRIALS
     if not 1 <= args.trials <= MAX_TRIALS:

@@ -7,7 +7,7 @@ import json
 import sys
 
 from advocc_ros.cli import UserError
-from advocc_ros.heatmap.build import (HeatmapConfig, build_heatmap, load_heatmap, merge_heatmaps,
+from advocc_ros.heatmap import (HeatmapConfig, build_heatmap, load_heatmap, merge_heatmaps,
                                 save_heatmap)
 from advocc_ros.commands.common import add_scene_args, scene_from_args
 
@@ -98,7 +98,7 @@ def _merge(args) -> int:
 
 
 def _plot(args) -> int:
-    from advocc_ros.bench.protocol.figures import plot_heatmap_slices
+    from advocc_ros.bench.figures import plot_heatmap_slices
 
     at = None
     if args.at:

@@ -8,7 +8,7 @@ import os
 import statistics
 import time
 
-from advocc_ros.heatmap.build import HeatmapConfig, build_heatmap
+from advocc_ros.heatmap import HeatmapConfig, build_heatmap
 from advocc_ros.commands.common import add_scene_args, scene_from_args
 from advocc_ros.evaluation.perf import machine
 

@@ -9,8 +9,6 @@ import argparse
 import json
 import os
 import pathlib
-import subprocess
-import sys
 import tempfile
 import time
 
@@ -18,7 +16,7 @@ import numpy as np
 
 from advocc_ros.cli import UserError
 from advocc_ros.commands.common import add_scene_args
-from advocc_ros.ros.spawn import stop
+from advocc_ros.ros.spawn import start_node, stop
 
 PAPER_ONLINE_S = 1.27  # paper §V: online attack generation time
 
@@ -49,7 +47,7 @@ def _stats_ms(values_s: list[float]) -> dict:
 
 
 def _core(heatmap, robot, scene, q, budgets, method, repeats) -> dict:
-    from advocc_ros.attack.api import attack
+    from advocc_ros.attack import attack
 
     attack(heatmap, robot, scene.objects, q, scene.goal, budgets[0], method)  # warm caches
     out = {}
@@ -77,9 +75,7 @@ def _service(heatmap_path, scene, budgets, method, calls, domain) -> dict:
     env = dict(os.environ, ROS_DOMAIN_ID=str(domain), PYTHONUNBUFFERED='1')
     os.environ['ROS_DOMAIN_ID'] = str(domain)  # this process's client joins the same domain
     log = tempfile.TemporaryFile(mode='w+')
-    proc = subprocess.Popen([sys.executable, '-m', 'advocc_ros.nodes.heatmap_server',
-                             '--ros-args', '-p', f'heatmap_file:={heatmap_path}'],
-                            env=env, stdout=log, stderr=subprocess.STDOUT, text=True)
+    proc = start_node('heatmap_server', {'heatmap_file': heatmap_path}, env=env, log=log)
     try:
         with ServiceClient('advocc_perf') as client:
             t0 = time.perf_counter()
@@ -118,8 +114,8 @@ def _service(heatmap_path, scene, budgets, method, calls, domain) -> dict:
 
 def _perf_attack(args: argparse.Namespace) -> int:
     from advocc_ros.evaluation.perf import machine
-    from advocc_ros.heatmap.build import HeatmapConfig, HeatmapError, build_heatmap, load_heatmap, \
-        save_heatmap
+    from advocc_ros.heatmap import (HeatmapConfig, HeatmapError, build_heatmap, load_heatmap,
+                                    save_heatmap)
     from advocc_ros.commands.common import scene_from_args
     from advocc_ros.model.robot import load_robot
     from advocc_ros.model.scene import SceneError

@@ -25,7 +25,7 @@ import time
 import numpy as np
 
 from advocc_ros.cli import UserError
-from advocc_ros.ros.spawn import stop
+from advocc_ros.ros.spawn import start_node, stop
 
 
 def register_load(sub: argparse._SubParsersAction) -> None:
@@ -200,14 +200,6 @@ def _run_load(kind: str, service: str, scene: str, clients: int, n: int, budget:
     }
 
 
-def _start_node(module: str, env: dict, ns: str, log, *params) -> subprocess.Popen:
-    args = [sys.executable, '-m', f'advocc_ros.nodes.{module}', '--ros-args', '-r',
-            f'__ns:={ns}']
-    for p in params:
-        args += ['-p', p]
-    return subprocess.Popen(args, env=env, stdout=log, stderr=subprocess.STDOUT, text=True)
-
-
 def _warm_up(kind: str, service: str, scene: str, budget: float, env: dict) -> None:
     """One request through a client process, so 'before' is measured on a warm node."""
     _run_load(kind, service, scene, 1, 1, budget, env, os.getpid())
@@ -217,13 +209,13 @@ def run_load(scene: str = 'table_pick', heatmap: str | None = None, samples: int
              clients: int = 8, requests: int = 500, budget: int = 1, plan_clients: int = 4,
              plan_requests: int = 25, plan_budget: float = 1.0, plan: bool = True) -> dict:
     """The whole benchmark; returns the report (also used by the scaled-down test)."""
-    from advocc_ros.heatmap.build import HeatmapConfig, build_heatmap, save_heatmap
+    from advocc_ros.heatmap import HeatmapConfig, build_heatmap, save_heatmap
     from advocc_ros.paths import scene_path
     from advocc_ros.model.scene import load_scene
 
     ns = f'/load{os.getpid()}'
-    env = dict(os.environ, ROS_DOMAIN_ID=os.environ.get('ROS_DOMAIN_ID',
-                                                         str(150 + os.getpid() % 80)),
+    env = dict(os.environ,
+               ROS_DOMAIN_ID=os.environ.get('ROS_DOMAIN_ID', str(150 + os.getpid() % 80)),
                ROS_LOCALHOST_ONLY='1', PYTHONUNBUFFERED='1')
     report: dict = {'benchmark': 'load', 'scene': scene}
     with tempfile.TemporaryDirectory(prefix='advocc_load_') as tmp:
@@ -235,10 +227,10 @@ def run_load(scene: str = 'table_pick', heatmap: str | None = None, samples: int
         report['heatmap'] = heatmap or f'built: {samples} samples'
         logs = {m: open(pathlib.Path(tmp) / f'{m}.log', 'w+')
                 for m in ('heatmap_server', 'planner_shim')}
-        server = _start_node('heatmap_server', env, ns, logs['heatmap_server'],
-                             f'heatmap_file:={path}')
-        shim = _start_node('planner_shim', env, ns, logs['planner_shim'],
-                           f'scene_file:={scene}') if plan else None
+        server = start_node('heatmap_server', {'heatmap_file': path}, {'__ns': ns}, env,
+                            logs['heatmap_server'])
+        shim = start_node('planner_shim', {'scene_file': scene}, {'__ns': ns}, env,
+                          logs['planner_shim']) if plan else None
         try:
             service = f'{ns}/heatmap_server/attack'
             _warm_up('attack', service, scene, budget, env)

@@ -91,7 +91,7 @@ def _check(args) -> int:
     import numpy as np
 
     from advocc_ros.model.collision import CollisionWorld
-    from advocc_ros.planning.worker import GoalSampler, start_configuration
+    from advocc_ros.planning import GoalSampler, start_configuration
     from advocc_ros.model.robot import load_robot
 
     if args.ik_attempts < 1:

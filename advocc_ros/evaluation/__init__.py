@@ -1,12 +1,14 @@
-"""Metrics of planned trajectories (PSR, SMR, CMR, JDS, PT), evaluation drivers, speed figures."""
+"""Metrics of planned trajectories (PSR, SMR, CMR, JDS, PT), evaluation drivers, speed figures.
+No ROS.
+"""
 
-from advocc_ros.evaluation.metrics import (aggregate, densify, evaluate_planner, format_value,
-                                           joint_deviation, MetricsConfig, min_clearance,
-                                           min_manipulability, random_directions, trial_metrics,
-                                           TrialRecord)
-from advocc_ros.evaluation.perf import (benchmark_planning, machine)
+from advocc_ros.evaluation.metrics import (MetricsConfig, TrialRecord, aggregate, densify,
+                                           evaluate_planner, format_value, joint_deviation,
+                                           min_clearance, min_manipulability, random_directions,
+                                           trial_metrics)
+from advocc_ros.evaluation.perf import benchmark_planning, machine
 
 __all__ = [
-    'aggregate', 'benchmark_planning', 'densify', 'evaluate_planner', 'format_value',
-    'joint_deviation', 'machine', 'MetricsConfig', 'min_clearance', 'min_manipulability',
-    'random_directions', 'trial_metrics', 'TrialRecord']
+    'MetricsConfig', 'TrialRecord', 'aggregate', 'benchmark_planning', 'densify',
+    'evaluate_planner', 'format_value', 'joint_deviation', 'machine', 'min_clearance',
+    'min_manipulability', 'random_directions', 'trial_metrics']

@@ -236,7 +236,7 @@ def evaluate_planner(scene, planner_id: str, trials: int, time_budget_s: float =
     import queue
     import threading
 
-    from advocc_ros.planning.worker import Planner, PlanningConfig, start_configuration
+    from advocc_ros.planning import Planner, PlanningConfig, start_configuration
     from advocc_ros.model.robot import load_robot
 
     if scene.goal is None:

@@ -12,7 +12,7 @@ import numpy as np
 from advocc_ros.model.collision import CollisionWorld
 from advocc_ros.model.robot import load_robot
 from advocc_ros.model.scene import Scene
-from advocc_ros.planning.worker import Planner, PlanningConfig, start_configuration
+from advocc_ros.planning import Planner, PlanningConfig, start_configuration
 
 
 def machine() -> dict:

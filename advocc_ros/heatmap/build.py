@@ -280,8 +280,8 @@ def _accumulate(H, stamp, free, grid_origin, voxel, grid_shape, R, t, weights, s
                     e += abs(r[a, b]) * 0.5 * (box_hi[li, b] - box_lo[li, b])
                 # voxel centres origin + (i + 0.5) voxel inside [c - e, c + e]
                 lo[a] = max(0, int(np.ceil((c - e - grid_origin[a]) / voxel - 0.5)))
-                hi[a] = min(grid_shape[a] - 1, int(np.floor((c + e - grid_origin[a]) / voxel
-                                                           - 0.5)))
+                hi[a] = min(grid_shape[a] - 1,
+                            int(np.floor((c + e - grid_origin[a]) / voxel - 0.5)))
             sx, sy, sz = lut_shape[li, 0], lut_shape[li, 1], lut_shape[li, 2]
             off = lut_offset[li]
             inv = 1.0 / lut_pitch
@@ -339,7 +339,7 @@ def _placement_arrays(world: CollisionWorld, Q: np.ndarray) -> tuple[np.ndarray,
 
 
 def sample_weights(robot: RobotModel, world: CollisionWorld, Q: np.ndarray,
-                    cfg: HeatmapConfig) -> np.ndarray:
+                   cfg: HeatmapConfig) -> np.ndarray:
     """w(q) for each valid q; clearance distances only where a link is within d_safe."""
     data = robot.create_data()
     s_man = np.empty(len(Q))

@@ -31,7 +31,7 @@ import pinocchio as pin
 
 from advocc_ros.model.robot import RobotError, RobotModel, RobotSpec, load_robot
 from advocc_ros.model.scene import (GoalRegion, Pose, Scene, SceneError, SceneObject, Shape,
-                              finite_array, make_mesh_shape, read_yaml)
+                                    finite_array, make_mesh_shape, read_yaml)
 
 _PRIMITIVES = {'box': 'box', 'sphere': 'sphere', 'cylinder': 'cylinder',
                1: 'box', 2: 'sphere', 3: 'cylinder'}
@@ -204,8 +204,8 @@ def objects_from_planning_scene(data: Any, where: str, base_frame: str = 'panda_
                              f'{obj.get("operation")!r}')
         _check_frame(obj, w, base_frame)
         T_obj = _pose(obj.get('pose'), f'{w}.pose')
-        shapes = [_primitive(*part) for part in _posed_parts(obj, w, T_obj, 'primitives',
-                                                              'primitive_poses')]
+        shapes = [_primitive(*part)
+                  for part in _posed_parts(obj, w, T_obj, 'primitives', 'primitive_poses')]
         shapes += [_mesh(*part) for part in _posed_parts(obj, w, T_obj, 'meshes', 'mesh_poses')]
         if obj.get('planes'):
             raise SceneError(f'{w}.planes: infinite planes are not supported; use a thin box')

@@ -297,8 +297,8 @@ def _shape_from_data(entry: dict, where: str, base_dir: pathlib.Path | None) -> 
     if kind == 'sphere':
         if 'radius' not in entry:
             raise SceneError(f'{where}.radius: missing')
-        return Shape('sphere', tuple(finite_array([entry['radius']], f'{where}.radius', 1,
-                                             positive=True).tolist()), pose)
+        radius = finite_array([entry['radius']], f'{where}.radius', 1, positive=True)
+        return Shape('sphere', tuple(radius.tolist()), pose)
     if kind == 'cylinder':
         for key in ('height', 'radius'):
             if key not in entry:
@@ -450,7 +450,6 @@ def save_yaml_atomic(path: str | pathlib.Path, data: Any) -> None:
     """Write YAML so that a crash leaves either the old or the new file, never half of one."""
     from advocc_ros.fileio import atomic_write_text
     atomic_write_text(path, yaml.safe_dump(data, sort_keys=False))
-
 
 
 class Operation:

@@ -166,7 +166,7 @@ def vary_scene(scene: Scene, index: int, seed: int,
 
     Raises ``SceneError`` if ``config.max_draws`` draws give no valid variation.
     """
-    from advocc_ros.planning.worker import GoalSampler, start_configuration
+    from advocc_ros.model.ik import GoalSampler, start_configuration
 
     robot = load_robot(scene.robot)
     q_init = start_configuration(scene, robot)

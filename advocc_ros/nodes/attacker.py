@@ -27,10 +27,9 @@ from rclpy.node import Node
 from shape_msgs.msg import SolidPrimitive
 from visualization_msgs.msg import Marker, MarkerArray
 
-from advocc_ros.attack.api import AttackConfig
+from advocc_ros.attack import AttackConfig
 from advocc_ros.nodes import run
-from advocc_ros.ros.qos import (COLLISION_OBJECT_TOPIC, GOAL_REGION_TOPIC, LATCHED_QOS,
-                                  SCENE_TOPIC)
+from advocc_ros.ros.qos import COLLISION_OBJECT_TOPIC, GOAL_REGION_TOPIC, LATCHED_QOS, SCENE_TOPIC
 
 MARKER_NS = 'advocc_attack'
 

@@ -26,11 +26,11 @@ from advocc_msgs.srv import Attack, GetInfo
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.node import Node
 
-from advocc_ros.attack.api import (METHODS, PLUGIN_METHODS, AttackConfig, AttackStatus, attack,
-                               link_luts, load_method)
+from advocc_ros.attack import (KNOWN_METHODS, AttackConfig, AttackStatus, attack,
+                               available_methods, link_luts, load_method)
 from advocc_ros.ros.conversions import (goal_region_from_msg, obstacle_to_msg, q_from_joint_state,
-                                    scene_from_msgs)
-from advocc_ros.heatmap.build import HeatmapError, load_heatmap
+                                        scene_from_msgs)
+from advocc_ros.heatmap import HeatmapError, load_heatmap
 from advocc_ros.nodes import run
 from advocc_ros.paths import allowed_dirs, confine
 from advocc_ros.model.robot import RobotError, RobotSpec, load_robot, resolve_path
@@ -171,7 +171,7 @@ class HeatmapServer(Node):
         method = request.method or 'ours'
         if not load_method(method):
             return fail(ErrorCodes.UNKNOWN_METHOD, f'unknown attack method {method!r}; known: '
-                        f'{sorted(set(METHODS) | set(PLUGIN_METHODS))}')
+                        f'{sorted(KNOWN_METHODS)}')
         cfg = self.cfg
         if not 1 <= request.budget <= cfg.max_budget:
             return fail(ErrorCodes.INVALID_REQUEST,
@@ -228,8 +228,7 @@ class HeatmapServer(Node):
             'grid': self.heatmap.grid.to_data(),
             'robot_only': self.heatmap.robot_only,
             'parameters': dataclasses.asdict(self.cfg),
-            'methods': sorted(m for m in set(METHODS) | set(PLUGIN_METHODS)
-                              if m in METHODS or load_method(m)),
+            'methods': available_methods(),
             'requests_served': self._served,
         }
 

@@ -32,11 +32,11 @@ from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
 from rclpy.node import Node
 
 from advocc_ros.ros.conversions import (collision_object_from_msg, goal_region_from_msg,
-                                    q_from_joint_state, trajectory_to_msg)
+                                        q_from_joint_state, trajectory_to_msg)
 from advocc_ros.nodes import run
 from advocc_ros.ros.qos import COLLISION_OBJECT_TOPIC, LATCHED_QOS
 from advocc_ros.paths import allowed_dirs, confine, scene_path
-from advocc_ros.planning.worker import PLANNERS, Planner, PlanningConfig, PlanStatus
+from advocc_ros.planning import PLANNERS, Planner, PlanningConfig, PlanStatus
 from advocc_ros.model.robot import RobotError, resolve_path
 from advocc_ros.model.scene import Scene, SceneError, apply_operation, load_scene
 
@@ -103,8 +103,8 @@ class PlannerShim(Node):
                     not (isinstance(p.value, float) and math.isfinite(p.value) and p.value > 0):
                 return SetParametersResult(successful=False,
                                            reason=f'{p.name} must be a finite float > 0')
-            if p.name in ('ik_goals', 'max_goals') and not (isinstance(p.value, int)
-                                                           and p.value >= 1):
+            if p.name in ('ik_goals', 'max_goals') \
+                    and not (isinstance(p.value, int) and p.value >= 1):
                 return SetParametersResult(successful=False, reason=f'{p.name} must be >= 1')
             if p.name == 'default_planner' and p.value.lower() not in PLANNERS:
                 return SetParametersResult(successful=False,

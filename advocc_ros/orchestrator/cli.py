@@ -87,7 +87,7 @@ _DIRECT = ('scenes', 'planners', 'methods', 'budgets', 'sweep_budgets', 'trials'
 
 def bench_config(args: argparse.Namespace):
     """The profile with the command line's overrides applied."""
-    from advocc_ros.bench.protocol import BenchConfig, BenchError, load_profile
+    from advocc_ros.bench import BenchConfig, BenchError, load_profile
 
     path = pathlib.Path(args.config) if args.config else config_dir() / 'bench.yaml'
     base = load_profile(path, args.profile).to_data()
@@ -112,7 +112,8 @@ def heatmap_args(items: list[str]) -> dict[str, list[str]]:
 
 
 def run(args: argparse.Namespace) -> int:
-    from advocc_ros.orchestrator.run import Orchestrator, write_report
+    from advocc_ros.bench.report import write_report
+    from advocc_ros.orchestrator.run import Orchestrator
 
     cfg = bench_config(args)
     out = pathlib.Path(args.out)
@@ -135,7 +136,7 @@ def run(args: argparse.Namespace) -> int:
 
 def main(argv: list[str] | None = None) -> int:
     """The ``orchestrator`` executable: same options as ``advocc bench``."""
-    from advocc_ros.bench.protocol import BenchError
+    from advocc_ros.bench import BenchError
 
     parser = argparse.ArgumentParser(prog='orchestrator', description=_DESCRIPTION)
     parser.add_argument('-v', '--verbose', action='store_true', help='debug logging')

@@ -1,9 +1,17 @@
-"""The victims: OMPL planners to goal regions in a watched worker process."""
+"""The victims: OMPL planners to goal regions in a watched worker process. No ROS.
 
-from advocc_ros.planning.worker import (GoalSampler, Planner, planner_class_name, PLANNERS,
-                                        PlanningConfig, PlanResult, PlanStatus, solve,
-                                        start_configuration, validate_request, WorkerDied)
+Goal sampling and the start configuration live in ``advocc_ros.model.ik``; they are re-exported
+here for the planners' users.
+"""
+
+from advocc_ros.model.ik import GoalSampler, start_configuration
+from advocc_ros.planning.types import (PLANNERS, PlanResult, PlanStatus, PlanningConfig,
+                                       planner_class_name, validate_request)
+from advocc_ros.planning.solve import solve
+from advocc_ros.planning.worker import Planner, WorkerDied
+from advocc_ros.planning.pool import LocalPlanners
 
 __all__ = [
-    'GoalSampler', 'Planner', 'planner_class_name', 'PLANNERS', 'PlanningConfig', 'PlanResult',
-    'PlanStatus', 'solve', 'start_configuration', 'validate_request', 'WorkerDied']
+    'GoalSampler', 'LocalPlanners', 'PLANNERS', 'PlanResult', 'PlanStatus', 'Planner',
+    'PlanningConfig', 'WorkerDied', 'planner_class_name', 'solve', 'start_configuration',
+    'validate_request']

@@ -180,7 +180,6 @@ def q_from_joint_state(robot: RobotModel, msg: JointState, where: str = 'start_s
     return robot.q_from_names(list(msg.name), list(msg.position), where)
 
 
-
 def obstacle_to_msg(obj: SceneObject, covered_mass: float) -> ObstacleMsg:
     shape = obj.shapes[0]
     return ObstacleMsg(id=obj.id, pose=pose_to_msg(shape.pose), size=list(shape.dims),

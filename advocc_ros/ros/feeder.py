@@ -10,13 +10,12 @@ from __future__ import annotations
 
 import os
 import pathlib
-import subprocess
-import sys
 import tempfile
 import time
 
-from advocc_ros.ros.spawn import stop
-from advocc_ros.model.scene import Scene, make_box, objects_to_data, save_yaml_atomic
+from advocc_ros.attack.obstacles import obstacles_file_data, save_obstacles
+from advocc_ros.model.scene import Scene, make_box
+from advocc_ros.ros.spawn import start_node, stop
 
 
 def run_attack_nodes(heatmap_file: str | pathlib.Path, scene: Scene, out: str | pathlib.Path,
@@ -29,23 +28,20 @@ def run_attack_nodes(heatmap_file: str | pathlib.Path, scene: Scene, out: str | 
     import rclpy
     from advocc_msgs.msg import CollisionObject, GoalRegion, Scene as SceneMsg
     from rclpy.executors import SingleThreadedExecutor
-    from sensor_msgs.msg import JointState
 
-    from advocc_ros.ros.conversions import collision_object_to_msg, goal_region_to_msg
+    from advocc_ros.ros.conversions import (collision_object_to_msg, goal_region_to_msg,
+                                            joint_state_from_dict)
     from advocc_ros.ros.qos import (COLLISION_OBJECT_TOPIC, GOAL_REGION_TOPIC, LATCHED_QOS,
-                                      SCENE_TOPIC)
+                                    SCENE_TOPIC)
 
     if scene.start is None or scene.goal is None:
         raise ValueError(f'scene {scene.name!r} needs a start and a goal')
     domain = 150 + os.getpid() % 80 if domain is None else domain
     env = dict(os.environ, ROS_DOMAIN_ID=str(domain), PYTHONUNBUFFERED='1')
     logs = [tempfile.TemporaryFile(mode='w+') for _ in range(2)]
-    procs = [subprocess.Popen([sys.executable, '-m', f'advocc_ros.nodes.{module}', '--ros-args',
-                               *[a for p in params for a in ('-p', p)]],
-                              env=env, stdout=log, stderr=subprocess.STDOUT, text=True)
-             for module, params, log in (
-                 ('heatmap_server', [f'heatmap_file:={heatmap_file}'], logs[0]),
-                 ('attacker', [f'budget:={int(budget)}', f'method:={method}'], logs[1]))]
+    procs = [start_node('heatmap_server', {'heatmap_file': heatmap_file}, env=env, log=logs[0]),
+             start_node('attacker', {'budget': int(budget), 'method': method}, env=env,
+                        log=logs[1])]
     context = rclpy.Context()
     rclpy.init(context=context, domain_id=domain)
     node = rclpy.create_node('advocc_demo_feeder', context=context)
@@ -60,8 +56,7 @@ def run_attack_nodes(heatmap_file: str | pathlib.Path, scene: Scene, out: str | 
         msg = SceneMsg(name=scene.name)
         msg.header.frame_id = scene.frame
         msg.objects = [collision_object_to_msg(o, scene.frame) for o in scene.objects]
-        msg.start_state = JointState(name=list(scene.start),
-                                     position=[float(v) for v in scene.start.values()])
+        msg.start_state = joint_state_from_dict(scene.start)
         node.create_publisher(SceneMsg, SCENE_TOPIC, LATCHED_QOS).publish(msg)
         node.create_publisher(GoalRegion, GOAL_REGION_TOPIC, LATCHED_QOS).publish(
             goal_region_to_msg(scene.goal, scene.frame))
@@ -92,11 +87,10 @@ def run_attack_nodes(heatmap_file: str | pathlib.Path, scene: Scene, out: str | 
     boxes = [make_box(m.id, (m.primitive_poses[0].position.x, m.primitive_poses[0].position.y,
                              m.primitive_poses[0].position.z),
                       tuple(float(v) for v in m.primitives[0].dimensions)) for m in added]
-    data = {'format': 'advocc_obstacles', 'version': 1, 'method': method, 'budget': budget,
-            'source': 'heatmap_server + attacker nodes', 'heatmap_file': str(heatmap_file),
-            'scene': {'name': scene.name, 'objects_hash': scene.objects_hash()},
-            'objects': objects_to_data(boxes)}
-    save_yaml_atomic(out, data)
+    data = obstacles_file_data(
+        boxes, method, budget, scene={'name': scene.name, 'objects_hash': scene.objects_hash()},
+        extra={'source': 'heatmap_server + attacker nodes', 'heatmap_file': str(heatmap_file)})
+    save_obstacles(out, data)
     return {'obstacles': data['objects'], 'seconds_to_boxes': round(elapsed, 3),
             'exit_codes': {'heatmap_server': codes[0], 'attacker': codes[1]},
             'out': str(out), 'logs': {'heatmap_server': output[0], 'attacker': output[1]}}

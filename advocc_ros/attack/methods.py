@@ -1,0 +1,112 @@
+"""The attack methods: one registry of names, selectors and what they need."""
+
+from __future__ import annotations
+
+import dataclasses
+import importlib
+import logging
+from typing import Any, Callable
+
+import numpy as np
+
+from advocc_ros.attack.coverage import greedy_cover, random_cover
+from advocc_ros.attack.region import SearchRegion
+from advocc_ros.attack.types import AttackConfig
+from advocc_ros.model.robot import RobotModel
+from advocc_ros.model.scene import GoalRegion, SceneObject
+
+log = logging.getLogger(__name__)
+
+
+# --------------------------------------------------------------------------------------------
+# Methods
+
+Selector = Callable[..., tuple[list, int]]
+"""``(region, budget, seed, cfg[, context]) -> ([(window index, mass), ...], rejected picks)``;
+``context`` (a :class:`MethodContext`) only for methods registered with ``needs_context``."""
+
+
+@dataclasses.dataclass(frozen=True)
+class MethodContext:
+    """The task behind a search region, for planner-in-the-loop methods (PFA, PFA++).
+
+    Ours and Random never get it: they choose from the heatmap and the region alone.
+    """
+
+    robot: RobotModel
+    objects: tuple[SceneObject, ...]
+    q_init: np.ndarray
+    goal: GoalRegion
+    options: Any = None
+    """Method-specific settings from ``attack(method_options=...)`` (e.g. a planner)."""
+
+
+def _select_greedy(region: SearchRegion, budget: int, seed: int, cfg: AttackConfig):
+    return greedy_cover(region.weights, region.candidates, region.k, budget,
+                        region.d_min_m / region.grid.voxel_m, region.accept, cfg.max_rejections)
+
+
+def _select_random(region: SearchRegion, budget: int, seed: int, cfg: AttackConfig):
+    return random_cover(region.weights, region.candidates, region.k, budget,
+                        region.d_min_m / region.grid.voxel_m, np.random.default_rng(seed),
+                        region.accept, cfg.max_rejections)
+
+
+@dataclasses.dataclass(frozen=True)
+class MethodSpec:
+    """Where an attack method lives and what its selector takes."""
+
+    module: str
+    """Module that registers the selector (:func:`register_method`) when imported."""
+    label: str
+    """Name in tables and figures."""
+    needs_context: bool = False
+    """The selector also takes ``context=MethodContext(...)`` (the task: robot, scene, q, G)."""
+
+
+REGISTRY: dict[str, MethodSpec] = {
+    'ours': MethodSpec('advocc_ros.attack.methods', 'Ours'),
+    'random': MethodSpec('advocc_ros.attack.methods', 'Random'),
+    'pfa': MethodSpec('advocc_ros.attack.pfa', 'PFA', needs_context=True),
+    'pfa++': MethodSpec('advocc_ros.attack.pfa', 'PFA++', needs_context=True),
+}
+"""Every attack method by name: the one list the CLI, the nodes and the benchmark use.
+A new method adds one line here and calls :func:`register_method` in its module."""
+
+KNOWN_METHODS = tuple(REGISTRY)
+
+METHODS: dict[str, Selector] = {}
+"""Selectors of the methods whose module is loaded (see :func:`load_method`)."""
+
+CONTEXT_METHODS: set[str] = set()
+"""Methods whose selector also takes ``context=MethodContext(...)``."""
+
+
+def register_method(name: str, selector: Selector, needs_context: bool | None = None) -> None:
+    """Make ``name`` usable; ``needs_context`` defaults to the :data:`REGISTRY` entry's."""
+    if needs_context is None:
+        needs_context = name in REGISTRY and REGISTRY[name].needs_context
+    METHODS[name] = selector
+    if needs_context:
+        CONTEXT_METHODS.add(name)
+    else:
+        CONTEXT_METHODS.discard(name)
+
+
+def load_method(name: str) -> bool:
+    """Whether ``name`` is usable, importing its module if it is not loaded yet."""
+    if name not in METHODS and name in REGISTRY:
+        try:
+            importlib.import_module(REGISTRY[name].module)
+        except ModuleNotFoundError as exc:
+            log.info('method %s is not available: %s', name, exc)
+    return name in METHODS
+
+
+def available_methods() -> list[str]:
+    """The known methods that load here, sorted."""
+    return sorted(name for name in KNOWN_METHODS if load_method(name))
+
+
+register_method('ours', _select_greedy)
+register_method('random', _select_random)

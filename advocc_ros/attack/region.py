@@ -1,0 +1,259 @@
+"""The task-level search region (constraints C1-C3) on the heatmap grid, with its exact
+box checks."""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+import math
+from typing import Any
+
+import coal
+import numpy as np
+import pinocchio as pin
+
+from advocc_ros.attack.coverage import box_distance, box_half_voxels
+from advocc_ros.attack.types import AttackConfig
+from advocc_ros.heatmap import Heatmap
+from advocc_ros.model.collision import CollisionWorld, coal_geometry
+from advocc_ros.model.ik import goal_configuration
+from advocc_ros.model.robot import RobotModel
+from advocc_ros.model.scene import GoalRegion, SceneObject, Shape
+from advocc_ros.model.voxels import SolidLUT, VoxelGrid, occupied_mask, points_in_shape
+
+log = logging.getLogger(__name__)
+
+_CONTACT_TOL_M = 1e-6
+
+
+# --------------------------------------------------------------------------------------------
+# The task-level search region
+
+_LUT_CACHE: dict[tuple[str, float], list[SolidLUT]] = {}
+
+
+def link_luts(robot: RobotModel, pitch_m: float) -> list[SolidLUT]:
+    """Solid look-up tables of the robot's collision geometries (cached; ~0.5 s the first time)."""
+    key = (robot.hash, round(pitch_m, 9))
+    if key not in _LUT_CACHE:
+        _LUT_CACHE[key] = [SolidLUT.from_mesh(m, pitch_m) for m in robot.link_meshes]
+    return _LUT_CACHE[key]
+
+
+def robot_occupancy(robot: RobotModel, placements: list[pin.SE3], grid: VoxelGrid,
+                    lo: np.ndarray, hi: np.ndarray, links: list[int] | None = None
+                    ) -> np.ndarray:
+    """bool mask of the window ``[lo, hi)`` of ``grid``: voxel centres inside the robot's
+    link solids at ``placements`` (``T_base_geom`` per collision geometry)."""
+    luts = link_luts(robot, grid.voxel_m / 4)
+    mask = np.zeros(tuple(hi - lo), dtype=bool)
+    for li in (range(len(luts)) if links is None else links):
+        lut, T = luts[li], placements[li]
+        center = T.act(lut.center_m)
+        i0 = np.maximum(grid.index_of(center - lut.half_diagonal_m), lo)
+        i1 = np.minimum(grid.index_of(center + lut.half_diagonal_m) + 1, hi)
+        if np.any(i1 <= i0):
+            continue
+        idx = np.stack(np.meshgrid(*[np.arange(i0[a], i1[a]) for a in range(3)],
+                                   indexing='ij'), -1)
+        local = (grid.centers(idx) - T.translation) @ T.rotation
+        mask[i0[0] - lo[0]:i1[0] - lo[0], i0[1] - lo[1]:i1[1] - lo[1],
+             i0[2] - lo[2]:i1[2] - lo[2]] |= lut.contains(local)
+    return mask
+
+
+@dataclasses.dataclass
+class SearchRegion:
+    """Candidates and masses over a window ``[lo, hi)`` of the heatmap grid, plus the exact
+    checker for boxes. Build it with :func:`search_region`."""
+
+    grid: VoxelGrid
+    lo: np.ndarray
+    hi: np.ndarray
+    weights: np.ndarray
+    """(window) H on the current V_free (0 elsewhere)."""
+    candidates: np.ndarray
+    """(window) bool: centres passing every voxel test."""
+    k: int
+    box_size_m: float
+    d_min_m: float
+    checks: list[tuple[coal.CollisionGeometry, coal.Transform3s, float, str]]
+    """Exact tests: (geometry, placement, minimum distance [m], what) a box must keep."""
+    stats: dict
+
+    def center_m(self, c: np.ndarray) -> np.ndarray:
+        return self.grid.centers(np.asarray(c) + self.lo)
+
+    def box_violation(self, center_m: np.ndarray) -> str | None:
+        """What an axis-aligned box at ``center_m`` is too close to (exact, coal), or None."""
+        box = coal.Box(*([self.box_size_m] * 3))
+        tf = coal.Transform3s(np.eye(3), np.asarray(center_m, dtype=float))
+        req, res = coal.DistanceRequest(), coal.DistanceResult()
+        for geom, placement, min_m, what in self.checks:
+            res.clear()
+            if coal.distance(box, tf, geom, placement, req, res) < min_m:
+                return what
+        return None
+
+    def accept(self, c: np.ndarray) -> bool:
+        what = self.box_violation(self.center_m(c))
+        if what is not None:
+            log.debug('candidate %s rejected by the exact check: %s', c.tolist(), what)
+        return what is None
+
+
+def _segment_distance(points: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    ab = b - a
+    t = np.clip(((points - a) @ ab) / max(float(ab @ ab), 1e-12), 0.0, 1.0)
+    return np.linalg.norm(points - (a + t[..., None] * ab), axis=-1)
+
+
+def _tool_point(robot: RobotModel, q: np.ndarray, goal: GoalRegion) -> np.ndarray:
+    data = robot.create_data()
+    pin.framesForwardKinematics(robot.model, data, q)
+    T = data.oMf[robot.model.getFrameId(goal.link)] * goal.tool_offset.to_se3()
+    return np.array(T.translation)
+
+
+def search_region(heatmap: Heatmap, robot: RobotModel, objects: tuple[SceneObject, ...],
+                  q_init: np.ndarray, goal: GoalRegion, cfg: AttackConfig = AttackConfig(),
+                  box_size_m: float | None = None) -> SearchRegion:
+    """Candidate centres X (Algorithm 1, lines 1-2) for one task; see the module docstring."""
+    grid = heatmap.grid
+    s = cfg.box_size_m if box_size_m is None else float(box_size_m)
+    half = s / 2
+    k = box_half_voxels(s, grid.voxel_m)
+    shapes = [sh for o in objects for sh in o.shapes]
+    x_start = _tool_point(robot, q_init, goal)
+    x_goal = np.array(goal.center.position_m)
+    stats: dict[str, Any] = {'x_start_m': x_start.round(4).tolist(),
+                             'x_goal_m': x_goal.round(4).tolist(), 'k_voxels': k}
+
+    # Window: corridor bounding box (candidate centres), padded for the box and distance tests.
+    reach = max(cfg.d_safe_m, _CONTACT_TOL_M) + half
+    pad = int(math.ceil(reach / grid.voxel_m)) + k + 1
+    c_lo = grid.index_of(np.minimum(x_start, x_goal) - cfg.corridor_radius_m)
+    c_hi = grid.index_of(np.maximum(x_start, x_goal) + cfg.corridor_radius_m) + 1
+    shape = np.asarray(grid.shape)
+    lo = np.clip(c_lo - pad, 0, shape)
+    hi = np.clip(c_hi + pad, 0, shape)
+    if np.any(hi <= lo):
+        empty = np.zeros((0, 0, 0))
+        stats['candidates'] = 0
+        return SearchRegion(grid, lo, lo, empty, empty.astype(bool), k, s, cfg.d_min_m, [],
+                            stats)
+    win = tuple(slice(lo[a], hi[a]) for a in range(3))
+    sub = VoxelGrid(tuple(grid.centers(lo) - grid.voxel_m / 2), grid.voxel_m, tuple(hi - lo))
+
+    free = heatmap.free[win] & ~_occupied(sub, shapes)
+    weights = np.where(free, heatmap.values[win], 0.0)
+    in_window = np.zeros(free.shape, dtype=bool)
+    crop = tuple(slice(max(c_lo[a] - lo[a], 0), max(c_hi[a] - lo[a], 0)) for a in range(3))
+    in_window[crop] = True
+    cand = in_window & free & (weights > 0)
+    stats['free_positive'] = int(cand.sum())
+    idx = np.argwhere(cand)
+    far = _segment_distance(sub.centers(idx), x_start, x_goal) > cfg.corridor_radius_m
+    cand[tuple(idx[far].T)] = False
+    stats['corridor'] = int(cand.sum())
+    # The box fits: no non-free voxel centre inside it (U(c) in V_free).
+    cand[crop] &= box_distance(~free, grid.voxel_m, half, _CONTACT_TOL_M, crop) > 0
+    stats['box_fits'] = int(cand.sum())
+
+    # Clearance from the robot at q_init (+ the hand at a goal configuration).
+    world = CollisionWorld(robot)
+    placements = [pin.SE3(T) for T in world.link_placements(q_init)]
+    protected = robot_occupancy(robot, placements, grid, lo, hi)
+    checks = [(g.geometry, _tf(T), cfg.d_safe_m, f'robot link {g.name} at q_init')
+              for g, T in zip(world.geom_model.geometryObjects[:world.n_links], placements)]
+    q_goal = goal_configuration(robot, goal, q_init) if cfg.protect_goal_hand else None
+    stats['goal_ik'] = None if not cfg.protect_goal_hand else q_goal is not None
+    if q_goal is not None:
+        joint = robot.model.frames[robot.model.getFrameId(goal.link)].parentJoint
+        hand = [i for i, g in enumerate(world.geom_model.geometryObjects[:world.n_links])
+                if g.parentJoint == joint]
+        goal_placements = [pin.SE3(T) for T in world.link_placements(q_goal)]
+        protected |= robot_occupancy(robot, goal_placements, grid, lo, hi, hand)
+        checks += [(world.geom_model.geometryObjects[i].geometry, _tf(goal_placements[i]),
+                    cfg.d_safe_m, f'hand {world.geom_model.geometryObjects[i].name} at goal')
+                   for i in hand]
+        stats['q_goal'] = np.round(q_goal, 4).tolist()
+    else:
+        log.info('goal IK did not converge: only the goal box is kept clear')
+    if cfg.d_safe_m > 0:
+        cand[crop] &= box_distance(protected, grid.voxel_m, half, cfg.d_safe_m, crop) \
+            >= cfg.d_safe_m
+    stats['robot_clear'] = int(cand.sum())
+
+    # Clearance from G's position box: voxel centres within half a voxel diagonal of it mark
+    # it on the lattice, so the lattice distance may exceed the true one by that much at most.
+    T_c = goal.center.to_se3()
+    tol = np.asarray(goal.position_tolerance_m)
+    slack = grid.voxel_m * math.sqrt(3) / 2
+    near_goal = _near_box(sub, T_c, tol, slack)
+    if cfg.d_safe_m > 0:
+        cand[crop] &= (box_distance(near_goal, grid.voxel_m, half, cfg.d_safe_m, crop)
+                       >= cfg.d_safe_m - slack)
+    checks.append((coal.Box(*np.maximum(2 * tol, 1e-9)), _tf(T_c), cfg.d_safe_m,
+                   'goal region'))
+    stats['goal_clear'] = int(cand.sum())
+    checks += [(coal_geometry(sh), _tf(sh.pose.to_se3()), _CONTACT_TOL_M,
+                f'scene object {o.id}') for o in objects for sh in o.shapes]
+    stats['candidates'] = int(cand.sum())
+    return SearchRegion(grid, lo, hi, weights, cand, k, s, cfg.d_min_m, checks, stats)
+
+
+def _shape_bounds(shape: Shape) -> tuple[np.ndarray, np.ndarray]:
+    """Axis-aligned bounds of a shape in the base frame (cheap, possibly loose)."""
+    T = shape.pose.to_se3()
+    if shape.kind == 'box':
+        ext = np.abs(T.rotation) @ (np.asarray(shape.dims) / 2)
+    elif shape.kind == 'sphere':
+        ext = np.full(3, shape.dims[0])
+    elif shape.kind == 'cylinder':
+        ext = np.full(3, math.hypot(shape.dims[0] / 2, shape.dims[1]))
+    else:
+        pts = np.asarray(shape.vertices) @ T.rotation.T + T.translation
+        return pts.min(axis=0), pts.max(axis=0)
+    return T.translation - ext, T.translation + ext
+
+
+def _occupied(grid: VoxelGrid, shapes: list[Shape]) -> np.ndarray:
+    """Voxels whose centre is inside any shape (``voxels.occupied_mask`` with cheap bounds)."""
+    mask = np.zeros(grid.shape, dtype=bool)
+    for shape in shapes:
+        b_lo, b_hi = _shape_bounds(shape)
+        i0 = np.clip(grid.index_of(b_lo), 0, grid.shape)
+        i1 = np.clip(grid.index_of(b_hi) + 1, 0, grid.shape)
+        if np.any(i1 <= i0):
+            continue
+        if shape.kind == 'mesh':
+            sub = occupied_mask(grid, [shape])
+            mask |= sub
+            continue
+        idx = np.stack(np.meshgrid(*[np.arange(i0[a], i1[a]) for a in range(3)],
+                                   indexing='ij'), axis=-1)
+        mask[i0[0]:i1[0], i0[1]:i1[1], i0[2]:i1[2]] |= points_in_shape(shape, grid.centers(idx))
+    return mask
+
+
+def _near_box(grid: VoxelGrid, T_c: pin.SE3, half_m: np.ndarray, within_m: float
+              ) -> np.ndarray:
+    """Voxel centres within ``within_m`` of the oriented box ``T_c`` of half-extents
+    ``half_m``."""
+    mask = np.zeros(grid.shape, dtype=bool)
+    ext = np.abs(T_c.rotation) @ half_m + within_m
+    i0 = np.clip(grid.index_of(T_c.translation - ext), 0, grid.shape)
+    i1 = np.clip(grid.index_of(T_c.translation + ext) + 1, 0, grid.shape)
+    if np.any(i1 <= i0):
+        return mask
+    idx = np.stack(np.meshgrid(*[np.arange(i0[a], i1[a]) for a in range(3)],
+                               indexing='ij'), axis=-1)
+    local = (grid.centers(idx) - T_c.translation) @ T_c.rotation
+    mask[i0[0]:i1[0], i0[1]:i1[1], i0[2]:i1[2]] = np.linalg.norm(
+        np.maximum(np.abs(local) - half_m, 0.0), axis=-1) <= within_m
+    return mask
+
+
+def _tf(T: pin.SE3) -> coal.Transform3s:
+    return coal.Transform3s(np.array(T.rotation), np.array(T.translation))

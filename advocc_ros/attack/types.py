@@ -1,0 +1,99 @@
+"""Attack settings, status codes, results and errors."""
+
+from __future__ import annotations
+
+import dataclasses
+import enum
+import numpy as np
+
+from advocc_ros.model.scene import SceneObject, objects_to_data
+
+
+@dataclasses.dataclass(frozen=True)
+class AttackConfig:
+    """Online parameters; defaults from the paper (§V-A) and SPEC §3."""
+
+    box_size_m: float = 0.05
+    """s: edge of every adversarial box [m]."""
+    corridor_radius_m: float = 0.3
+    """r_corr: candidate centres lie within this distance of the start-goal segment [m]."""
+    d_safe_m: float = 0.1
+    """Clearance of every box from the robot at q_init and from the goal region [m]."""
+    d_min_m: float = 0.05
+    """Minimum distance between box centres [m]."""
+    max_budget: int = 100
+    """Largest budget M a request may ask for."""
+    max_box_m: float = 0.5
+    """Largest box edge a request may ask for [m]."""
+    protect_goal_hand: bool = True
+    """Also keep d_safe from the hand at an IK solution for the goal centre."""
+    max_rejections: int = 500
+    """Picks that fail the exact coal check before a method gives up (then PARTIAL)."""
+
+    def __post_init__(self):
+        checks = {'box_size_m': 0 < self.box_size_m <= self.max_box_m,
+                  'corridor_radius_m': self.corridor_radius_m > 0,
+                  'd_safe_m': self.d_safe_m >= 0, 'd_min_m': self.d_min_m >= 0,
+                  'max_budget': self.max_budget >= 1, 'max_box_m': self.max_box_m > 0,
+                  'max_rejections': self.max_rejections >= 0}
+        for name, ok in checks.items():
+            value = getattr(self, name)
+            if not ok or not np.isfinite(float(value)):
+                raise ValueError(f'attack parameter {name}={value!r} is out of range')
+
+
+class AttackStatus(enum.Enum):
+    """Outcome of an attack request; errors are data (the node maps them to ErrorCodes)."""
+
+    SUCCESS = 'success'
+    PARTIAL = 'partial'                      # fewer than M boxes fit the search region
+    INVALID_REQUEST = 'invalid_request'      # budget, box size, non-finite numbers
+    UNKNOWN_METHOD = 'unknown_method'
+    INVALID_START = 'invalid_start'          # wrong joints, out of limits
+    START_IN_COLLISION = 'start_in_collision'
+    INVALID_GOAL = 'invalid_goal'            # empty or malformed goal region
+    INVALID_LINK = 'invalid_link'            # goal link not in the robot
+    ROBOT_MISMATCH = 'robot_mismatch'        # heatmap built for another robot
+
+    @property
+    def ok(self) -> bool:
+        return self in (AttackStatus.SUCCESS, AttackStatus.PARTIAL)
+
+
+@dataclasses.dataclass(frozen=True)
+class AttackResult:
+    """Obstacles placed by one attack, the mass each covered, and what it cost."""
+
+    status: AttackStatus
+    message: str = ''
+    obstacles: tuple[SceneObject, ...] = ()
+    """Boxes ``adv_0``, ``adv_1``, ... in pick order (robot base frame)."""
+    masses: tuple[float, ...] = ()
+    """Heatmap mass each box added to the coverage (marginal, in pick order)."""
+    total_mass: float = 0.0
+    compute_s: float = 0.0
+    """Core time: search region, selection and exact checks (no file or message I/O)."""
+    method: str = ''
+    budget: int = 0
+    box_size_m: float = 0.0
+    stats: dict = dataclasses.field(default_factory=dict)
+    """Diagnostics: candidate counts per filter, rejected picks, goal IK outcome."""
+
+    @property
+    def centers_m(self) -> np.ndarray:
+        return np.array([o.shapes[0].pose.position_m for o in self.obstacles]).reshape(-1, 3)
+
+    def to_json(self) -> dict:
+        return {'status': self.status.value, 'message': self.message, 'method': self.method,
+                'budget': self.budget, 'box_size_m': self.box_size_m,
+                'obstacles': objects_to_data(self.obstacles),
+                'masses': [float(m) for m in self.masses], 'total_mass': float(self.total_mass),
+                'compute_ms': round(self.compute_s * 1e3, 3), 'stats': self.stats}
+
+
+class AttackError(ValueError):
+    """A request that cannot be attacked; ``status`` says why."""
+
+    def __init__(self, status: AttackStatus, message: str):
+        super().__init__(message)
+        self.status = status

@@ -1,0 +1,211 @@
+"""The paper's Tables I, II and IV (Markdown and CSV) from trial records and attack metadata."""
+
+from __future__ import annotations
+
+import csv
+import io
+from typing import Iterable
+
+from advocc_ros.attack.methods import KNOWN_METHODS
+from advocc_ros.bench.protocol import (BASELINE, METHOD_LABELS, PLANNER_LABELS, THRESHOLDS,
+                                       BenchConfig, scene_label)
+from advocc_ros.evaluation.metrics import aggregate
+
+
+# --------------------------------------------------------------------------------------------
+# Aggregation and tables
+
+def cell_rows(records: Iterable[dict], cfg: BenchConfig) -> dict[tuple, dict]:
+    """Table row per (scene, planner, method, budget) with ``expected`` trial counts."""
+    groups: dict[tuple, list] = {}
+    for rec in records:
+        cell = (rec['scene'], rec['planner'], rec['method'], int(rec['budget']))
+        groups.setdefault(cell, []).append(rec)
+    rows = {}
+    for cell, recs in groups.items():
+        row = aggregate(recs, float(recs[0].get('time_budget_s', cfg.time_budget_s)))
+        row['expected'] = cfg.trials_for(cell[3])
+        row['complete'] = row['trials'] >= row['expected']
+        rows[cell] = row
+    return rows
+
+
+def _fmt(value: float | None, digits: int) -> str:
+    return 'N/A' if value is None else f'{value:.{digits}f}'
+
+
+def _psr_cell(row: dict | None) -> str:
+    if row is None or row['psr'] is None:
+        return '--'
+    text = f'{100 * row["psr"]:.2f}'
+    return text if row['complete'] else f'{text}*'
+
+
+# Table I metric: (row key, digits, better is lower)
+_T1 = (('psr', 2, True), ('smr', 3, True), ('cmr', 3, True), ('jds', 3, False),
+       ('pt', 3, False))
+
+
+def table1(rows: dict[tuple, dict], cfg: BenchConfig) -> tuple[str, str]:
+    """Table I (Markdown, CSV): PSR [%], SMR and CMR x10^-2, JDS [rad], PT [s] per budget.
+
+    Bold marks the strongest attack per column like the paper (lowest PSR/SMR/CMR, highest
+    JDS/PT); ``N/A``: undefined because PSR = 0; ``--``: not run; ``*``: fewer trials than
+    planned.
+    """
+    budgets = list(cfg.budgets)
+    head = ['Scene', 'Planner', 'Method'] + [f'{m.upper()}@{b}' for b in budgets
+                                             for m, _, _ in _T1]
+    md = ['| ' + ' | '.join(head) + ' |', '|' + '---|' * len(head)]
+    methods = [m for m in cfg.methods]
+    for scene in cfg.scenes:
+        for planner in cfg.planners:
+            best: dict[tuple, float] = {}
+            for b in budgets:
+                for key, _, lower in _T1:
+                    vals = [rows[(scene, planner, m, b)][key] for m in methods
+                            if (scene, planner, m, b) in rows
+                            and rows[(scene, planner, m, b)][key] is not None]
+                    if len(vals) > 1:
+                        best[(b, key)] = min(vals) if lower else max(vals)
+            for method in methods:
+                cells = [scene_label(cfg, scene), PLANNER_LABELS.get(planner, planner),
+                         METHOD_LABELS.get(method, method)]
+                for b in budgets:
+                    row = rows.get((scene, planner, method, b))
+                    for key, digits, _ in _T1:
+                        if row is None:
+                            cells.append('--')
+                            continue
+                        text = _psr_cell(row) if key == 'psr' else _fmt(row[key], digits)
+                        value = row[key]
+                        if value is not None and (b, key) in best and \
+                                round(value, digits + (2 if key == 'psr' else 0)) == \
+                                round(best[(b, key)], digits + (2 if key == 'psr' else 0)):
+                            text = f'**{text}**'
+                        cells.append(text)
+                md.append('| ' + ' | '.join(cells) + ' |')
+    return '\n'.join(md) + '\n', _rows_csv(rows, cfg)
+
+
+def baseline_table(rows: dict[tuple, dict], cfg: BenchConfig) -> str:
+    """The unattacked scenes (budget 0), Markdown."""
+    md = ['| Scene | Planner | Trials | PSR | SMR | CMR | JDS | PT |', '|' + '---|' * 8]
+    for scene in cfg.scenes:
+        for planner in cfg.planners:
+            row = rows.get((scene, planner, BASELINE, 0))
+            if row is None:
+                continue
+            md.append('| ' + ' | '.join([
+                scene_label(cfg, scene), PLANNER_LABELS.get(planner, planner),
+                str(row['trials']), _psr_cell(row), _fmt(row['smr'], 3), _fmt(row['cmr'], 3),
+                _fmt(row['jds'], 3), _fmt(row['pt'], 3)]) + ' |')
+    return '\n'.join(md) + '\n'
+
+
+def _rows_csv(rows: dict[tuple, dict], cfg: BenchConfig) -> str:
+    out = io.StringIO()
+    writer = csv.writer(out, lineterminator='\n')
+    writer.writerow(['scene_index', 'scene', 'planner', 'method', 'budget', 'trials',
+                     'expected', 'successes', 'psr_percent', 'smr_x1e-2', 'cmr_x1e-2', 'jds_rad',
+                     'pt_s', 'time_budget_s'])
+    order = {s: i for i, s in enumerate(cfg.scenes)}
+    for cell in sorted(rows, key=lambda c: (order.get(c[0], 99), c[1], c[2], c[3])):
+        row = rows[cell]
+        writer.writerow([order.get(cell[0], -1) + 1, *cell, row['trials'], row['expected'],
+                         row['successes'], _csv_num(None if row['psr'] is None
+                                                    else 100 * row['psr']),
+                         *(_csv_num(row[k]) for k in ('smr', 'cmr', 'jds', 'pt')),
+                         row['time_budget_s']])
+    return out.getvalue()
+
+
+def _csv_num(value: float | None) -> str:
+    return 'N/A' if value is None else f'{value:.6g}'
+
+
+def budget_to_failure(psr_by_budget: dict[int, float], threshold_percent: float
+                      ) -> int | None:
+    """Smallest measured budget whose PSR is <= the threshold; None if none reaches it."""
+    for budget in sorted(psr_by_budget):
+        if 100 * psr_by_budget[budget] <= threshold_percent + 1e-9:
+            return budget
+    return None
+
+
+def table2(rows: dict[tuple, dict], cfg: BenchConfig) -> tuple[str, str]:
+    """Table II (Markdown, CSV): minimum measured budget reaching PSR <= 80/60/40/20/0 %.
+
+    The sweep is the measured budgets (0 = the unattacked scene, when run); ``> max`` when the
+    largest measured budget does not reach the threshold.
+    """
+    md = ['| Scene | Planner | Method | Budgets | ' + ' | '.join(f'{t}%' for t in THRESHOLDS)
+          + ' |', '|' + '---|' * (4 + len(THRESHOLDS))]
+    out = io.StringIO()
+    writer = csv.writer(out, lineterminator='\n')
+    writer.writerow(['scene', 'planner', 'method', 'budgets', 'max_budget',
+                     *[f'psr_le_{t}' for t in THRESHOLDS]])
+    for scene in cfg.scenes:
+        for planner in cfg.planners:
+            base = rows.get((scene, planner, BASELINE, 0))
+            for method in cfg.methods:
+                psr = {b: rows[(scene, planner, method, b)]['psr'] for b in cfg.all_budgets
+                       if (scene, planner, method, b) in rows}
+                labels = [scene_label(cfg, scene), PLANNER_LABELS.get(planner, planner),
+                          METHOD_LABELS.get(method, method)]
+                if not psr:
+                    md.append('| ' + ' | '.join(labels + ['--'] * (1 + len(THRESHOLDS)))
+                              + ' |')
+                    continue
+                if base is not None and base['psr'] is not None:
+                    psr[0] = base['psr']
+                top = max(psr)
+                values = [budget_to_failure(psr, t) for t in THRESHOLDS]
+                cells = [str(v) if v is not None else f'> {top}' for v in values]
+                swept = ','.join(str(b) for b in sorted(psr))
+                md.append('| ' + ' | '.join(labels + [swept] + cells) + ' |')
+                writer.writerow([scene, planner, method, swept, top,
+                                 *[v if v is not None else f'>{top}' for v in values]])
+    return '\n'.join(md) + '\n', out.getvalue()
+
+
+def table4(attacks: list[dict], heatmaps: dict[str, dict]) -> tuple[str, str]:
+    """Table IV (Markdown, CSV): offline and online time per method [s].
+
+    ``attacks``: metadata of the attack files (``method``, ``planner``, ``compute_ms``; older
+    files: ``compute_s``);
+    ``heatmaps``: per scene, the heatmap's ``build_s`` (the offline cost of Ours).
+    Online = mean core compute time of one attack; offline = mean heatmap build time.
+    """
+    groups: dict[tuple, list] = {}
+    for meta in attacks:
+        if meta.get('compute_ms') is not None:
+            seconds = float(meta['compute_ms']) / 1e3
+        elif meta.get('compute_s') is not None:
+            seconds = float(meta['compute_s'])
+        else:
+            continue
+        planner = meta.get('planner') if meta.get('planner_specific') else None
+        groups.setdefault((meta['method'], planner), []).append(seconds)
+    builds = [float(h['build_s']) for h in heatmaps.values() if h.get('build_s') is not None]
+    offline_ours = sum(builds) / len(builds) if builds else None
+    md = ['| Method | Offline time (s) | Online time (s) | Total time (s) | Attacks |',
+          '|---|---|---|---|---|']
+    out = io.StringIO()
+    writer = csv.writer(out, lineterminator='\n')
+    writer.writerow(['method', 'planner', 'offline_s', 'online_s', 'total_s', 'attacks'])
+    order = [m for m in KNOWN_METHODS if m != 'ours'] + ['ours']  # baselines, then the paper's
+    for method, planner in sorted(groups, key=lambda g: (
+            order.index(g[0]) if g[0] in order else 99, g[0], g[1] or '')):
+        times = groups[(method, planner)]
+        online = sum(times) / len(times)
+        offline = offline_ours if method == 'ours' else None
+        total = online + (offline or 0.0)
+        label = METHOD_LABELS.get(method, method)
+        if planner:
+            label += f' ({PLANNER_LABELS.get(planner, planner)})'
+        md.append(f'| {label} | {_fmt(offline, 2) if offline is not None else "--"} | '
+                  f'{online:.3f} | {total:.2f} | {len(times)} |')
+        writer.writerow([method, planner or '', _csv_num(offline), f'{online:.6g}',
+                         f'{total:.6g}', len(times)])
+    return '\n'.join(md) + '\n', out.getvalue()

@@ -1,0 +1,164 @@
+"""Inverse kinematics to goal regions: one damped-least-squares solver and its two uses.
+
+- :func:`goal_configuration`: one deterministic solution from ``q_init`` to the goal centre
+  (the attack keeps the hand clear there);
+- :class:`GoalSampler`: collision-free configurations anywhere in a goal region (the planners'
+  goal set, scene checks).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import time
+from typing import Callable
+
+import numpy as np
+import pinocchio as pin
+
+from advocc_ros.model.robot import RobotModel
+from advocc_ros.model.scene import GoalRegion, Scene, SceneError
+
+
+@dataclasses.dataclass(frozen=True)
+class IkConfig:
+    """Settings of :class:`GoalSampler` (``PlanningConfig`` carries the same two fields)."""
+
+    ik_iterations: int = 100
+    """DLS iterations per attempt."""
+    ik_damping: float = 1e-4
+    """DLS damping (lambda^2)."""
+
+
+def dls_ik(robot: RobotModel, data, frame_id: int, q: np.ndarray, T_target: pin.SE3,
+           iterations: int, damping: float, reached: Callable[[pin.SE3, np.ndarray], bool],
+           gain: float = 1.0, max_step: float | None = None, log_jacobian: bool = False
+           ) -> tuple[np.ndarray, bool]:
+    """Damped least squares on frame ``frame_id`` from ``q`` towards ``T_target`` (T_base_frame).
+
+    Each iteration: forward kinematics, ``err = log6(T^-1 T_target)`` (local frame); stop when
+    ``reached(T_base_frame, err)``; else ``dq = J^T (J J^T + damping I)^-1 err`` with the local
+    frame Jacobian (times ``Jlog6`` when ``log_jacobian``), scaled by ``gain`` and to at most
+    ``max_step`` in norm, integrated and clipped into the joint limits.
+    Returns the last ``q`` and whether ``reached`` said so.
+    """
+    model = robot.model
+    eye = np.eye(6) * damping
+    for _ in range(iterations):
+        pin.framesForwardKinematics(model, data, q)
+        T = data.oMf[frame_id]
+        iMd = T.actInv(T_target)
+        err = pin.log6(iMd).vector
+        if reached(T, err):
+            return q, True
+        jac = pin.computeFrameJacobian(model, data, q, frame_id, pin.LOCAL)
+        if log_jacobian:
+            jac = pin.Jlog6(iMd.inverse()) @ jac
+        dq = jac.T @ np.linalg.solve(jac @ jac.T + eye, err)
+        if gain != 1.0:
+            dq = dq * gain
+        if max_step is not None:
+            norm = np.linalg.norm(dq)
+            if norm > max_step:
+                dq *= max_step / norm
+        q = np.clip(pin.integrate(model, q, dq), robot.lower, robot.upper)
+    return q, False
+
+
+def goal_configuration(robot: RobotModel, goal: GoalRegion, q_init: np.ndarray,
+                       iterations: int = 200) -> np.ndarray | None:
+    """One configuration whose tool point is at the goal centre (damped least squares from
+    ``q_init``, joint limits clipped), or ``None`` if it does not converge into G.
+
+    Deterministic and cheap (~ms): it only decides which hand pose to keep clear of boxes.
+    """
+    model = robot.model
+    data = model.createData()
+    fid = model.getFrameId(goal.link)
+    T_des = goal.center.to_se3() * goal.tool_offset.to_se3().inverse()  # T_base_link wanted
+    q, _ = dls_ik(robot, data, fid, np.array(q_init, dtype=float), T_des, iterations, 1e-6,
+                  lambda T, err: np.linalg.norm(err) < 1e-4, gain=0.5, log_jacobian=True)
+    pin.framesForwardKinematics(model, data, q)
+    if goal.contains(data.oMf[fid] * goal.tool_offset.to_se3()):
+        return q
+    return None
+
+
+class GoalSampler:
+    """Collision-free configurations with FK inside a goal region, by damped-least-squares IK.
+
+    Each attempt draws a target pose uniformly inside the region (position box x rotation-vector
+    box) and a random seed configuration, then iterates DLS on the link frame until the tool
+    pose enters the region (not necessarily the target: any point of the region will do).
+    ``config``: anything with ``ik_iterations`` and ``ik_damping`` (``IkConfig``,
+    ``PlanningConfig``).
+    """
+
+    def __init__(self, robot: RobotModel, in_collision, goal: GoalRegion,
+                 rng: np.random.Generator, config=IkConfig()):
+        self.robot, self.model = robot, robot.model
+        self.data = robot.create_data()
+        self.in_collision = in_collision
+        self.goal, self.rng, self.config = goal, rng, config
+        self.frame = robot.model.getFrameId(goal.link)
+        self.T_link_tool = goal.tool_offset.to_se3()
+        self.T_tool_link = self.T_link_tool.inverse()
+        self.T_center = goal.center.to_se3()
+        # abs: -0.0 passes '>= 0' but makes rng.uniform(-t, t) raise; huge tolerances overflow
+        # its range (and mean nothing beyond a full turn or the robot's reach).
+        self.tol_p = np.clip(np.abs(goal.position_tolerance_m), 0.0, 10.0)
+        self.tol_r = np.clip(np.abs(goal.orientation_tolerance_rad), 0.0, math.pi)
+        self.attempts = self.converged = self.colliding = 0
+
+    def tool_pose(self, q: np.ndarray) -> pin.SE3:
+        pin.framesForwardKinematics(self.model, self.data, q)
+        return self.data.oMf[self.frame] * self.T_link_tool
+
+    def region_distance(self, q: np.ndarray) -> float:
+        """0 inside the region, else the excess position [m] + orientation [rad] error."""
+        p_err, r_err = self.goal.error(self.tool_pose(q))
+        dp = np.maximum(np.abs(p_err) - self.tol_p, 0.0)
+        dr = np.maximum(np.abs(r_err) - self.tol_r, 0.0)
+        if not (np.any(dp > 1e-6) or np.any(dr > 1e-6)):
+            return 0.0
+        return float(np.linalg.norm(dp) + np.linalg.norm(dr))
+
+    def attempt(self) -> np.ndarray | None:
+        """One IK attempt; a valid goal configuration or None."""
+        self.attempts += 1
+        T_target_tool = self.T_center * pin.SE3(
+            pin.exp3(self.rng.uniform(-self.tol_r, self.tol_r)),
+            self.rng.uniform(-self.tol_p, self.tol_p))
+        T_target = T_target_tool * self.T_tool_link
+        q = self.rng.uniform(self.robot.lower, self.robot.upper)
+        q, reached = dls_ik(self.robot, self.data, self.frame, q, T_target,
+                            self.config.ik_iterations, self.config.ik_damping,
+                            lambda T, err: self.goal.contains(T * self.T_link_tool),
+                            max_step=0.5)
+        if not reached:
+            return None
+        self.converged += 1
+        if self.in_collision(q):
+            self.colliding += 1
+            return None
+        return q
+
+    def sample(self, n: int, deadline: float) -> list[np.ndarray]:
+        """Up to ``n`` valid goal configurations found before ``deadline`` (monotonic time)."""
+        out = []
+        while len(out) < n and time.monotonic() < deadline:
+            q = self.attempt()
+            if q is not None:
+                out.append(q)
+        return out
+
+
+def start_configuration(scene: Scene, robot: RobotModel) -> np.ndarray:
+    """``q_init`` of a scene, or a clear error when the scene has none."""
+    if scene.start is None:
+        raise SceneError(f'scene {scene.name!r} has no start configuration')
+    return robot.q_from_names(list(scene.start), list(scene.start.values()),
+                              f'{scene.name}.start')
+
+
+__all__ = ['GoalSampler', 'IkConfig', 'dls_ik', 'goal_configuration', 'start_configuration']

@@ -1,0 +1,187 @@
+"""One OMPL solve to a goal region, in-process (it runs inside the planning worker).
+
+OMPL is imported lazily, so the parent process never needs it.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import time
+
+import numpy as np
+
+from advocc_ros.model.ik import GoalSampler
+from advocc_ros.model.robot import RobotModel
+from advocc_ros.model.scene import GoalRegion
+from advocc_ros.planning.types import (PlanningConfig, PlanResult, PlanStatus, _fail,
+                                       planner_class_name, validate_request)
+
+log = logging.getLogger(__name__)
+
+
+# --------------------------------------------------------------------------------------------
+# In-process solve (runs inside the worker; imports OMPL lazily so the parent never needs it)
+
+_OMPL_SEEDED = False
+
+
+def _ompl():
+    from ompl import base as ob, geometric as og, util as ou
+    return ob, og, ou
+
+
+def _make_goal_class(ob):
+    class RegionGoal(ob.GoalSampleableRegion):
+        """OMPL goal region served from IK samples; tops itself up lazily while planning.
+
+        ``maxSampleCount`` announces one more sample than stored while the cap and the deadline
+        allow, so planners that keep asking for goals (RRTConnect grows its goal tree, PRM adds
+        goal milestones) trigger one extra IK attempt per request; a failed attempt serves a
+        stored goal again (harmless duplicate).
+        """
+
+        def __init__(self, si, sampler: GoalSampler, goals: list, nq: int, cap: int,
+                     lazy_deadline: float):
+            super().__init__(si)
+            self.setThreshold(1e-9)
+            self.sampler, self.goals, self.nq, self.cap = sampler, goals, nq, cap
+            self.lazy_deadline, self.served = lazy_deadline, 0
+
+        def distanceGoal(self, state):  # noqa: N802 (OMPL API)
+            return self.sampler.region_distance(np.array([state[i] for i in range(self.nq)]))
+
+        def _lazy(self) -> bool:
+            return len(self.goals) < self.cap and time.monotonic() < self.lazy_deadline
+
+        def sampleGoal(self, state):  # noqa: N802
+            q = None
+            if self.served < len(self.goals):
+                q = self.goals[self.served]
+            elif self._lazy():
+                q = self.sampler.attempt()
+                if q is not None:
+                    self.goals.append(q)
+            if q is None:
+                q = self.goals[self.served % len(self.goals)]
+            self.served += 1
+            for i in range(self.nq):
+                state[i] = float(q[i])
+
+        def maxSampleCount(self):  # noqa: N802
+            return len(self.goals) + (1 if self._lazy() else 0)
+
+    return RegionGoal
+
+
+def solve(robot: RobotModel, in_collision, q_start: np.ndarray, goal: GoalRegion,
+          planner_id: str, time_budget_s: float, seed: int,
+          config: PlanningConfig = PlanningConfig()) -> PlanResult:
+    """Plan in this process (no watchdog: use ``Planner`` unless you are the worker).
+
+    ``in_collision(q) -> bool`` is the scene's collision test (``CollisionWorld.in_collision``).
+    """
+    global _OMPL_SEEDED
+    t0 = time.monotonic()
+    deadline = t0 + time_budget_s
+    nq = robot.nq
+    error = validate_request(robot, q_start, goal, planner_id, time_budget_s, config)
+    if error is not None:
+        return error
+    q_start = np.asarray(q_start, dtype=float)
+    if in_collision(q_start):
+        return _fail(PlanStatus.START_STATE_IN_COLLISION, 'start state is in collision', nq,
+                     time.monotonic() - t0)
+    ob, og, ou = _ompl()
+    if not _OMPL_SEEDED:
+        ou.RNG.setSeed(int(seed) % (2 ** 31 - 1) + 1)
+        _OMPL_SEEDED = True
+    rng = np.random.default_rng(int(seed) % 2 ** 64)  # int64 message seeds may be < 0
+    sampler = GoalSampler(robot, in_collision, goal, rng, config)
+
+    if sampler.region_distance(q_start) == 0.0:
+        return PlanResult(PlanStatus.SUCCESS, 'start state already inside the goal region',
+                          np.stack([q_start, q_start]), time.monotonic() - t0,
+                          {'goal_configs': 0})
+    goals = sampler.sample(config.ik_goals, t0 + config.ik_time_fraction * time_budget_s)
+    ik_time = time.monotonic() - t0
+    ik_stats = {'ik_attempts': sampler.attempts, 'ik_converged': sampler.converged,
+                'ik_in_collision': sampler.colliding, 'ik_time_s': ik_time}
+    if not goals:
+        if sampler.colliding:
+            return _fail(PlanStatus.GOAL_IN_COLLISION,
+                         f'every goal configuration IK found ({sampler.colliding} of '
+                         f'{sampler.attempts} attempts) is in collision', nq, ik_time, **ik_stats)
+        return _fail(PlanStatus.NO_IK_SOLUTION,
+                     f'no IK solution inside the goal region in {sampler.attempts} attempts '
+                     f'({ik_time:.2f} s)', nq, ik_time, **ik_stats)
+
+    space = ob.RealVectorStateSpace(nq)
+    bounds = ob.RealVectorBounds(nq)
+    for i in range(nq):
+        bounds.setLow(i, float(robot.lower[i]))
+        bounds.setHigh(i, float(robot.upper[i]))
+    space.setBounds(bounds)
+    proj = [j for j in config.projection_joints if 0 <= j < nq] or [0]
+    cells, components = ou.vectorDouble(), ou.vectorUint()
+    for j in proj:
+        cells.append(float(robot.upper[j] - robot.lower[j]) / 20.0)
+        components.append(j)
+    space.registerDefaultProjection(
+        ob.RealVectorOrthogonalProjectionEvaluator(space, cells, components))
+    ss = og.SimpleSetup(space)
+    checks = [0]
+
+    def is_valid(state) -> bool:
+        checks[0] += 1
+        return not in_collision(np.array([state[i] for i in range(nq)]))
+
+    ss.setStateValidityChecker(ob.StateValidityCheckerFn(is_valid))
+    si = ss.getSpaceInformation()
+    si.setStateValidityCheckingResolution(config.motion_step_rad / space.getMaximumExtent())
+    start = ob.State(space)
+    for i in range(nq):
+        start[i] = float(q_start[i])
+    ss.setStartState(start)
+    # Simplification gets what the solve leaves, at least this reserve. OMPL's simplifier checks
+    # its deadline between passes, so a success can end ~0.1 s past the budget (measured).
+    reserve = min(0.15 * time_budget_s, 0.5) if config.simplify else 0.0
+    goal_obj = _make_goal_class(ob)(si, sampler, goals, nq, config.max_goals, deadline - reserve)
+    ss.setGoal(goal_obj)
+    planner = getattr(og, planner_class_name(planner_id))(si)
+    ss.setPlanner(planner)
+    if config.stop_at_first_solution:
+        objective = ob.PathLengthOptimizationObjective(si)
+        objective.setCostThreshold(ob.Cost(float('inf')))
+        ss.setOptimizationObjective(objective)
+    ss.setup()
+    solve_time = deadline - reserve - time.monotonic()
+    if solve_time <= 0:
+        return _fail(PlanStatus.TIMED_OUT, 'the budget was spent sampling goal configurations',
+                     nq, time.monotonic() - t0, **ik_stats)
+    t_solve = time.monotonic()
+    status = ss.solve(solve_time)
+    solve_s = time.monotonic() - t_solve
+    stats = dict(ik_stats, goal_configs=len(goals), validity_checks=checks[0],
+                 solve_time_s=solve_s, planner=planner_class_name(planner_id),
+                 ompl_status=status.asString())
+    name = status.asString()
+    if not ss.haveExactSolutionPath():
+        elapsed = time.monotonic() - t0
+        if name == 'Timeout' or 'Approximate' in name:
+            return _fail(PlanStatus.TIMED_OUT, f'no solution within {time_budget_s:g} s '
+                         f'({name.lower()})', nq, elapsed, **stats)
+        return _fail(PlanStatus.PLANNING_FAILED, f'OMPL: {name}', nq, elapsed, **stats)
+    if config.simplify:
+        ss.simplifySolution(max(deadline - time.monotonic(), 0.01))
+    path = ss.getSolutionPath()
+    if config.interpolate:
+        n = max(config.min_waypoints, int(math.ceil(path.length() / config.waypoint_step_rad))
+                + 1)
+        path.interpolate(n)
+    waypoints = np.array([[path.getState(k)[i] for i in range(nq)]
+                          for k in range(path.getStateCount())])
+    elapsed = time.monotonic() - t0
+    stats['path_length_rad'] = float(path.length())
+    return PlanResult(PlanStatus.SUCCESS, f'{stats["planner"]}: solved in {elapsed:.3f} s',
+                      waypoints, elapsed, stats)

@@ -1,0 +1,181 @@
+"""Planning requests and answers: planner ids, settings, status codes, results (no OMPL)."""
+
+from __future__ import annotations
+
+import dataclasses
+import enum
+import math
+
+import numpy as np
+
+from advocc_ros.model.robot import RobotModel
+from advocc_ros.model.scene import GoalRegion
+
+
+class PlanStatus(enum.IntEnum):
+    """Outcome of a plan request; values of moveit_msgs/MoveItErrorCodes (and advocc_msgs')."""
+
+    SUCCESS = 1
+    PLANNING_FAILED = -1
+    TIMED_OUT = -6
+    START_STATE_IN_COLLISION = -10
+    GOAL_IN_COLLISION = -12
+    INVALID_GOAL_CONSTRAINTS = -16
+    INVALID_ROBOT_STATE = -17
+    CRASH = -29
+    NO_IK_SOLUTION = -31
+    INVALID_REQUEST = -101
+    UNKNOWN_METHOD = -102
+
+
+# OMPL geometric planners selectable by name (lower-case id -> class name in ompl.geometric).
+# All of them solve the problem as set up here (goal region, default projection for KPIECE/SBL).
+_PLANNER_CLASSES = (
+    'RRTConnect', 'PRMstar', 'BKPIECE1', 'RRT', 'RRTstar', 'TRRT', 'LazyRRT', 'InformedRRTstar',
+    'SORRTstar', 'RRTsharp', 'RRTXstatic', 'LBTRRT', 'PRM', 'LazyPRM', 'LazyPRMstar', 'KPIECE1',
+    'LBKPIECE1', 'EST', 'BiEST', 'ProjEST', 'SBL', 'STRIDE', 'PDST', 'FMT', 'BFMT', 'BITstar',
+    'ABITstar', 'AITstar', 'EITstar', 'SST', 'SPARS', 'SPARStwo')
+PLANNERS: dict[str, str] = {name.lower(): name for name in _PLANNER_CLASSES}
+
+
+def planner_class_name(planner_id: str) -> str | None:
+    """OMPL class name for a planner id (``rrtconnect``, ``RRTConnectkConfigDefault``, ...)."""
+    key = planner_id.strip().lower()
+    key = key.removeprefix('geometric::').removesuffix('kconfigdefault')
+    return PLANNERS.get(key)
+
+
+@dataclasses.dataclass(frozen=True)
+class PlanningConfig:
+    """How plan requests are solved; defaults are the paper's (§V-A) and MoveIt's."""
+
+    time_budget_s: float = 5.0
+    """Default wall-clock budget of one request [s]: IK goal sampling + solve + simplify."""
+    max_time_budget_s: float = 600.0
+    """Largest budget a request may ask for [s]."""
+    motion_step_rad: float = 0.01
+    """Joint-space distance between validity checks along a motion [rad]. OMPL's resolution is
+    set to ``motion_step_rad / max_extent`` (7.7e-4 for the Panda, extent 13.04 rad). Any
+    point of the Panda moves at most 1.70 m per rad of joint motion (bound sqrt(sum r_j^2) over
+    the per-joint lever arms of the collision hulls; 1.17 m/rad observed), so between two checks
+    a link point travels <= 17 mm and can enter an obstacle by at most half that (8.5 mm): a path
+    cannot tunnel through a 5 cm box. MoveIt's default (0.005 * extent = 65 mm of joint motion,
+    up to 11 cm of link motion) could."""
+    ik_goals: int = 8
+    """Goal configurations sampled by IK before planning starts."""
+    max_goals: int = 64
+    """Cap on goal configurations, including those sampled lazily while planning."""
+    ik_time_fraction: float = 0.25
+    """Share of the budget that up-front IK sampling may use."""
+    ik_iterations: int = 100
+    """Damped-least-squares iterations per IK attempt (one random seed)."""
+    ik_damping: float = 1e-4
+    """DLS damping lambda^2 (keeps steps bounded near singularities)."""
+    simplify: bool = True
+    """Shortcut and smooth the solution like MoveIt's default ``simplify_solutions: true``."""
+    interpolate: bool = True
+    """Interpolate the solution like MoveIt's default (waypoints at most
+    ``waypoint_step_rad`` apart and at least ``min_waypoints``)."""
+    waypoint_step_rad: float = 0.05
+    """Maximum joint-space distance between returned waypoints [rad]."""
+    min_waypoints: int = 10
+    """Minimum number of returned waypoints (MoveIt's ``minimum_waypoint_count``)."""
+    stop_at_first_solution: bool = False
+    """Optimizing planners (PRM*, RRT*, BIT*) keep improving until the budget ends, as in
+    MoveIt; True makes them return their first solution."""
+    projection_joints: tuple[int, ...] = (0, 1)
+    """Joints of the KPIECE/SBL projection (MoveIt's ``joints(panda_joint1,panda_joint2)``)."""
+    watchdog_margin_s: float = 2.0
+    """The watchdog kills a worker that has not answered ``budget + margin`` after a request."""
+    worker_start_timeout_s: float = 120.0
+    """Time a new worker may take to import its libraries and load the robot [s]."""
+
+    def __post_init__(self):
+        positive = ('time_budget_s', 'max_time_budget_s', 'motion_step_rad', 'ik_damping',
+                    'waypoint_step_rad', 'watchdog_margin_s', 'worker_start_timeout_s')
+        checks = {name: _finite_number(getattr(self, name)) and getattr(self, name) > 0
+                  for name in positive}
+        checks.update({name: _whole(getattr(self, name)) and getattr(self, name) >= 1
+                       for name in ('ik_goals', 'max_goals', 'ik_iterations')})
+        checks['min_waypoints'] = _whole(self.min_waypoints) and self.min_waypoints >= 2
+        checks['ik_time_fraction'] = (_finite_number(self.ik_time_fraction)
+                                      and 0 < self.ik_time_fraction <= 1)
+        checks['time_budget_s'] = (checks['time_budget_s'] and checks['max_time_budget_s']
+                                   and self.time_budget_s <= self.max_time_budget_s)
+        for name, ok in checks.items():
+            if not ok:
+                raise ValueError(f'planning parameter {name}={getattr(self, name)!r} is out '
+                                 'of range')
+
+
+def _finite_number(value) -> bool:
+    return isinstance(value, (int, float)) and not isinstance(value, bool) \
+        and math.isfinite(value)
+
+
+def _whole(value) -> bool:
+    return isinstance(value, int) and not isinstance(value, bool)
+
+
+@dataclasses.dataclass
+class PlanResult:
+    """Answer to one plan request."""
+
+    status: PlanStatus
+    message: str
+    path: np.ndarray
+    """(N, nq) waypoints from the start to a goal configuration; (0, nq) on failure."""
+    planning_time_s: float
+    """Wall time spent in the worker: IK goal sampling + solve + post-processing [s]."""
+    stats: dict = dataclasses.field(default_factory=dict)
+    """Diagnostics: validity checks, goal configurations, request round trip, ..."""
+
+    @property
+    def success(self) -> bool:
+        return self.status == PlanStatus.SUCCESS
+
+    def to_data(self) -> dict:
+        return {'status': int(self.status), 'message': self.message,
+                'path': np.asarray(self.path, float).tolist(),
+                'planning_time_s': float(self.planning_time_s), 'stats': self.stats}
+
+    @classmethod
+    def from_data(cls, data: dict, nq: int) -> 'PlanResult':
+        path = np.asarray(data.get('path') or np.zeros((0, nq)), float).reshape(-1, nq)
+        return cls(PlanStatus(int(data['status'])), str(data['message']), path,
+                   float(data['planning_time_s']), dict(data.get('stats', {})))
+
+
+def _fail(status: PlanStatus, message: str, nq: int, elapsed: float = 0.0, **stats
+          ) -> PlanResult:
+    return PlanResult(status, message, np.zeros((0, nq)), elapsed, stats)
+
+
+def validate_request(robot: RobotModel, q_start, goal: GoalRegion, planner_id: str,
+                     time_budget_s: float, config: PlanningConfig = PlanningConfig()
+                     ) -> PlanResult | None:
+    """An error result for a malformed request, or None; cheap, needs no collision world."""
+    nq = robot.nq
+    q = np.asarray(q_start, dtype=float)
+    if q.shape != (nq,):
+        return _fail(PlanStatus.INVALID_ROBOT_STATE,
+                     f'start state: expected {nq} joint values, got shape {q.shape}', nq)
+    if not np.all(np.isfinite(q)):
+        return _fail(PlanStatus.INVALID_REQUEST, f'start state: non-finite values {q.tolist()}',
+                     nq)
+    if not robot.within_limits(q):
+        bad = [robot.joint_names[i] for i in np.flatnonzero(
+            (q < robot.lower - 1e-9) | (q > robot.upper + 1e-9))]
+        return _fail(PlanStatus.INVALID_ROBOT_STATE,
+                     f'start state: joints {bad} outside their limits', nq)
+    if planner_class_name(planner_id) is None:
+        return _fail(PlanStatus.UNKNOWN_METHOD,
+                     f'unknown planner {planner_id!r}; known: {sorted(PLANNERS)}', nq)
+    if not (isinstance(time_budget_s, (int, float)) and math.isfinite(time_budget_s)
+            and 0 < time_budget_s <= config.max_time_budget_s):
+        return _fail(PlanStatus.INVALID_REQUEST, f'time budget {time_budget_s!r} s: expected '
+                     f'0 < budget <= {config.max_time_budget_s}', nq)
+    if not robot.model.existFrame(goal.link):
+        return _fail(PlanStatus.INVALID_GOAL_CONSTRAINTS,
+                     f'goal region link {goal.link!r} is not a link of the robot', nq)
+    return None
