@@ -1,4 +1,4 @@
-"""ament_python package advocc_ros; dependencies are pinned (see README, 'How the install works')."""
+"""ament_python package advocc_ros; dependencies are pinned (README, 'How the install works')."""
 
 from glob import glob
 
@@ -55,7 +55,7 @@ BUILD = [
         ('rosidl-typesupport-introspection-cpp', '4.6.6'),
     ]
 ] + ['catkin-pkg==1.1.1']
-TEST = ['pytest==9.2.0', 'hypothesis==6.170.15']
+TEST = ['pytest==9.2.0', 'hypothesis==6.170.15', 'flake8==7.3.0']
 
 setup(
     name=PACKAGE,
