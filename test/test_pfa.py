@@ -13,9 +13,8 @@ import pytest
 
 from advocc_ros.attack import METHODS, AttackConfig, AttackStatus, attack, search_region
 from advocc_ros.heatmap import HeatmapConfig, build_heatmap
-from advocc_ros.attack.pfa import (LocalPlanners, PfaConfig, PfaOptions, _Decoder, exact_goal,
-                                   optimise)
-from advocc_ros.planning import start_configuration
+from advocc_ros.attack.pfa import PfaConfig, PfaOptions, _Decoder, exact_goal, optimise
+from advocc_ros.planning import LocalPlanners, start_configuration
 from advocc_ros.model.scene import GoalRegion, Pose, Scene, make_box
 from test_attack import _assert_constraints
 
