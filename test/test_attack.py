@@ -257,7 +257,8 @@ def test_robot_only_heatmap_masks_the_current_scene(panda, heatmaps, task):
 
 def test_goal_hand_is_kept_clear(panda, heatmaps, task):
     q, goal, objects = task
-    result = attack(heatmaps['scene'], panda, objects, q, goal, 5)
+    result = attack(heatmaps['scene'], panda, objects, q, goal, 5,
+                    cfg=AttackConfig(protect_goal_hand=True))
     assert result.stats['goal_ik'] is True
     q_goal = np.array(result.stats['q_goal'])
     world = CollisionWorld(panda)

@@ -36,6 +36,7 @@ from typing import Any
 
 import numpy as np
 
+from advocc_ros.attack.goals import POLICIES, GoalGuard, goal_samples
 from advocc_ros.attack.methods import CONTEXT_METHODS, METHODS, MethodContext, load_method
 from advocc_ros.attack.region import link_luts, search_region
 from advocc_ros.attack.types import AttackConfig, AttackError, AttackResult, AttackStatus
@@ -91,20 +92,33 @@ def validate_request(heatmap: Heatmap, robot: RobotModel, objects: tuple[SceneOb
 def attack(heatmap: Heatmap, robot: RobotModel, objects: tuple[SceneObject, ...] | list,
            q_init: np.ndarray, goal: GoalRegion, budget: int, method: str = 'ours',
            cfg: AttackConfig = AttackConfig(), box_size_m: float | None = None,
-           seed: int = 0, method_options: Any = None) -> AttackResult:
+           seed: int = 0, method_options: Any = None, goal_policy: str | None = None
+           ) -> AttackResult:
     """Place at most ``budget`` boxes for one task. Never raises for a bad request: the result
-    carries the status and message instead. ``method_options``: settings of a
-    planner-in-the-loop method (``advocc_ros.attack.pfa.PfaOptions``)."""
+    carries the status and message instead. ``method_options``: settings of a method
+    (``advocc_ros.attack.pfa.PfaOptions``, ``advocc_ros.attack.task.TaskOptions``);
+    ``goal_policy``: ``paper`` or ``reachable`` (None or '': ``cfg.goal_policy``)."""
     link_luts(robot, heatmap.grid.voxel_m / 4)  # model loading (~1 s once), not attack time
     t0 = time.perf_counter()
     s = cfg.box_size_m if box_size_m is None or box_size_m == 0 else float(box_size_m)
+    policy = goal_policy or cfg.goal_policy
     base = dict(method=method, budget=int(budget) if isinstance(budget, (int, np.integer))
-                else 0, box_size_m=s)
+                else 0, box_size_m=s, goal_policy=policy)
     objects = tuple(objects)
     try:
         validate_request(heatmap, robot, objects, q_init, goal, budget, method, s, cfg)
+        if policy not in POLICIES:
+            raise AttackError(AttackStatus.INVALID_REQUEST,
+                              f'unknown goal policy {policy!r}; known: {list(POLICIES)}')
+        if policy == 'reachable' and method in ('pfa', 'pfa++'):
+            raise AttackError(AttackStatus.INVALID_REQUEST,
+                              f'goal policy reachable applies to the coverage methods, not '
+                              f'{method} (its planner queries already see a blocked goal)')
         q_init = np.asarray(q_init, dtype=float)
         region = search_region(heatmap, robot, objects, q_init, goal, cfg, s)
+        samples = goal_samples(robot, objects, goal)
+        if policy == 'reachable':
+            region.guard = GoalGuard(samples, s, cfg.reachable_fraction)
         extra = {}
         if method in CONTEXT_METHODS:
             extra['context'] = MethodContext(robot, objects, q_init, goal, method_options)
@@ -120,12 +134,19 @@ def attack(heatmap: Heatmap, robot: RobotModel, objects: tuple[SceneObject, ...]
     stats = dict(region.stats, rejected_picks=rejected)
     if len(obstacles) < budget:
         status = AttackStatus.PARTIAL
-        message = (f'only {len(obstacles)} of {budget} boxes fit the search region '
-                   f'({region.stats.get("candidates", 0)} candidate centres)')
+        message = region.stats.get('stop_reason') or (
+            f'only {len(obstacles)} of {budget} boxes fit the search region '
+            f'({region.stats.get("candidates", 0)} candidate centres)')
     else:
         status, message = AttackStatus.SUCCESS, f'placed {len(obstacles)} boxes'
-    result = AttackResult(status, message, obstacles, masses, float(sum(masses)),
-                          time.perf_counter() - t0, stats=stats, **base)
-    log.info('attack %s M=%d: %s, mass %.3f, %.1f ms', method, budget, status.value,
-             result.total_mass, result.compute_s * 1e3)
+    compute_s = time.perf_counter() - t0
+    # Diagnostic, not attack time: how many goal poses the boxes leave (cached samples).
+    t1 = time.perf_counter()
+    fraction = samples.valid_fraction(
+        np.array([o.shapes[0].pose.position_m for o in obstacles]), s)
+    stats['goal_check_ms'] = round((time.perf_counter() - t1) * 1e3, 3)
+    result = AttackResult(status, message, obstacles, masses, float(sum(masses)), compute_s,
+                          stats=stats, goal_valid_fraction=fraction, **base)
+    log.info('attack %s M=%d: %s, mass %.3f, %.1f ms, goal valid %s', method, budget,
+             status.value, result.total_mass, result.compute_s * 1e3, fraction)
     return result

@@ -67,6 +67,7 @@ class MethodSpec:
 REGISTRY: dict[str, MethodSpec] = {
     'ours': MethodSpec('advocc_ros.attack.methods', 'Ours'),
     'random': MethodSpec('advocc_ros.attack.methods', 'Random'),
+    'task': MethodSpec('advocc_ros.attack.task', 'Task', needs_context=True),
     'pfa': MethodSpec('advocc_ros.attack.pfa', 'PFA', needs_context=True),
     'pfa++': MethodSpec('advocc_ros.attack.pfa', 'PFA++', needs_context=True),
 }

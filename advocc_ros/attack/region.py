@@ -13,6 +13,7 @@ import numpy as np
 import pinocchio as pin
 
 from advocc_ros.attack.coverage import box_distance, box_half_voxels
+from advocc_ros.attack.goals import GoalGuard
 from advocc_ros.attack.types import AttackConfig
 from advocc_ros.heatmap import Heatmap
 from advocc_ros.model.collision import CollisionWorld, coal_geometry
@@ -80,6 +81,8 @@ class SearchRegion:
     checks: list[tuple[coal.CollisionGeometry, coal.Transform3s, float, str]]
     """Exact tests: (geometry, placement, minimum distance [m], what) a box must keep."""
     stats: dict
+    guard: GoalGuard | None = None
+    """The ``reachable`` goal policy (set by ``attack``): accepted boxes are committed to it."""
 
     def center_m(self, c: np.ndarray) -> np.ndarray:
         return self.grid.centers(np.asarray(c) + self.lo)
@@ -96,7 +99,12 @@ class SearchRegion:
         return None
 
     def accept(self, c: np.ndarray) -> bool:
-        what = self.box_violation(self.center_m(c))
+        """Whether the box at window index ``c`` passes the exact checks (and the goal guard,
+        which then counts it as placed)."""
+        center = self.center_m(c)
+        what = self.box_violation(center)
+        if what is None and self.guard is not None and not self.guard.admit(center):
+            what = 'the goal policy (too many goal samples blocked)'
         if what is not None:
             log.debug('candidate %s rejected by the exact check: %s', c.tolist(), what)
         return what is None

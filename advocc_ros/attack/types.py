@@ -25,8 +25,13 @@ class AttackConfig:
     """Largest budget M a request may ask for."""
     max_box_m: float = 0.5
     """Largest box edge a request may ask for [m]."""
-    protect_goal_hand: bool = True
-    """Also keep d_safe from the hand at an IK solution for the goal centre."""
+    protect_goal_hand: bool = False
+    """Also keep d_safe from the hand at one IK solution for the goal centre (off: the paper's
+    C3; the goal policy ``reachable`` is the measured way to keep the goal reachable)."""
+    goal_policy: str = 'paper'
+    """``paper`` (boxes may block every goal pose) or ``reachable`` (see ``attack.goals``)."""
+    reachable_fraction: float = 0.5
+    """Under ``reachable``: share of the fixed goal samples that must stay valid."""
     max_rejections: int = 500
     """Picks that fail the exact coal check before a method gives up (then PARTIAL)."""
 
@@ -35,7 +40,11 @@ class AttackConfig:
                   'corridor_radius_m': self.corridor_radius_m > 0,
                   'd_safe_m': self.d_safe_m >= 0, 'd_min_m': self.d_min_m >= 0,
                   'max_budget': self.max_budget >= 1, 'max_box_m': self.max_box_m > 0,
-                  'max_rejections': self.max_rejections >= 0}
+                  'max_rejections': self.max_rejections >= 0,
+                  'reachable_fraction': 0 <= self.reachable_fraction <= 1}
+        if self.goal_policy not in ('paper', 'reachable'):
+            raise ValueError(f'attack parameter goal_policy={self.goal_policy!r}: expected '
+                             "'paper' or 'reachable'")
         for name, ok in checks.items():
             value = getattr(self, name)
             if not ok or not np.isfinite(float(value)):
@@ -78,6 +87,10 @@ class AttackResult:
     box_size_m: float = 0.0
     stats: dict = dataclasses.field(default_factory=dict)
     """Diagnostics: candidate counts per filter, rejected picks, goal IK outcome."""
+    goal_policy: str = ''
+    goal_valid_fraction: float | None = None
+    """Of the task's fixed goal samples valid without the boxes, the fraction still valid with
+    them (``attack.goals``); None when the goal region has no IK solution."""
 
     @property
     def centers_m(self) -> np.ndarray:
@@ -88,7 +101,8 @@ class AttackResult:
                 'budget': self.budget, 'box_size_m': self.box_size_m,
                 'obstacles': objects_to_data(self.obstacles),
                 'masses': [float(m) for m in self.masses], 'total_mass': float(self.total_mass),
-                'compute_ms': round(self.compute_s * 1e3, 3), 'stats': self.stats}
+                'compute_ms': round(self.compute_s * 1e3, 3), 'goal_policy': self.goal_policy,
+                'goal_valid_fraction': self.goal_valid_fraction, 'stats': self.stats}
 
 
 class AttackError(ValueError):

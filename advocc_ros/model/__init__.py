@@ -13,7 +13,7 @@ from advocc_ros.model.mbm import (GoalTolerance, MbmRequest, apply_request, base
                                   load_request, objects_from_planning_scene, parse_goal_tolerance)
 from advocc_ros.model.collision import CollisionWorld, coal_geometry
 from advocc_ros.model.voxels import SolidLUT, VoxelGrid, occupied_mask, points_in_shape
-from advocc_ros.model.ik import (GoalSampler, IkConfig, dls_ik, goal_configuration,
+from advocc_ros.model.ik import (GoalSampler, IkConfig, dls_ik, goal_configuration, goal_set,
                                  start_configuration)
 from advocc_ros.model.scenegen import Variation, VariationConfig, vary_scene
 
@@ -22,7 +22,7 @@ __all__ = [
     'Operation', 'Pose', 'RobotError', 'RobotModel', 'RobotSpec', 'SHAPES', 'Scene',
     'SceneError', 'SceneObject', 'Shape', 'SolidLUT', 'Variation', 'VariationConfig',
     'VoxelGrid', 'apply_operation', 'apply_request', 'base_frame', 'coal_geometry', 'dls_ik',
-    'example_robot_data_share', 'finite_array', 'goal_configuration', 'goal_region_at',
+    'example_robot_data_share', 'finite_array', 'goal_configuration', 'goal_region_at', 'goal_set',
     'is_mbm_scene', 'load_any_scene', 'load_mbm_scene', 'load_request', 'load_robot',
     'load_scene', 'make_box', 'make_mesh_shape', 'objects_from_data',
     'objects_from_planning_scene', 'objects_to_data', 'occupied_mask', 'parse_goal_tolerance',

@@ -3,7 +3,8 @@
 - :func:`goal_configuration`: one deterministic solution from ``q_init`` to the goal centre
   (the attack keeps the hand clear there);
 - :class:`GoalSampler`: collision-free configurations anywhere in a goal region (the planners'
-  goal set, scene checks).
+  goal set, scene checks);
+- :func:`goal_set`: many goal configurations fast (the ``task`` attack, goal checks).
 """
 
 from __future__ import annotations
@@ -143,6 +144,19 @@ class GoalSampler:
             return None
         return q
 
+    def pull(self, q: np.ndarray, iterations: int) -> np.ndarray | None:
+        """``q`` (clipped into the limits) pulled into the region by at most ``iterations``
+        DLS steps toward a random pose of the region, or None. No collision check."""
+        T_target = self.T_center * pin.SE3(
+            pin.exp3(self.rng.uniform(-self.tol_r, self.tol_r)),
+            self.rng.uniform(-self.tol_p, self.tol_p)) * self.T_tool_link
+        q, reached = dls_ik(self.robot, self.data, self.frame,
+                            np.clip(q, self.robot.lower, self.robot.upper), T_target,
+                            iterations, self.config.ik_damping,
+                            lambda T, err: self.goal.contains(T * self.T_link_tool),
+                            max_step=0.5)
+        return q if reached else None
+
     def sample(self, n: int, deadline: float) -> list[np.ndarray]:
         """Up to ``n`` valid goal configurations found before ``deadline`` (monotonic time)."""
         out = []
@@ -153,6 +167,43 @@ class GoalSampler:
         return out
 
 
+def goal_set(robot: RobotModel, collisions_batch: Callable[[np.ndarray], np.ndarray],
+             in_collision: Callable[[np.ndarray], bool], goal: GoalRegion, n: int, seed: int,
+             time_s: float = 1.0, anchors: int = 6, walk_rad: float = 0.3,
+             walk_iterations: int = 12) -> np.ndarray:
+    """Up to ``n`` collision-free configurations inside G, (k, nq), from ``seed``.
+
+    A few IK solutions from random seeds (``anchors``: they find the distinct IK branches,
+    ~4 ms each) are spread by local walks: perturb a stored solution by N(0, ``walk_rad``) per
+    joint and pull it back into G with at most ``walk_iterations`` DLS steps toward a random
+    pose of G (~0.3 ms each, collisions checked in batches). This explores the self-motion
+    manifold and the tolerances at a tenth of the cost of a random-seed IK per sample.
+    """
+    rng = np.random.default_rng(seed)
+    sampler = GoalSampler(robot, in_collision, goal, rng)
+    deadline = time.monotonic() + time_s
+    found: list[np.ndarray] = []
+    tries = 0
+    while len(found) < min(anchors, n) and time.monotonic() < deadline and tries < 40 * anchors:
+        tries += 1
+        q = sampler.attempt()
+        if q is not None:
+            found.append(q)
+    pending: list[np.ndarray] = []
+    walks = 0
+    while found and len(found) < n and time.monotonic() < deadline and walks < 20 * n:
+        walks += 1
+        q = sampler.pull(found[int(rng.integers(len(found)))]
+                         + rng.normal(0.0, walk_rad, robot.nq), walk_iterations)
+        if q is not None:
+            pending.append(q)
+        if len(pending) >= 16 or len(found) + len(pending) >= n:
+            P = np.array(pending)
+            found.extend(P[~collisions_batch(P)])
+            pending = []
+    return np.array(found[:n]).reshape(-1, robot.nq)
+
+
 def start_configuration(scene: Scene, robot: RobotModel) -> np.ndarray:
     """``q_init`` of a scene, or a clear error when the scene has none."""
     if scene.start is None:
@@ -161,4 +212,5 @@ def start_configuration(scene: Scene, robot: RobotModel) -> np.ndarray:
                               f'{scene.name}.start')
 
 
-__all__ = ['GoalSampler', 'IkConfig', 'dls_ik', 'goal_configuration', 'start_configuration']
+__all__ = ['GoalSampler', 'IkConfig', 'dls_ik', 'goal_configuration', 'goal_set',
+           'start_configuration']

@@ -26,8 +26,8 @@ from advocc_msgs.srv import Attack, GetInfo
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.node import Node
 
-from advocc_ros.attack import (KNOWN_METHODS, AttackConfig, AttackStatus, attack,
-                               available_methods, link_luts, load_method)
+from advocc_ros.attack import (AttackConfig, AttackStatus, attack, available_methods,
+                               link_luts)
 from advocc_ros.ros.conversions import (goal_region_from_msg, obstacle_to_msg, q_from_joint_state,
                                         scene_from_msgs)
 from advocc_ros.heatmap import HeatmapError, load_heatmap
@@ -169,16 +169,6 @@ class HeatmapServer(Node):
         if bad:
             return fail(ErrorCodes.INVALID_REQUEST, f'{bad}: non-finite number (NaN or inf)')
         method = request.method or 'ours'
-        if not load_method(method):
-            return fail(ErrorCodes.UNKNOWN_METHOD, f'unknown attack method {method!r}; known: '
-                        f'{sorted(KNOWN_METHODS)}')
-        cfg = self.cfg
-        if not 1 <= request.budget <= cfg.max_budget:
-            return fail(ErrorCodes.INVALID_REQUEST,
-                        f'budget must be in 1..{cfg.max_budget}, got {request.budget}')
-        if request.box_size < 0 or request.box_size > cfg.max_box_m:
-            return fail(ErrorCodes.INVALID_REQUEST, f'box_size must be in (0, {cfg.max_box_m}] '
-                        f'm (0: default {cfg.box_size_m}), got {request.box_size}')
         base = self.get_parameter('base_frame').value
         frames = {(o.header.frame_id, f'scene[{i}] {o.id!r}')
                   for i, o in enumerate(request.scene)}
@@ -207,14 +197,18 @@ class HeatmapServer(Node):
             goal = goal_region_from_msg(gmsg)
         except SceneError as exc:
             return fail(ErrorCodes.INVALID_GOAL_CONSTRAINTS, str(exc))
+        # Budget, box size, method and policy are checked by the core (errors are data).
         result = attack(self.heatmap, self.robot, objects, q_init, goal, int(request.budget),
-                        method, cfg, box_size_m=request.box_size or None, seed=request.seed)
+                        method, self.cfg, box_size_m=request.box_size or None,
+                        seed=request.seed, goal_policy=request.goal_policy or None)
         response.error_code.val = STATUS_CODES.get(result.status, ErrorCodes.FAILURE)
         response.message = result.message
         response.obstacles = [obstacle_to_msg(o, m)
                               for o, m in zip(result.obstacles, result.masses)]
         response.total_mass = float(result.total_mass)
         response.compute_time_s = float(result.compute_s)
+        response.goal_valid_fraction = (-1.0 if result.goal_valid_fraction is None
+                                        else float(result.goal_valid_fraction))
         return response
 
     def info(self) -> dict:

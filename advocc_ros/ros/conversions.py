@@ -212,8 +212,8 @@ def joint_state_from_dict(positions: dict[str, float]) -> JointState:
 
 
 def attack_request(scene: Scene, budget: int, method: str = 'ours', box_size_m: float = 0.0,
-                   seed: int = 0) -> Attack.Request:
-    """Attack.Request for a scene's objects, start and goal."""
+                   seed: int = 0, goal_policy: str = '') -> Attack.Request:
+    """Attack.Request for a scene's objects, start and goal ('' policy: the server's)."""
     if scene.start is None or scene.goal is None:
         raise SceneError(f'scene {scene.name!r} needs a start and a goal to attack')
     req = Attack.Request()
@@ -222,6 +222,7 @@ def attack_request(scene: Scene, budget: int, method: str = 'ours', box_size_m: 
     req.goal_region = goal_region_to_msg(scene.goal, scene.frame)
     req.budget, req.method, req.box_size, req.seed = int(budget), method, float(box_size_m), \
         int(seed)
+    req.goal_policy = goal_policy
     return req
 
 
@@ -239,7 +240,9 @@ def attack_response_data(res: Attack.Response, round_trip_s: float | None = None
             'message': res.message, 'obstacles': objects_to_data(obstacles_from_msgs(
                 res.obstacles)),
             'masses': [float(o.covered_mass) for o in res.obstacles],
-            'total_mass': float(res.total_mass), 'compute_ms': round(res.compute_time_s * 1e3, 3)}
+            'total_mass': float(res.total_mass), 'compute_ms': round(res.compute_time_s * 1e3, 3),
+            'goal_valid_fraction': (None if res.goal_valid_fraction < 0
+                                    else float(res.goal_valid_fraction))}
     if round_trip_s is not None:
         data['round_trip_ms'] = round(round_trip_s * 1e3, 3)
     return data

@@ -1,0 +1,150 @@
+"""Coverage over configurations: which boxes touch which robot configurations, and the greedy.
+
+The lattice relation matches ``ours``: a box centred at candidate c covers configuration q when
+a voxel centre inside the robot's links at q lies in U(c), the (2k+1)^3 voxel cube of the box.
+Links are rasterized with the heatmap's solid look-up tables in a compiled kernel, only where a
+candidate is near, so a configuration costs ~0.1 ms.
+"""
+
+from __future__ import annotations
+
+import numba
+import numpy as np
+
+from advocc_ros.attack.coverage import box_sum
+from advocc_ros.attack.region import SearchRegion
+from advocc_ros.heatmap.build import _LinkTables, _placement_arrays
+from advocc_ros.model.collision import CollisionWorld
+from advocc_ros.model.robot import RobotModel
+
+_TABLES: dict[tuple[str, float], _LinkTables] = {}
+
+
+def _tables(robot: RobotModel, pitch_m: float) -> _LinkTables:
+    key = (robot.hash, round(pitch_m, 9))
+    if key not in _TABLES:
+        _TABLES[key] = _LinkTables(robot, pitch_m)
+    return _TABLES[key]
+
+
+@numba.njit(cache=True, nogil=True)
+def _cover(cover, cand_id, near, stamp, win_origin, voxel, k, R, t, lut_data, lut_offset,
+           lut_shape, lut_origin, lut_pitch, box_lo, box_hi):
+    """``cover[s, cand_id[c]] = True`` for every candidate c whose cube U(c) (half-width k
+    voxels) holds a voxel centre inside a link of configuration s (window grid)."""
+    nx, ny, nz = cand_id.shape
+    for s in range(R.shape[0]):
+        for li in range(R.shape[1]):
+            r = R[s, li]
+            lo = np.empty(3, np.int64)
+            hi = np.empty(3, np.int64)
+            for a in range(3):
+                c = t[s, li, a]
+                e = 0.0
+                for b in range(3):
+                    mid = 0.5 * (box_lo[li, b] + box_hi[li, b])
+                    c += r[a, b] * mid
+                    e += abs(r[a, b]) * 0.5 * (box_hi[li, b] - box_lo[li, b])
+                n = cand_id.shape[a]
+                lo[a] = max(-k, int(np.ceil((c - e - win_origin[a]) / voxel - 0.5)))
+                hi[a] = min(n - 1 + k, int(np.floor((c + e - win_origin[a]) / voxel - 0.5)))
+            sx, sy, sz = lut_shape[li, 0], lut_shape[li, 1], lut_shape[li, 2]
+            off = lut_offset[li]
+            inv = 1.0 / lut_pitch
+            for i in range(lo[0], hi[0] + 1):
+                px = win_origin[0] + (i + 0.5) * voxel - t[s, li, 0]
+                for j in range(lo[1], hi[1] + 1):
+                    py = win_origin[1] + (j + 0.5) * voxel - t[s, li, 1]
+                    for kk in range(lo[2], hi[2] + 1):
+                        # near/stamp are padded by k: skip voxels with no candidate around
+                        # them and voxels another link of this configuration already did
+                        if not near[i + k, j + k, kk + k] or stamp[i + k, j + k, kk + k] == s:
+                            continue
+                        pz = win_origin[2] + (kk + 0.5) * voxel - t[s, li, 2]
+                        gx = int(np.floor((r[0, 0] * px + r[1, 0] * py + r[2, 0] * pz
+                                           - lut_origin[li, 0]) * inv))
+                        if gx < 0 or gx >= sx:
+                            continue
+                        gy = int(np.floor((r[0, 1] * px + r[1, 1] * py + r[2, 1] * pz
+                                           - lut_origin[li, 1]) * inv))
+                        if gy < 0 or gy >= sy:
+                            continue
+                        gz = int(np.floor((r[0, 2] * px + r[1, 2] * py + r[2, 2] * pz
+                                           - lut_origin[li, 2]) * inv))
+                        if gz < 0 or gz >= sz:
+                            continue
+                        if not lut_data[off + (gx * sy + gy) * sz + gz]:
+                            continue
+                        stamp[i + k, j + k, kk + k] = s
+                        for a0 in range(max(i - k, 0), min(i + k, nx - 1) + 1):
+                            for a1 in range(max(j - k, 0), min(j + k, ny - 1) + 1):
+                                for a2 in range(max(kk - k, 0), min(kk + k, nz - 1) + 1):
+                                    cid = cand_id[a0, a1, a2]
+                                    if cid >= 0:
+                                        cover[s, cid] = True
+    return cover
+
+
+def cover_matrix(robot: RobotModel, world: CollisionWorld, Q: np.ndarray,
+                 region: SearchRegion, shrink: int = 0) -> np.ndarray:
+    """(len(Q), n_candidates) bool: box at candidate j covers configuration i; ``shrink``
+    voxels off the box's half-width ask for a deeper contact."""
+    cand = np.argwhere(region.candidates)
+    cand_id = np.full(region.candidates.shape, -1, dtype=np.int64)
+    cand_id[tuple(cand.T)] = np.arange(len(cand))
+    cover = np.zeros((len(Q), len(cand)), dtype=np.bool_)
+    if not len(Q) or not len(cand):
+        return cover
+    grid = region.grid
+    tables = _tables(robot, grid.voxel_m / 4)
+    R, t = _placement_arrays(world, Q)
+    origin = np.asarray(grid.origin_m) + np.asarray(region.lo) * grid.voxel_m
+    k = max(region.k - shrink, 0)
+    near = np.pad(box_sum(region.candidates.astype(np.float64), k) > 0, k)
+    stamp = np.full(near.shape, -1, dtype=np.int64)
+    return _cover(cover, cand_id, near, stamp, origin, grid.voxel_m, k, R, t, tables.data,
+                  tables.offset, tables.shape, tables.origin, tables.pitch, tables.box_lo,
+                  tables.box_hi)
+
+
+def greedy_configurations(cover: np.ndarray, weights: np.ndarray, centers_m: np.ndarray,
+                          budget: int, d_min_m: float, accept=None, max_rejections: int = 500,
+                          bonus: np.ndarray | None = None, feasible=None
+                          ) -> tuple[list[int], int]:
+    """Greedy budgeted maximum coverage: up to ``budget`` candidate columns of ``cover``
+    (configurations x candidates), >= ``d_min_m`` apart, maximizing the ``weights`` of the
+    configurations covered (each once) plus a modular ``bonus`` per candidate; and how many
+    candidates ``accept`` refused. Picks with no gain left are not made. ``feasible()``, if
+    given, returns a mask of candidates still allowed (called before every pick).
+    Ties go to the lowest column, so the result is deterministic."""
+    alive = np.ones(cover.shape[1], dtype=bool)
+    uncovered = np.ones(cover.shape[0], dtype=bool)
+    score = weights @ cover if cover.size else np.zeros(cover.shape[1])
+    if bonus is not None:
+        score = score + bonus  # modular: every box earns its own, picks never change it
+    picks: list[int] = []
+    rejected = 0
+    while len(picks) < budget and alive.any():
+        if feasible is not None:
+            alive &= feasible()
+            if not alive.any():
+                break
+        j = int(np.argmax(np.where(alive, score, -np.inf)))
+        if score[j] <= 0:
+            break  # nothing left to cover: a further box would be no attack
+        if accept is not None and not accept(j):
+            alive[j] = False
+            rejected += 1
+            if rejected > max_rejections:
+                break
+            continue
+        newly = uncovered & cover[:, j]
+        if newly.any():
+            score = score - weights[newly] @ cover[newly]
+        uncovered &= ~newly
+        picks.append(j)
+        alive &= np.linalg.norm(centers_m - centers_m[j], axis=1) >= d_min_m
+    return picks, rejected
+
+
+__all__ = ['cover_matrix', 'greedy_configurations']

@@ -1,0 +1,133 @@
+"""Is the goal still there? Exact goal checks under placed boxes, and the goal policies.
+
+Every attack reports ``goal_valid_fraction``: of a fixed-seed set of goal-region IK samples
+that are valid without the boxes, the fraction still valid with them (coal, exact). It tells
+how a planner will fail: at 0 every goal pose is blocked (the planner reports
+GOAL_IN_COLLISION); above 0 the boxes must occlude the paths.
+
+Goal policies (SPEC §3b):
+
+- ``paper``: the paper's C3 only (d_safe from the robot at q_init and from G's position box);
+  boxes may block every goal pose;
+- ``reachable``: a pick is refused when it would leave fewer than ``reachable_fraction`` of the
+  fixed goal samples valid, so the attack has to occlude paths rather than the goal.
+
+The sample set depends on the task only (robot, scene, goal region; seed fixed), so it is
+computed once per task and cached: every attack of one task is judged on the same samples.
+"""
+
+from __future__ import annotations
+
+import collections
+import hashlib
+import json
+import math
+
+import coal
+import numpy as np
+
+from advocc_ros.model.collision import CollisionWorld
+from advocc_ros.model.ik import goal_set
+from advocc_ros.model.robot import RobotModel
+from advocc_ros.model.scene import GoalRegion, SceneObject, objects_to_data
+
+POLICIES = ('paper', 'reachable')
+VALIDATION_SEED = 7_345_001
+"""Seed of the goal samples behind ``goal_valid_fraction`` (fixed: comparable attacks)."""
+VALIDATION_SAMPLES = 32
+
+_CACHE: collections.OrderedDict[str, 'GoalSamples'] = collections.OrderedDict()
+_CACHE_SIZE = 16
+
+
+class GoalSamples:
+    """A fixed set of valid goal configurations and exact box checks against their bodies."""
+
+    def __init__(self, world: CollisionWorld, Q: np.ndarray):
+        self.Q = Q
+        self.links = [g.geometry for g in world.geom_model.geometryObjects[:world.n_links]]
+        self.tfs, centres, radii = [], [], []
+        for q in Q:
+            tfs = [coal.Transform3s(T.rotation, T.translation) for T in world.link_placements(q)]
+            self.tfs.append(tfs)
+            for g, tf in zip(self.links, tfs):
+                g.computeLocalAABB()
+                lo, hi = np.asarray(g.aabb_local.min_), np.asarray(g.aabb_local.max_)
+                centres.append(tf.getRotation() @ ((lo + hi) / 2) + tf.getTranslation())
+                radii.append(np.linalg.norm(hi - lo) / 2)
+        self.centres_m = np.array(centres).reshape(len(Q), len(self.links), 3)
+        """(n, links, 3) centre of each link's bounding box at each sample."""
+        self.radii_m = np.array(radii).reshape(len(Q), len(self.links))
+        self._req = coal.CollisionRequest()
+
+    def blocked_by(self, center_m: np.ndarray, box_size_m: float) -> np.ndarray:
+        """bool (n,): samples whose body the axis-aligned box at ``center_m`` touches."""
+        center_m = np.asarray(center_m, dtype=float)
+        reach = self.radii_m + box_size_m * math.sqrt(3) / 2
+        near = np.linalg.norm(self.centres_m - center_m, axis=-1) <= reach
+        out = np.zeros(len(self.Q), dtype=bool)
+        box = coal.Box(box_size_m, box_size_m, box_size_m)
+        tf = coal.Transform3s(np.eye(3), center_m)
+        for s, li in zip(*np.nonzero(near)):
+            if not out[s]:
+                out[s] = coal.collide(box, tf, self.links[li], self.tfs[s][li], self._req,
+                                      coal.CollisionResult())
+        return out
+
+    def valid_fraction(self, centers_m: np.ndarray, box_size_m: float) -> float | None:
+        """Fraction of the samples no box touches; None without samples (no IK solution)."""
+        if not len(self.Q):
+            return None
+        valid = np.ones(len(self.Q), dtype=bool)
+        for c in np.asarray(centers_m).reshape(-1, 3):
+            valid &= ~self.blocked_by(c, box_size_m)
+        return float(valid.mean())
+
+
+def _task_key(robot: RobotModel, objects: tuple[SceneObject, ...], goal: GoalRegion,
+              n: int) -> str:
+    text = json.dumps([robot.hash, objects_to_data(objects), goal.to_data(), n],
+                      sort_keys=True, default=float)
+    return hashlib.sha256(text.encode()).hexdigest()
+
+
+def goal_samples(robot: RobotModel, objects: tuple[SceneObject, ...], goal: GoalRegion,
+                 n: int = VALIDATION_SAMPLES, world: CollisionWorld | None = None
+                 ) -> GoalSamples:
+    """The task's fixed-seed goal samples (cached per task; ~60 ms the first time)."""
+    key = _task_key(robot, tuple(objects), goal, n)
+    if key in _CACHE:
+        _CACHE.move_to_end(key)
+        return _CACHE[key]
+    world = world or CollisionWorld(robot, [sh for o in objects for sh in o.shapes])
+    Q = goal_set(robot, world.collisions_batch, world.in_collision, goal, n, VALIDATION_SEED)
+    _CACHE[key] = GoalSamples(world, Q)
+    while len(_CACHE) > _CACHE_SIZE:
+        _CACHE.popitem(last=False)
+    return _CACHE[key]
+
+
+def clear_cache() -> None:
+    """Forget cached goal samples (benchmarks of the cold path call this)."""
+    _CACHE.clear()
+
+
+class GoalGuard:
+    """The ``reachable`` policy as a stateful check: ``admit`` commits the boxes it accepts."""
+
+    def __init__(self, samples: GoalSamples, box_size_m: float, min_fraction: float):
+        self.samples, self.box_size_m, self.min_fraction = samples, box_size_m, min_fraction
+        self.valid = np.ones(len(samples.Q), dtype=bool)
+
+    def admit(self, center_m: np.ndarray) -> bool:
+        if not len(self.valid):
+            return True
+        left = self.valid & ~self.samples.blocked_by(center_m, self.box_size_m)
+        if left.mean() < self.min_fraction - 1e-12:
+            return False
+        self.valid = left
+        return True
+
+
+__all__ = ['GoalGuard', 'GoalSamples', 'POLICIES', 'VALIDATION_SAMPLES', 'clear_cache',
+           'goal_samples']
