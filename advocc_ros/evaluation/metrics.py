@@ -81,6 +81,21 @@ class TrialRecord:
         return dataclasses.asdict(self)
 
 
+FAILURE_MODES = ('goal blocked', 'timed out', 'planning failed')
+"""How a trial failed, from its status: every goal pose in collision or unreachable by IK
+(the attack blocked the goal), out of time (the paths were occluded), anything else."""
+_GOAL_BLOCKED = {'GOAL_IN_COLLISION', 'NO_IK_SOLUTION'}
+
+
+def failure_mode(status: str) -> str | None:
+    """The failure mode of a trial status (a ``PlanStatus`` name); None for a success."""
+    if status == 'SUCCESS':
+        return None
+    if status in _GOAL_BLOCKED:
+        return 'goal blocked'
+    return 'timed out' if status == 'TIMED_OUT' else 'planning failed'
+
+
 def densify(path: np.ndarray, step_rad: float) -> np.ndarray:
     """Path (N, nq) linearly interpolated so consecutive points are <= ``step_rad`` apart."""
     path = np.asarray(path, dtype=float)
@@ -214,6 +229,9 @@ def aggregate(records: Iterable[TrialRecord | dict], time_budget_s: float) -> di
         'jds': _mean([r['jds_rad'] for r in ok]),
         'pt': _mean([r['planning_time_s'] if r['success'] else time_budget_s for r in rows]),
         'time_budget_s': time_budget_s,
+        'failures': {mode: sum(1 for r in rows if not r['success']
+                               and failure_mode(r.get('status', '')) == mode)
+                     for mode in FAILURE_MODES},
     }
 
 
