@@ -62,14 +62,17 @@ class MethodSpec:
     """Name in tables and figures."""
     needs_context: bool = False
     """The selector also takes ``context=MethodContext(...)`` (the task: robot, scene, q, G)."""
+    queries_planner: bool = False
+    """The method plans to choose its boxes (PFA, PFA++): a benchmark serves its queries."""
 
 
 REGISTRY: dict[str, MethodSpec] = {
     'ours': MethodSpec('advocc_ros.attack.methods', 'Ours'),
     'random': MethodSpec('advocc_ros.attack.methods', 'Random'),
     'task': MethodSpec('advocc_ros.attack.task', 'Task', needs_context=True),
-    'pfa': MethodSpec('advocc_ros.attack.pfa', 'PFA', needs_context=True),
-    'pfa++': MethodSpec('advocc_ros.attack.pfa', 'PFA++', needs_context=True),
+    'pfa': MethodSpec('advocc_ros.attack.pfa', 'PFA', needs_context=True, queries_planner=True),
+    'pfa++': MethodSpec('advocc_ros.attack.pfa', 'PFA++', needs_context=True,
+                        queries_planner=True),
 }
 """Every attack method by name: the one list the CLI, the nodes and the benchmark use.
 A new method adds one line here and calls :func:`register_method` in its module."""

@@ -1,7 +1,8 @@
 """The obstacles file (``format: advocc_obstacles``): its one writer and its reader.
 
 Keys, in this order: ``format``, ``version``, ``status``, ``message``, ``method``, ``budget``,
-``box_size_m``, ``masses``, ``total_mass``, ``compute_ms``, ``scene`` (``name``,
+``box_size_m``, ``masses``, ``total_mass``, ``compute_ms``, ``goal_policy``,
+``goal_valid_fraction``, ``scene`` (``name``,
 ``objects_hash``, ...), optionally ``heatmap``, then the writer's own keys (``seed``,
 ``source``, ...), and last ``objects`` (the scene-file format). Unknown values are null.
 Older files wrote ``compute_s`` instead of ``compute_ms`` and could lack ``box_size_m``; the
@@ -33,7 +34,8 @@ def obstacles_file_data(objects: Sequence[SceneObject], method: str, budget: int
                         box_size_m: float | None = None, masses: Sequence[float] | None = None,
                         total_mass: float | None = None, compute_ms: float | None = None,
                         scene: dict | None = None, heatmap: Heatmap | None = None,
-                        extra: dict | None = None) -> dict:
+                        extra: dict | None = None, goal_policy: str | None = None,
+                        goal_valid_fraction: float | None = None) -> dict:
     """The YAML mapping of an obstacles file (every writer builds it here).
 
     ``box_size_m`` defaults to the first box's edge; ``scene``: ``{'name', 'objects_hash'}``
@@ -46,6 +48,9 @@ def obstacles_file_data(objects: Sequence[SceneObject], method: str, budget: int
         'masses': None if masses is None else [float(m) for m in masses],
         'total_mass': None if total_mass is None else float(total_mass),
         'compute_ms': None if compute_ms is None else round(float(compute_ms), 3),
+        'goal_policy': goal_policy,
+        'goal_valid_fraction': (None if goal_valid_fraction is None
+                                else round(float(goal_valid_fraction), 6)),
         'scene': dict(scene) if scene is not None else {'name': None, 'objects_hash': None},
     }
     if heatmap is not None:
@@ -66,7 +71,8 @@ def obstacles_data(result: AttackResult, heatmap: Heatmap | None = None,
     return obstacles_file_data(
         result.obstacles, result.method, result.budget, result.status.value, result.message,
         result.box_size_m, result.masses, result.total_mass, result.compute_s * 1e3,
-        {'name': scene_name, 'objects_hash': scene_hash}, heatmap, extra)
+        {'name': scene_name, 'objects_hash': scene_hash}, heatmap, extra,
+        result.goal_policy or None, result.goal_valid_fraction)
 
 
 def save_obstacles(path: str | pathlib.Path, data: dict) -> None:

@@ -35,7 +35,7 @@ MAX_BUDGET = 90
 """Largest budget: one attack's REMOVE + ADDs must fit the latched topic's history (100)."""
 # Settings that change what a trial measures: a run folder refuses to mix them.
 IDENTITY_FIELDS = ('time_budget_s', 'seed', 'box_size_m', 'heatmap_samples',
-                   'heatmap_robot_only', 'variants')
+                   'heatmap_robot_only', 'variants', 'goal_policy')
 
 
 class BenchError(ValueError):
@@ -79,6 +79,8 @@ class BenchConfig:
     heatmap_workers: int = 2
     box_size_m: float = 0.0
     """Box edge [m]; 0: the heatmap server's default (0.05 m)."""
+    goal_policy: str = 'paper'
+    """Goal policy of the coverage attacks: ``paper`` or ``reachable`` (``attack.goals``)."""
     attack_timeout_s: float = 120.0
     """Longest wait for one attack (planner-in-the-loop methods need long ones)."""
     start_timeout_s: float = 120.0
@@ -133,6 +135,8 @@ class BenchConfig:
                 isinstance(v, int) and not isinstance(v, bool) and v >= 1
                 for v in self.variants.values()):
             fail(f'variants: expected method: count >= 1, got {self.variants!r}')
+        if self.goal_policy not in ('paper', 'reachable'):
+            fail(f"goal_policy={self.goal_policy!r}: expected 'paper' or 'reachable'")
         for pair in self.skip:
             if not isinstance(pair, str) or pair.count(':') != 1:
                 fail(f'skip: expected "method:planner" entries, got {pair!r}')
@@ -258,8 +262,15 @@ def plan_units(cfg: BenchConfig, available: Iterable[str] | None = None
     """
     available = set(cfg.methods if available is None else available)
     notes = []
+    if cfg.goal_policy == 'reachable':
+        for method in [m for m in cfg.methods if m in available
+                       and REGISTRY.get(m) and REGISTRY[m].queries_planner]:
+            available.discard(method)
+            notes.append(f'method {method!r} skipped: the goal policy reachable applies to the '
+                         'coverage methods')
     for method in cfg.methods:
-        if method not in available:
+        if method not in available and not (cfg.goal_policy == 'reachable' and REGISTRY.get(
+                method) and REGISTRY[method].queries_planner):
             notes.append(f'method {method!r} skipped: not available in this installation')
     for pair in cfg.skip:
         method, planner = pair.split(':')

@@ -10,7 +10,8 @@ from typing import Any
 from advocc_ros.attack.obstacles import obstacles_meta
 from advocc_ros.bench.protocol import BASELINE, BenchConfig
 from advocc_ros.bench.records import RecordStore
-from advocc_ros.bench.tables import baseline_table, cell_rows, table1, table2, table4
+from advocc_ros.bench.tables import (baseline_table, cell_rows, failure_table, table1, table2,
+                                     table4)
 from advocc_ros.fileio import atomic_write_text
 from advocc_ros.model.scene import read_yaml
 
@@ -84,6 +85,14 @@ def write_report(run_dir: str | pathlib.Path, cfg: BenchConfig, summary: dict | 
         'Offline: heatmap build (Ours). Online: core compute time of one attack, mean over '
         'the attacks generated in this run.\n\n' + md4)
     put('table4.csv', csv4)
+    stems = {scene: pathlib.Path(scene_path(scene)).stem for scene in cfg.scenes}
+    md_f, csv_f = failure_table(rows, metas, cfg, stems)
+    put('failures.md', '# How the trials failed\n\n'
+        'Per cell: trials that failed because every goal pose was blocked (GOAL_IN_COLLISION or '
+        'no IK solution), ran out of time, or failed otherwise; "Goal valid": of the task\'s '
+        'fixed goal samples valid without the boxes, the mean fraction still valid with them '
+        f'(goal policy {cfg.goal_policy}).\n\n' + md_f)
+    put('failures.csv', csv_f)
 
     # Figures: PSR vs budget per scene (one panel per planner); heatmap slice + obstacles.
     for i, scene in enumerate(cfg.scenes):
@@ -106,7 +115,7 @@ def write_report(run_dir: str | pathlib.Path, cfg: BenchConfig, summary: dict | 
         if scene in heatmaps:
             attack_files = sorted((run_dir / 'attacks' / stem).glob('*.yaml'))
             pick = None
-            for method in ['ours'] + list(cfg.methods):
+            for method in ['task', 'ours'] + list(cfg.methods):
                 cands = [(m['budget'], m['path']) for m in metas
                          if m['path'] in attack_files and m.get('method') == method]
                 if cands:

@@ -4,12 +4,13 @@ from __future__ import annotations
 
 import csv
 import io
+import pathlib
 from typing import Iterable
 
 from advocc_ros.attack.methods import KNOWN_METHODS
 from advocc_ros.bench.protocol import (BASELINE, METHOD_LABELS, PLANNER_LABELS, THRESHOLDS,
                                        BenchConfig, scene_label)
-from advocc_ros.evaluation.metrics import aggregate
+from advocc_ros.evaluation.metrics import FAILURE_MODES, aggregate
 
 
 # --------------------------------------------------------------------------------------------
@@ -166,6 +167,49 @@ def table2(rows: dict[tuple, dict], cfg: BenchConfig) -> tuple[str, str]:
                 md.append('| ' + ' | '.join(labels + [swept] + cells) + ' |')
                 writer.writerow([scene, planner, method, swept, top,
                                  *[v if v is not None else f'>{top}' for v in values]])
+    return '\n'.join(md) + '\n', out.getvalue()
+
+
+def failure_table(rows: dict[tuple, dict], attacks: list[dict], cfg: BenchConfig,
+                  stems: dict[str, str]) -> tuple[str, str]:
+    """How the trials failed (Markdown, CSV): per cell, PSR, the failure-mode counts and the
+    attacks' mean ``goal_valid_fraction`` (goal samples still valid with the boxes).
+
+    ``attacks``: attack-file metadata with its ``path`` (``attacks/<scene stem>/...``);
+    ``stems``: scene -> its file stem.
+    """
+    gvf: dict[tuple, list] = {}
+    for meta in attacks:
+        value = meta.get('goal_valid_fraction')
+        if value is not None and 'path' in meta:
+            key = (pathlib.Path(meta['path']).parent.name, meta.get('method'),
+                   int(meta.get('budget') or 0))
+            gvf.setdefault(key, []).append(float(value))
+    head = ['Scene', 'Planner', 'Method', 'M', 'Trials', 'PSR', *FAILURE_MODES, 'Goal valid']
+    md = ['| ' + ' | '.join(head) + ' |', '|' + '---|' * len(head)]
+    out = io.StringIO()
+    writer = csv.writer(out, lineterminator='\n')
+    writer.writerow(['scene', 'planner', 'method', 'budget', 'trials', 'psr_percent',
+                     *[m.replace(' ', '_') for m in FAILURE_MODES], 'goal_valid_fraction'])
+    for scene in cfg.scenes:
+        for planner in cfg.planners:
+            for method in [BASELINE, *cfg.methods]:
+                for budget in ([0] if method == BASELINE else cfg.all_budgets):
+                    row = rows.get((scene, planner, method, budget))
+                    if row is None:
+                        continue
+                    fails = row.get('failures', {})
+                    values = gvf.get((stems.get(scene, scene), method, budget))
+                    mean = sum(values) / len(values) if values else None
+                    md.append('| ' + ' | '.join([
+                        scene_label(cfg, scene), PLANNER_LABELS.get(planner, planner),
+                        METHOD_LABELS.get(method, method), str(budget), str(row['trials']),
+                        _psr_cell(row), *[str(fails.get(m, 0)) for m in FAILURE_MODES],
+                        '1.00' if method == BASELINE else _fmt(mean, 2)]) + ' |')
+                    writer.writerow([scene, planner, method, budget, row['trials'],
+                                     _csv_num(None if row['psr'] is None else 100 * row['psr']),
+                                     *[fails.get(m, 0) for m in FAILURE_MODES],
+                                     _csv_num(1.0 if method == BASELINE else mean)])
     return '\n'.join(md) + '\n', out.getvalue()
 
 

@@ -51,9 +51,8 @@ class AttackSources:
                 log.warning('%s does not match %s: regenerating', path, spec)
             except SceneError as exc:
                 log.warning('%s unreadable (%s): regenerating', path, exc)
-        from advocc_ros.attack import CONTEXT_METHODS, load_method
-        load_method(spec.method)
-        if spec.method in CONTEXT_METHODS:
+        from advocc_ros.attack import REGISTRY
+        if REGISTRY[spec.method].queries_planner:
             objects, meta = self._generate_in_the_loop(spec)
         else:
             objects, meta = self._generate(spec)
@@ -70,7 +69,7 @@ class AttackSources:
         if self.server is None:
             raise BenchError(f'no heatmap server for {spec} (internal error)')
         request = attack_request(self.scene, spec.budget, spec.method, self.cfg.box_size_m,
-                                 spec.seed)
+                                 spec.seed, self.cfg.goal_policy)
         for attempt in range(self.cfg.max_restarts + 1):
             self._supervise()
             try:
@@ -95,6 +94,7 @@ class AttackSources:
             boxes, spec.method, spec.budget, data['status'].lower(), res.message,
             masses=data['masses'], total_mass=data['total_mass'],
             compute_ms=res.compute_time_s * 1e3, scene=self._scene_meta(),
+            goal_policy=self.cfg.goal_policy, goal_valid_fraction=data['goal_valid_fraction'],
             extra=dict(self._spec_meta(spec), round_trip_s=round(round_trip, 4),
                        source=f'/{self.server.name}/attack',
                        heatmap_file=self.server.params['heatmap_file']))
