@@ -12,7 +12,7 @@ import importlib
 import logging
 import sys
 
-COMMANDS = ['heatmap', 'perf', 'demo', 'evaluate', 'attack', 'call', 'scenes', 'bench']
+COMMANDS = ['heatmap', 'perf', 'demo', 'audit', 'evaluate', 'attack', 'call', 'scenes', 'bench']
 
 
 class UserError(Exception):

@@ -23,9 +23,10 @@ _AXES = 'xyz'
 
 def plot_heatmap_slices(heatmap: Heatmap, out: str | pathlib.Path, scene: Scene | None = None,
                         obstacles: tuple[SceneObject, ...] | None = None,
-                        at_m: list[float] | None = None) -> None:
+                        at_m: list[float] | None = None, numbered: bool = False) -> None:
     """Three orthogonal slices of H through ``at_m`` (default: the peak of H outside the
-    robot's fixed base, which every sample occupies). Scene voxels are grey, obstacles red."""
+    robot's fixed base, which every sample occupies). Scene voxels are grey, obstacles red;
+    ``numbered`` labels obstacle i (in the given order) with i + 1."""
     grid, H = heatmap.grid, heatmap.values
     if at_m is None:
         masked = H.copy()
@@ -51,7 +52,7 @@ def plot_heatmap_slices(heatmap: Heatmap, out: str | pathlib.Path, scene: Scene 
                         cmap='inferno', norm=norm, interpolation='nearest')
         ax.imshow(np.ma.masked_equal(blocked.T.astype(float), 0), origin='lower', extent=extent,
                   cmap='Greys', vmin=0, vmax=1.5, alpha=0.8, interpolation='nearest')
-        for obj in obstacles or ():
+        for number, obj in enumerate(obstacles or (), start=1):
             for shape in obj.shapes:
                 c, size = np.asarray(shape.pose.position_m), np.asarray(shape.dims)
                 if abs(c[normal] - at[normal]) <= size[normal] / 2 + grid.voxel_m:
@@ -59,6 +60,12 @@ def plot_heatmap_slices(heatmap: Heatmap, out: str | pathlib.Path, scene: Scene 
                                            size[b], fill=False, ec='red', lw=2))
                 else:
                     ax.plot(c[a], c[b], 's', mfc='none', mec='red', ms=6)
+                if numbered:
+                    ax.annotate(str(number), (c[a] + size[a] / 2, c[b] + size[b] / 2),
+                                color='red', fontsize=10, fontweight='bold',
+                                xytext=(2, 2), textcoords='offset points',
+                                bbox=dict(boxstyle='round,pad=0.1', fc='white', alpha=0.6,
+                                          lw=0))
         if scene is not None and scene.goal is not None:
             g = np.asarray(scene.goal.center.position_m)
             ax.plot(g[a], g[b], '*', color='cyan', ms=14, label='goal region centre')
@@ -107,6 +114,31 @@ def plot_psr_vs_budget(curves: dict[tuple[str, str], dict[int, float]],
         ax.legend(fontsize=8)
     if title:
         fig.suptitle(title)
+    with atomic_open(out, 'wb') as handle:
+        fig.savefig(handle, format='png', dpi=90)
+    plt.close(fig)
+
+
+def plot_audit_psr(psr: dict[str, list[float]], goal_valid: list[float | None],
+                   out: str | pathlib.Path, title: str = '') -> None:
+    """An audit's curves: PSR [%] of each planner against the prefix budget m (one attack's
+    first m boxes), and the share of goal poses the boxes leave valid (dashed)."""
+    fig, ax = plt.subplots(figsize=(6.5, 4.2), constrained_layout=True)
+    for planner, curve in psr.items():
+        ax.plot(range(len(curve)), [100 * v for v in curve], marker='o', label=planner)
+    m = [i for i, v in enumerate(goal_valid) if v is not None]
+    ax.plot(m, [100 * goal_valid[i] for i in m], ls='--', color='gray',
+            label='goal poses valid')
+    for level in (80, 60, 40, 20):
+        ax.axhline(level, color='black', lw=0.5, alpha=0.25)
+    ax.set_xlabel('boxes m (prefix of the attack, pick order)')
+    ax.set_ylabel('PSR, goal poses valid [%]')
+    ax.set_ylim(-3, 103)
+    ax.xaxis.set_major_locator(MaxNLocator(integer=True))
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=8)
+    if title:
+        ax.set_title(title)
     with atomic_open(out, 'wb') as handle:
         fig.savefig(handle, format='png', dpi=90)
     plt.close(fig)

@@ -1,5 +1,5 @@
-"""Metrics of planned trajectories (PSR, SMR, CMR, JDS, PT), evaluation drivers, speed figures.
-No ROS.
+"""Metrics of planned trajectories (PSR, SMR, CMR, JDS, PT), evaluation drivers, the audit (how
+few boxes make a planner fail one task), speed figures. No ROS.
 """
 
 from advocc_ros.evaluation.metrics import (FAILURE_MODES, MetricsConfig, TrialRecord, aggregate,
@@ -7,8 +7,10 @@ from advocc_ros.evaluation.metrics import (FAILURE_MODES, MetricsConfig, TrialRe
                                            joint_deviation, min_clearance, min_manipulability,
                                            random_directions, trial_metrics)
 from advocc_ros.evaluation.perf import benchmark_planning, machine
+from advocc_ros.evaluation.audit import AuditConfig, minimal_budgets, run_audit, write_audit
 
 __all__ = [
-    'FAILURE_MODES', 'MetricsConfig', 'TrialRecord', 'aggregate', 'benchmark_planning',
-    'densify', 'evaluate_planner', 'failure_mode', 'format_value', 'joint_deviation', 'machine',
-    'min_clearance', 'min_manipulability', 'random_directions', 'trial_metrics']
+    'AuditConfig', 'FAILURE_MODES', 'MetricsConfig', 'TrialRecord', 'aggregate',
+    'benchmark_planning', 'densify', 'evaluate_planner', 'failure_mode', 'format_value',
+    'joint_deviation', 'machine', 'min_clearance', 'min_manipulability', 'minimal_budgets',
+    'random_directions', 'run_audit', 'trial_metrics', 'write_audit']

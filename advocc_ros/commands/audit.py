@@ -1,0 +1,145 @@
+"""``advocc audit``: how few boxes make each planner fail this task, and where do they go?
+
+One attack at the largest budget K, then its prefixes m = 0, 1, 2, ... evaluated per planner
+(greedy picks are nested) until every planner is at PSR 0 %. Writes ``DIR/audit.md``,
+``DIR/audit.json`` and two figures; prints the answer and the per-budget table (``--json``:
+the audit as JSON). Progress goes to stderr.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import pathlib
+import sys
+import time
+
+from advocc_ros.cli import UserError
+from advocc_ros.commands.common import add_scene_args, scene_from_args
+
+HEATMAP_SAMPLES = 15000
+"""Samples of the heatmap the audit builds when none is given (~5-9 s on 2 cores)."""
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    from advocc_ros.attack.goals import POLICIES
+    from advocc_ros.attack.methods import KNOWN_METHODS
+
+    p = sub.add_parser('audit', help='how few boxes make each planner fail this task',
+                       description=__doc__.splitlines()[0])
+    add_scene_args(p)
+    p.add_argument('--planners', default='rrtconnect,prmstar,bkpiece1',
+                   help='comma-separated OMPL planner ids (default %(default)s)')
+    p.add_argument('--method', default='task', choices=KNOWN_METHODS,
+                   help='attack method; greedy ones (task, ours) give nested picks '
+                        '(default %(default)s)')
+    p.add_argument('--policy', default='paper', choices=POLICIES,
+                   help='goal policy: paper (boxes may block every goal pose) or reachable '
+                        '(default %(default)s)')
+    p.add_argument('--max-budget', type=int, default=5, metavar='K',
+                   help='boxes of the attack whose prefixes are evaluated (default %(default)s)')
+    p.add_argument('--trials', type=int, default=10,
+                   help='plan requests per planner and budget (default %(default)s)')
+    p.add_argument('--time', type=float, default=5.0,
+                   help='budget of one plan request [s] (default %(default)s, the paper\'s)')
+    p.add_argument('--heatmap', metavar='FILE',
+                   help='heatmap .npz (default: build one into DIR, or reuse it there)')
+    p.add_argument('--workers', type=int, default=2,
+                   help='planner processes in parallel (default %(default)s; PT is wall time)')
+    p.add_argument('--seed', type=int, default=0,
+                   help='attack seed; trial k of every budget uses seed SEED + k')
+    p.add_argument('--out', required=True, metavar='DIR', help='output folder')
+    p.add_argument('--json', action='store_true', help='print the audit as JSON')
+    p.set_defaults(func=run)
+
+
+def audit_config(args: argparse.Namespace):
+    """``AuditConfig`` from the arguments, with the user's errors as ``UserError``."""
+    from advocc_ros.attack import load_method
+    from advocc_ros.evaluation.audit import AuditConfig
+    from advocc_ros.limits import MAX_TRIALS
+    from advocc_ros.planning import PlanningConfig, planner_class_name
+
+    planners = tuple(p.strip() for p in args.planners.split(',') if p.strip())
+    if not planners:
+        raise UserError('--planners: give at least one planner')
+    unknown = [p for p in planners if planner_class_name(p) is None]
+    if unknown:
+        raise UserError(f'unknown planner(s) {unknown}; e.g. rrtconnect, prmstar, bkpiece1')
+    if not 1 <= args.trials <= MAX_TRIALS:
+        raise UserError(f'--trials must be in 1..{MAX_TRIALS}, got {args.trials}')
+    if not 1 <= args.max_budget <= 100:
+        raise UserError(f'--max-budget must be in 1..100, got {args.max_budget}')
+    if not 0 < args.time <= PlanningConfig().max_time_budget_s:
+        raise UserError(f'--time must be in (0, {PlanningConfig().max_time_budget_s:g}] s')
+    if args.workers < 1:
+        raise UserError('--workers must be >= 1')
+    if not load_method(args.method):
+        raise UserError(f'method {args.method!r} is not available in this installation')
+    if args.method in ('pfa', 'pfa++'):
+        raise UserError(f'--method {args.method} queries planners while placing boxes; the '
+                        'audit needs a heatmap method (task, ours, random)')
+    return AuditConfig(planners=planners, max_budget=args.max_budget, trials=args.trials,
+                       time_budget_s=args.time, method=args.method, policy=args.policy,
+                       seed=args.seed, workers=args.workers)
+
+
+def audit_heatmap(scene, out: pathlib.Path, heatmap_file: str | None, workers: int,
+                  samples: int = HEATMAP_SAMPLES, log=print):
+    """The heatmap of ``--heatmap``, or ``out/heatmap_<scene>.npz`` (built there if missing)."""
+    from advocc_ros.heatmap import (HeatmapConfig, HeatmapError, build_heatmap, load_heatmap,
+                                    save_heatmap)
+    from advocc_ros.model import load_robot
+
+    robot_hash = load_robot(scene.robot).hash
+    path = pathlib.Path(heatmap_file) if heatmap_file else out / f'heatmap_{scene.name}.npz'
+    try:
+        if heatmap_file or path.exists():
+            heatmap = load_heatmap(path, robot_hash=robot_hash)
+            log(f'heatmap: {path}')
+            return heatmap
+    except HeatmapError as exc:
+        raise UserError(str(exc)) from None
+    t0 = time.perf_counter()
+    heatmap = build_heatmap(scene, HeatmapConfig(samples=samples), seed=0, workers=workers)
+    save_heatmap(heatmap, path)
+    log(f'heatmap: built {path} ({samples} samples) in {time.perf_counter() - t0:.1f} s')
+    return heatmap
+
+
+def run_audit_to(scene, heatmap, cfg, out: pathlib.Path, log=print) -> dict:
+    """Run the audit with a progress line per evaluation on stderr and write its files."""
+    from advocc_ros.evaluation.audit import planner_label, run_audit, write_audit
+
+    def progress(m: int, planner: str, row: dict) -> None:
+        print(f'  m={m} {planner_label(planner):<11} PSR {100 * row["psr"]:3.0f} % '
+              f'({row["successes"]}/{row["trials"]}, PT {row["pt"]:.2f} s)', file=sys.stderr,
+              flush=True)
+
+    audit = run_audit(scene, heatmap, cfg, progress=progress)
+    paths = write_audit(audit, out, heatmap, scene)
+    log(f'audit: {paths["audit.md"]}, {paths["audit.json"]}, figures '
+        f'{paths["audit_slices.png"]}, {paths["audit_psr.png"]} ({audit["wall_s"]:.0f} s)')
+    return audit
+
+
+def run(args: argparse.Namespace) -> int:
+    from advocc_ros.evaluation.audit import audit_answer, budget_table
+
+    cfg = audit_config(args)
+    scene = scene_from_args(args)
+    if scene.start is None or scene.goal is None:
+        raise UserError(f'{args.scene}: the scene needs a start and a goal to be audited')
+    out = pathlib.Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    log = (lambda text: print(text, file=sys.stderr)) if args.json else print
+    heatmap = audit_heatmap(scene, out, args.heatmap, args.workers, log=log)
+    audit = run_audit_to(scene, heatmap, cfg, out, log=log)
+    if args.json:
+        print(json.dumps(audit, indent=1))
+    else:
+        print()
+        print(audit_answer(audit))
+        print()
+        print(budget_table(audit))
+    return 0
