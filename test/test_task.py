@@ -97,7 +97,7 @@ def test_cover_matrix_matches_a_direct_rasterization(panda, heatmap, task):
     world = CollisionWorld(panda, [s for o in objects for s in o.shapes])
     Q = goal_set(panda, world.collisions_batch, world.in_collision, goal, 4, seed=2)
     assert len(Q) == 4
-    cover = cover_matrix(panda, world, Q, region)
+    cover = cover_matrix(panda, world, Q, region).toarray().astype(bool)
     cand = np.argwhere(region.candidates)
     k = region.k
     for row, qs in zip(cover, Q):

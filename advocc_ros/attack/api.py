@@ -116,9 +116,9 @@ def attack(heatmap: Heatmap, robot: RobotModel, objects: tuple[SceneObject, ...]
                               f'{method} (its planner queries already see a blocked goal)')
         q_init = np.asarray(q_init, dtype=float)
         region = search_region(heatmap, robot, objects, q_init, goal, cfg, s)
-        samples = goal_samples(robot, objects, goal)
-        if policy == 'reachable':
-            region.guard = GoalGuard(samples, s, cfg.reachable_fraction)
+        if policy == 'reachable':  # the goal samples are part of the attack: timed
+            region.guard = GoalGuard(goal_samples(robot, objects, goal), s,
+                                     cfg.reachable_fraction)
         extra = {}
         if method in CONTEXT_METHODS:
             extra['context'] = MethodContext(robot, objects, q_init, goal, method_options)
@@ -140,11 +140,14 @@ def attack(heatmap: Heatmap, robot: RobotModel, objects: tuple[SceneObject, ...]
     else:
         status, message = AttackStatus.SUCCESS, f'placed {len(obstacles)} boxes'
     compute_s = time.perf_counter() - t0
-    # Diagnostic, not attack time: how many goal poses the boxes leave (cached samples).
+    # Diagnostic, not attack time: how many goal poses the boxes leave (samples cached per
+    # task, so a task's attacks are judged on the same samples).
     t1 = time.perf_counter()
+    samples = goal_samples(robot, objects, goal)
     fraction = samples.valid_fraction(
         np.array([o.shapes[0].pose.position_m for o in obstacles]), s)
     stats['goal_check_ms'] = round((time.perf_counter() - t1) * 1e3, 3)
+    stats['goal_samples'] = len(samples.Q)
     result = AttackResult(status, message, obstacles, masses, float(sum(masses)), compute_s,
                           stats=stats, goal_valid_fraction=fraction, **base)
     log.info('attack %s M=%d: %s, mass %.3f, %.1f ms, goal valid %s', method, budget,

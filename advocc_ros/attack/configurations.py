@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import numba
 import numpy as np
+from scipy import sparse
 
 from advocc_ros.attack.coverage import box_sum
 from advocc_ros.attack.region import SearchRegion
@@ -86,15 +87,15 @@ def _cover(cover, cand_id, near, stamp, win_origin, voxel, k, R, t, lut_data, lu
 
 
 def cover_matrix(robot: RobotModel, world: CollisionWorld, Q: np.ndarray,
-                 region: SearchRegion, shrink: int = 0) -> np.ndarray:
-    """(len(Q), n_candidates) bool: box at candidate j covers configuration i; ``shrink``
-    voxels off the box's half-width ask for a deeper contact."""
+                 region: SearchRegion, shrink: int = 0) -> sparse.csr_matrix:
+    """(len(Q), n_candidates) sparse 0/1: box at candidate j covers configuration i;
+    ``shrink`` voxels off the box's half-width ask for a deeper contact."""
     cand = np.argwhere(region.candidates)
+    if not len(Q) or not len(cand):
+        return sparse.csr_matrix((len(Q), len(cand)))
     cand_id = np.full(region.candidates.shape, -1, dtype=np.int64)
     cand_id[tuple(cand.T)] = np.arange(len(cand))
-    cover = np.zeros((len(Q), len(cand)), dtype=np.bool_)
-    if not len(Q) or not len(cand):
-        return cover
+    dense = np.zeros((len(Q), len(cand)), dtype=np.bool_)
     grid = region.grid
     tables = _tables(robot, grid.voxel_m / 4)
     R, t = _placement_arrays(world, Q)
@@ -102,26 +103,31 @@ def cover_matrix(robot: RobotModel, world: CollisionWorld, Q: np.ndarray,
     k = max(region.k - shrink, 0)
     near = np.pad(box_sum(region.candidates.astype(np.float64), k) > 0, k)
     stamp = np.full(near.shape, -1, dtype=np.int64)
-    return _cover(cover, cand_id, near, stamp, origin, grid.voxel_m, k, R, t, tables.data,
-                  tables.offset, tables.shape, tables.origin, tables.pitch, tables.box_lo,
-                  tables.box_hi)
+    _cover(dense, cand_id, near, stamp, origin, grid.voxel_m, k, R, t, tables.data,
+           tables.offset, tables.shape, tables.origin, tables.pitch, tables.box_lo,
+           tables.box_hi)
+    rows, cols = np.nonzero(dense)
+    return sparse.csr_matrix((np.ones(len(rows)), (rows, cols)), shape=dense.shape)
 
 
-def greedy_configurations(cover: np.ndarray, weights: np.ndarray, centers_m: np.ndarray,
-                          budget: int, d_min_m: float, accept=None, max_rejections: int = 500,
-                          bonus: np.ndarray | None = None, feasible=None
-                          ) -> tuple[list[int], int]:
+def greedy_configurations(cover: sparse.spmatrix | np.ndarray, weights: np.ndarray,
+                          centers_m: np.ndarray, budget: int, d_min_m: float, accept=None,
+                          max_rejections: int = 500, bonus: np.ndarray | None = None,
+                          feasible=None) -> tuple[list[int], int]:
     """Greedy budgeted maximum coverage: up to ``budget`` candidate columns of ``cover``
-    (configurations x candidates), >= ``d_min_m`` apart, maximizing the ``weights`` of the
-    configurations covered (each once) plus a modular ``bonus`` per candidate; and how many
-    candidates ``accept`` refused. Picks with no gain left are not made. ``feasible()``, if
-    given, returns a mask of candidates still allowed (called before every pick).
+    (configurations x candidates, 0/1), >= ``d_min_m`` apart, maximizing the ``weights`` of
+    the configurations covered (each once) plus a modular ``bonus`` per candidate; and how
+    many candidates ``accept`` refused. Picks with no gain left are not made. ``feasible()``,
+    if given, returns a mask of candidates still allowed (called before every pick).
     Ties go to the lowest column, so the result is deterministic."""
-    alive = np.ones(cover.shape[1], dtype=bool)
-    uncovered = np.ones(cover.shape[0], dtype=bool)
-    score = weights @ cover if cover.size else np.zeros(cover.shape[1])
+    rows = sparse.csr_matrix(cover, dtype=np.float64)
+    cols = rows.tocsc()
+    weights = np.asarray(weights, dtype=np.float64)
+    score = rows.T @ weights
     if bonus is not None:
         score = score + bonus  # modular: every box earns its own, picks never change it
+    alive = np.ones(rows.shape[1], dtype=bool)
+    uncovered = np.ones(rows.shape[0], dtype=bool)
     picks: list[int] = []
     rejected = 0
     while len(picks) < budget and alive.any():
@@ -138,10 +144,11 @@ def greedy_configurations(cover: np.ndarray, weights: np.ndarray, centers_m: np.
             if rejected > max_rejections:
                 break
             continue
-        newly = uncovered & cover[:, j]
-        if newly.any():
-            score = score - weights[newly] @ cover[newly]
-        uncovered &= ~newly
+        hit = cols.indices[cols.indptr[j]:cols.indptr[j + 1]]
+        newly = hit[uncovered[hit]]
+        if len(newly):
+            score -= rows[newly].T @ weights[newly]
+            uncovered[newly] = False
         picks.append(j)
         alive &= np.linalg.norm(centers_m - centers_m[j], axis=1) >= d_min_m
     return picks, rejected

@@ -34,6 +34,7 @@ import dataclasses
 import time
 
 import numpy as np
+from scipy import sparse
 
 from advocc_ros.attack.configurations import cover_matrix, greedy_configurations
 from advocc_ros.attack.goals import GoalGuard
@@ -88,13 +89,14 @@ def approach_samples(world: CollisionWorld, q_init: np.ndarray, Q_goal: np.ndarr
     return Q[~world.collisions_batch(Q)] if len(Q) else Q
 
 
-def _goal_filter(guard: GoalGuard, sample_cover: np.ndarray):
+def _goal_filter(guard: GoalGuard, sample_cover: sparse.csr_matrix):
     """Candidates that keep enough goal samples valid by the lattice estimate (the guard's
     exact check still follows); called before every pick."""
     def feasible() -> np.ndarray:
         if not len(guard.valid):
             return np.ones(sample_cover.shape[1], dtype=bool)
-        left = (guard.valid[:, None] & ~sample_cover).mean(axis=0)
+        blocked = sample_cover.T @ guard.valid.astype(np.float64)  # valid samples each blocks
+        left = (guard.valid.sum() - blocked) / len(guard.valid)
         return left >= guard.min_fraction - 1e-12
     return feasible
 
@@ -123,7 +125,7 @@ def _select_task(region: SearchRegion, budget: int, seed: int, cfg: AttackConfig
         unit = 1.0 / max(float(w[:n_goal].min(initial=1.0)), 1e-3)
         w_deep = w[:n_goal] * (1.0 + w_app.sum()) * unit
         w_goal = w[:n_goal] * (2.0 + w_app.sum() + w_deep.sum()) * unit
-        cover = np.concatenate([cover[:n_goal], deep, cover[n_goal:]])
+        cover = sparse.vstack([cover[:n_goal], deep, cover[n_goal:]], format='csr')
         weights = np.concatenate([w_goal, w_deep, w_app])
         w = np.concatenate([w[:n_goal], np.zeros(n_goal), w_app])  # reported mass: once each
     else:  # reachable: approaches only, and skip picks that would block too many goals
@@ -138,16 +140,19 @@ def _select_task(region: SearchRegion, budget: int, seed: int, cfg: AttackConfig
         cover, weights, centers, budget, region.d_min_m,
         lambda j: region.accept(cand[j]), cfg.max_rejections, feasible=feasible)
     # Report each box's marginal w(q) mass (unscaled), and what stayed uncovered.
-    covered = np.zeros(len(cover), dtype=bool)
+    covered = np.zeros(cover.shape[0], dtype=bool)
     masses = []
+    cols = cover.tocsc()
     for j in picks:
-        newly = cover[:, j] & ~covered
+        newly = np.zeros(cover.shape[0], dtype=bool)
+        newly[cols.indices[cols.indptr[j]:cols.indptr[j + 1]]] = True
+        newly &= ~covered
         masses.append(float(w[newly].sum()))
         covered |= newly
     region.stats.update({
         'task_goal_samples': n_goal, 'task_approach_samples': len(Q_app),
         'task_goal_covered': int(covered[:n_goal].sum()),
-        'task_approach_covered': int(covered[len(cover) - len(Q_app):].sum()),
+        'task_approach_covered': int(covered[cover.shape[0] - len(Q_app):].sum()),
         'task_sampling_ms': round((t_sample - t0) * 1e3, 1),
         'task_cover_ms': round((t_cover - t_sample) * 1e3, 1)})
     if len(picks) < budget and len(picks) and not rejected > cfg.max_rejections:

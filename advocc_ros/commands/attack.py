@@ -17,14 +17,22 @@ from advocc_ros.model.scene import SceneError, load_scene
 
 def register(sub: argparse._SubParsersAction) -> None:
     defaults = AttackConfig()
-    p = sub.add_parser('attack', help='place adversarial boxes (paper Algorithm 1, Random, '
-                       'PFA, PFA++)')
+    p = sub.add_parser('attack', help='place adversarial boxes (Task, the paper\'s Algorithm 1, '
+                       'Random, PFA, PFA++)')
     p.add_argument('--heatmap', required=True, help='heatmap .npz file')
     p.add_argument('--scene', required=True, help='scene YAML (or a name in config/scenes) '
                    'with start and goal')
     p.add_argument('--budget', type=int, required=True, help='M, number of boxes')
     # pfa / pfa++ are planner-in-the-loop baselines provided by advocc_ros.attack.pfa when present.
-    p.add_argument('--method', default='ours', choices=KNOWN_METHODS)
+    p.add_argument('--method', default='ours', choices=KNOWN_METHODS,
+                   help='task: coverage of the task\'s goal and approach configurations (makes '
+                   'planners fail); ours: the paper\'s heatmap coverage (default)')
+    p.add_argument('--policy', default=defaults.goal_policy, choices=('paper', 'reachable'),
+                   help='goal policy: paper (boxes may block every goal pose) or reachable '
+                   '(keep --reachable-fraction of fixed goal samples valid; default '
+                   '%(default)s)')
+    p.add_argument('--reachable-fraction', type=float, default=defaults.reachable_fraction,
+                   help='under --policy reachable (default %(default)s)')
     p.add_argument('--size', type=float, default=defaults.box_size_m,
                    help='box edge s [m] (default %(default)s)')
     p.add_argument('--corridor', type=float, default=defaults.corridor_radius_m,
@@ -58,7 +66,8 @@ def _attack(args: argparse.Namespace) -> int:
         raise UserError(f'method {args.method!r} is not available in this installation')
     try:
         cfg = AttackConfig(box_size_m=args.size, corridor_radius_m=args.corridor,
-                           d_safe_m=args.d_safe, d_min_m=args.d_min)
+                           d_safe_m=args.d_safe, d_min_m=args.d_min, goal_policy=args.policy,
+                           reachable_fraction=args.reachable_fraction)
     except ValueError as exc:
         raise UserError(str(exc)) from None
     try:
@@ -95,6 +104,10 @@ def _attack(args: argparse.Namespace) -> int:
             x, y, z = obj.shapes[0].pose.position_m
             print(f'  {obj.id:8s} centre [{x:+.3f}, {y:+.3f}, {z:+.3f}] m  mass {mass:.3f}')
         print(f'  total mass {result.total_mass:.3f}')
+        if result.goal_valid_fraction is not None:
+            print(f'  goal poses still valid: {100 * result.goal_valid_fraction:.0f} % of '
+                  f'{result.stats["goal_samples"]} fixed goal samples (policy '
+                  f'{result.goal_policy})')
     if result.status == AttackStatus.PARTIAL:
         print(f'advocc attack: warning: {result.message}', file=sys.stderr)
     return 0
