@@ -1,10 +1,12 @@
 """``advocc demo``: the main job end to end on the default scene (what `make demo` runs).
 
 1. offline: build (or reuse) the kinematic occupancy heatmap and plot its slices;
-2. online: attack through the ROS graph (heatmap_server + attacker processes);
-3. benchmark: the orchestrator runs a short version of the paper's protocol on the scene
-   (heatmap_server + planner shims as processes; ours and random, budgets 1/3/5, the three
-   OMPL planners, an unattacked baseline) and prints Table I.
+2. MAIN: the audit (``advocc audit``): how few boxes make RRTConnect, PRM* and BKPIECE1 fail
+   the pick, and where do they go (one task attack, goal policy paper, its prefixes evaluated);
+3. online: the task attack through the ROS graph (heatmap_server + attacker processes);
+4. benchmark: the orchestrator runs a short version of the paper's protocol on the scene
+   (heatmap_server + planner shims as processes; task, ours and random, budgets 1 and 3, the
+   three OMPL planners, an unattacked baseline, 3 trials per cell) and prints Table I.
 """
 
 from __future__ import annotations
@@ -27,10 +29,16 @@ def register(sub: argparse._SubParsersAction) -> None:
     parser.add_argument('--samples', type=int, default=HeatmapConfig.samples)
     parser.add_argument('--workers', type=int, default=os.cpu_count() or 1)
     parser.add_argument('--rebuild', action='store_true', help='rebuild an existing heatmap')
+    parser.add_argument('--audit-budget', type=int, default=5,
+                        help='audit: boxes of the attack whose prefixes are evaluated')
+    parser.add_argument('--audit-trials', type=int, default=6,
+                        help='audit: trials per planner and budget')
+    parser.add_argument('--audit-time', type=float, default=5.0,
+                        help='audit: planning budget [s] (the paper\'s 5)')
     parser.add_argument('--budget', type=int, default=3, help='boxes for the attack stage')
-    parser.add_argument('--trials', type=int, default=6, help='trials per table cell')
+    parser.add_argument('--trials', type=int, default=3, help='benchmark: trials per table cell')
     parser.add_argument('--time', type=float, default=2.0,
-                        help='planning budget [s] (the paper: 5)')
+                        help='benchmark: planning budget [s] (the paper: 5)')
     parser.add_argument('--shims', type=int, default=2, help='planner_shim processes')
     parser.add_argument('--planners', default='rrtconnect,prmstar,bkpiece1')
     parser.set_defaults(func=run)
@@ -63,11 +71,29 @@ def run(args) -> int:
     plot_heatmap_slices(heatmap, out / f'heatmap_{scene.name}.png', scene=scene)
     print(f'slice figure: {out / f"heatmap_{scene.name}.png"}')
 
-    _stage(f'2. online: attack with M={args.budget} through heatmap_server + attacker nodes')
+    planners = tuple(p for p in args.planners.split(',') if p)
+    _stage(f'2. MAIN: audit - how few boxes make {", ".join(planners)} fail the pick? '
+           f'(task attack, goal policy paper, up to {args.audit_budget} boxes, '
+           f'{args.audit_trials} trials x {args.audit_time:g} s)')
+    from advocc_ros.commands.audit import run_audit_to
+    from advocc_ros.evaluation.audit import AuditConfig, audit_answer, budget_table
+    audit_cfg = AuditConfig(planners=planners, max_budget=args.audit_budget,
+                            trials=args.audit_trials, time_budget_s=args.audit_time,
+                            method='task', policy='paper',
+                            workers=max(1, min(2, args.workers)))
+    audit = run_audit_to(scene, heatmap, audit_cfg, out / 'audit')
+    print()
+    print(audit_answer(audit))
+    print()
+    print(budget_table(audit))
+
+    _stage(f'3. online: task attack with M={args.budget} through heatmap_server + attacker '
+           'nodes')
     from advocc_ros.attack import load_obstacles
     from advocc_ros.ros.feeder import run_attack_nodes
-    obstacles_file = out / f'obstacles_{scene.name}_ours_{args.budget}.yaml'
-    reply = run_attack_nodes(heatmap_file, scene, obstacles_file, budget=args.budget)
+    obstacles_file = out / f'obstacles_{scene.name}_task_{args.budget}.yaml'
+    reply = run_attack_nodes(heatmap_file, scene, obstacles_file, budget=args.budget,
+                             method='task')
     obstacles, _ = load_obstacles(obstacles_file)
     for obj in obstacles:
         center = [round(v, 3) for v in obj.shapes[0].pose.position_m]
@@ -77,14 +103,14 @@ def run(args) -> int:
     plot_heatmap_slices(heatmap, out / f'attack_{scene.name}.png', scene=scene,
                         obstacles=obstacles)
 
-    _stage(f'3. benchmark through the nodes: orchestrator, {args.shims} planner shims, '
+    _stage(f'4. benchmark through the nodes: orchestrator, {args.shims} planner shims, '
            f'{args.trials} trials per cell, {args.time:g} s budget')
     from advocc_ros.bench import load_profile
     from advocc_ros.orchestrator import Orchestrator
     from advocc_ros.paths import config_dir
     data = load_profile(config_dir() / 'bench.yaml', 'quick').to_data()
-    data.update(scenes=[args.scene], planners=[p for p in args.planners.split(',') if p],
-                methods=['ours', 'random'], budgets=[1, 3, 5], trials=args.trials,
+    data.update(scenes=[args.scene], planners=list(planners),
+                methods=['task', 'ours', 'random'], budgets=[1, 3], trials=args.trials,
                 time_budget_s=args.time, shims=args.shims)
     from advocc_ros.bench import BenchConfig
     cfg = BenchConfig.from_data(data, 'advocc demo')
@@ -96,4 +122,6 @@ def run(args) -> int:
         print(f'note: {note}')
     print()
     print((run_dir / 'table1.md').read_text())
+    _stage(f'the answer (stage 2; report in {out / "audit" / "audit.md"})')
+    print(audit_answer(audit))
     return 0 if summary['missing'] == 0 else 1
