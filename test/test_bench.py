@@ -4,7 +4,7 @@ import json
 
 import pytest
 
-from advocc_ros.bench import (BASELINE, BenchConfig, BenchError, RecordStore, budget_to_failure,
+from advocc_ros.bench import (BASELINE, BenchConfig, BenchError, RecordStore,
                               cell_rows, check_run_config, load_profile, plan_units, run_lock,
                               table1, table2, table4, trial_key)
 from conftest import REPO
@@ -33,7 +33,7 @@ def test_shipped_profiles_load():
     paper = load_profile(REPO / 'config' / 'bench.yaml', 'paper')
     assert paper.scenes == ('table_pick', 'table_under_pick', 'bookshelf')
     assert paper.planners == ('rrtconnect', 'prmstar', 'bkpiece1')
-    assert paper.methods == ('ours', 'random', 'pfa', 'pfa++')
+    assert paper.methods == ('task', 'ours', 'random', 'pfa', 'pfa++')
     assert paper.budgets == (1, 3, 5) and paper.trials == 500 and paper.time_budget_s == 5.0
     quick = load_profile(REPO / 'config' / 'bench.yaml', 'quick')
     assert quick.trials < 50
@@ -194,20 +194,38 @@ def test_table1_layout():
                for r in rows)
 
 
-def test_budget_to_failure_thresholds():
-    psr = {0: 0.95, 1: 0.85, 2: 0.6, 3: 0.41, 5: 0.0}
-    assert [budget_to_failure(psr, t) for t in (80, 60, 40, 20, 0)] == [2, 2, 5, 5, 5]
-    assert budget_to_failure({0: 1.0, 1: 0.9}, 80) is None
-    assert budget_to_failure({0: 0.5, 1: 0.9}, 80) == 0  # unattacked already below
+def _cell(psr, trials=10):
+    return {'psr': psr, 'trials': trials, 'successes': round(psr * trials), 'complete': True}
+
+
+def test_table2_minimal_budgets_and_variations():
+    cfg = BenchConfig(scenes=('table_pick',), planners=('rrtconnect',), methods=('task',),
+                      budgets=(1, 3), sweep_budgets=(2,), trials=10, variations=1)
+    var = '/run/scenes/table_pick_0000.yaml'
+    rows = {('table_pick', 'rrtconnect', BASELINE, 0): _cell(1.0),
+            ('table_pick', 'rrtconnect', 'task', 1): _cell(0.9),
+            ('table_pick', 'rrtconnect', 'task', 2): _cell(0.5),
+            ('table_pick', 'rrtconnect', 'task', 3): _cell(0.0),
+            (var, 'rrtconnect', BASELINE, 0): _cell(1.0),
+            (var, 'rrtconnect', 'task', 1): _cell(0.2),
+            (var, 'rrtconnect', 'task', 2): _cell(0.1),
+            (var, 'rrtconnect', 'task', 3): _cell(0.1)}
+    md, text = table2(rows, cfg, {'table_pick': [var]})
+    cells = md.strip().split('\n')[-1].split(' | ')
+    # 80 %: 2 and 1 -> 1.5; 60 %: 2, 1 -> 1.5; 40 %: 3, 1 -> 2; 20 %: 3, 1 -> 2; 0 %: 3 only
+    assert cells[-5:] == ['1.5', '1.5', '2', '2', '3 (1/2) |']
+    assert text.split('\n')[1] == 'table_pick,rrtconnect,task,"0,1,2,3",2,3,1.5,1.5,2,2,3'
+    alone, _ = table2(rows, cfg)
+    assert alone.strip().split('\n')[-1].split(' | ')[-5:] == ['2', '2', '3', '3', '3 |']
 
 
 def test_table2_reports_greater_than_max_when_not_reached():
     md, csv_text = table2(cell_rows(_records(), _cfg()), _cfg())
     ours = next(line for line in md.splitlines() if '| RRT | Ours |' in line)
-    assert ours.endswith('| 0,1,3 | 1 | 1 | 3 | 3 | 3 |')
+    assert ours.endswith('| 0,1,3 | 1 | 1 | 1 | 3 | 3 | 3 |')  # budgets, tasks, thresholds
     random = next(line for line in md.splitlines() if '| RRT | Random |' in line)
-    assert random.endswith('| 0,1,3 | 1 | > 3 | > 3 | > 3 | > 3 |')
-    assert 'table_pick,rrtconnect,random,"0,1,3",3,1,>3,>3,>3,>3' in csv_text
+    assert random.endswith('| 0,1,3 | 1 | 1 | > 3 | > 3 | > 3 | > 3 |')
+    assert 'table_pick,rrtconnect,random,"0,1,3",1,3,1,>3,>3,>3,>3' in csv_text
 
 
 def test_table4_offline_online():
@@ -221,3 +239,15 @@ def test_table4_offline_online():
                                                             '| Ours']
     assert lines[-1] == '| Ours | 1100.00 | 2.000 | 1102.00 | 2 |'
     assert 'pfa++,prmstar,N/A,100,100,1' in csv_text
+
+
+def test_plan_runs_variations_at_every_budget_after_their_scene():
+    cfg = _cfg(methods=('task',), budgets=(1, 3), sweep_budgets=(2,), trials=4, sweep_trials=2,
+               variations=1, baseline=False)
+    var = '/run/scenes/table_pick_0000.yaml'
+    units, _ = plan_units(cfg, variations={'table_pick': [var]})
+    assert [u.scene for u in units][-1] == var and units[0].scene == 'table_pick'
+    var_units = [u for u in units if u.scene == var]
+    assert {t.budget for u in var_units for t in u.trials} == {0, 1, 2, 3}  # with m = 0
+    assert all(len([t for t in u.trials if t.planner == 'rrtconnect']) == 2 for u in var_units)
+    assert not any(u.attack is None for u in units if u.scene == 'table_pick')

@@ -62,6 +62,10 @@ class BenchConfig:
     """Trials of a sweep-only budget (None: ``trials``)."""
     baseline: bool = True
     """Also run the unattacked scene (budget 0) per scene x planner."""
+    variations: int = 0
+    """Table II also runs this many seeded variations of each scene (``advocc scenes vary``,
+    seed ``seed``) at every budget, and averages the minimal budgets over the scene and its
+    variations (fractional budgets, like the paper's)."""
     variants: dict = dataclasses.field(default_factory=dict)
     """Attacks per cell by method (e.g. random: 10); trials are split between them."""
     planner_specific: tuple[str, ...] = ('pfa++',)
@@ -109,10 +113,10 @@ class BenchConfig:
                     fail(f'{name}: budgets must be integers in 1..{MAX_BUDGET}, got {b!r}')
         if not self.budgets and not self.sweep_budgets and not self.baseline:
             fail('budgets: nothing to run')
-        for name in ('trials', 'shims', 'heatmap_samples', 'heatmap_workers'):
+        for name in ('trials', 'shims', 'heatmap_samples', 'heatmap_workers', 'variations'):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, int) or value < (
-                    0 if name == 'shims' else 1):
+                    0 if name in ('shims', 'variations') else 1):
                 fail(f'{name}={value!r} is out of range')
         if self.trials > MAX_TRIALS:
             fail(f'trials={self.trials} exceeds the limit {MAX_TRIALS} (limits.MAX_TRIALS)')
@@ -145,7 +149,10 @@ class BenchConfig:
     def all_budgets(self) -> tuple[int, ...]:
         return tuple(sorted(set(self.budgets) | set(self.sweep_budgets)))
 
-    def trials_for(self, budget: int) -> int:
+    def trials_for(self, budget: int, scene: str | None = None) -> int:
+        """Trials of a cell; a variation scene (not in ``scenes``) is Table II only."""
+        if scene is not None and scene not in self.scenes:
+            return self.sweep_trials or self.trials
         if budget == 0 or budget in self.budgets or self.sweep_trials is None:
             return self.trials
         return self.sweep_trials
@@ -254,11 +261,35 @@ def scene_label(cfg: BenchConfig, scene: str) -> str:
     return f'Scene {cfg.scenes.index(scene) + 1} ({name})'
 
 
-def plan_units(cfg: BenchConfig, available: Iterable[str] | None = None
+def variation_scenes(cfg: BenchConfig, run_dir: str | pathlib.Path) -> dict[str, list[str]]:
+    """Scene files of ``cfg.variations`` seeded variations per scene, written once into
+    ``run_dir/scenes/`` (re-used on resume): base scene -> files."""
+    from advocc_ros.model.scene import load_scene
+    from advocc_ros.model.scenegen import write_variation
+    from advocc_ros.paths import scene_path
+
+    out: dict[str, list[str]] = {}
+    folder = pathlib.Path(run_dir) / 'scenes'
+    for scene in cfg.scenes if cfg.variations else ():
+        base = load_scene(scene_path(scene))
+        files = []
+        for index in range(cfg.variations):
+            path = folder / f'{base.name}_{index:04d}.yaml'
+            if not path.exists():
+                path, _ = write_variation(base, index, cfg.seed, folder)
+            files.append(str(path))
+        out[scene] = files
+    return out
+
+
+def plan_units(cfg: BenchConfig, available: Iterable[str] | None = None,
+               variations: dict[str, list[str]] | None = None
                ) -> tuple[list[Unit], list[str]]:
     """The run plan in execution order (scene-major) and notes on what is skipped and why.
 
     ``available``: methods that can be generated (None: all); the others are skipped.
+    ``variations``: base scene -> variation scene files (:func:`variation_scenes`); each runs
+    every budget of Table II with ``trials_for`` trials, after its base scene.
     """
     available = set(cfg.methods if available is None else available)
     notes = []
@@ -277,10 +308,11 @@ def plan_units(cfg: BenchConfig, available: Iterable[str] | None = None
         if method in cfg.methods and planner in cfg.planners:
             notes.append(f'{method} on {planner} not run (configured skip: {pair})')
     units: list[Unit] = []
-    for scene in cfg.scenes:
-        if cfg.baseline:
+    scenes = [s for base in cfg.scenes for s in [base, *(variations or {}).get(base, [])]]
+    for scene in scenes:
+        if cfg.baseline or scene not in cfg.scenes:
             trials = [Trial(scene, p, BASELINE, 0, k, cfg.seed + k)
-                      for p in cfg.planners for k in range(cfg.trials_for(0))]
+                      for p in cfg.planners for k in range(cfg.trials_for(0, scene))]
             units.append(Unit(scene, None, trials))
         for method in cfg.methods:
             if method not in available:
@@ -288,7 +320,7 @@ def plan_units(cfg: BenchConfig, available: Iterable[str] | None = None
             planners = [p for p in cfg.planners if not cfg.skipped(method, p)]
             groups = [[p] for p in planners] if method in cfg.planner_specific else [planners]
             for budget in cfg.all_budgets:
-                n = cfg.trials_for(budget)
+                n = cfg.trials_for(budget, scene)
                 n_var = max(1, min(int(cfg.variants.get(method, 1)), n))
                 for group in groups:
                     if not group:

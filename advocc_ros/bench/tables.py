@@ -10,7 +10,7 @@ from typing import Iterable
 from advocc_ros.attack.methods import KNOWN_METHODS
 from advocc_ros.bench.protocol import (BASELINE, METHOD_LABELS, PLANNER_LABELS, THRESHOLDS,
                                        BenchConfig, scene_label)
-from advocc_ros.evaluation.metrics import FAILURE_MODES, aggregate
+from advocc_ros.evaluation.metrics import FAILURE_MODES, aggregate, minimal_budgets
 
 
 # --------------------------------------------------------------------------------------------
@@ -25,7 +25,7 @@ def cell_rows(records: Iterable[dict], cfg: BenchConfig) -> dict[tuple, dict]:
     rows = {}
     for cell, recs in groups.items():
         row = aggregate(recs, float(recs[0].get('time_budget_s', cfg.time_budget_s)))
-        row['expected'] = cfg.trials_for(cell[3])
+        row['expected'] = cfg.trials_for(cell[3], cell[0])
         row['complete'] = row['trials'] >= row['expected']
         rows[cell] = row
     return rows
@@ -125,48 +125,65 @@ def _csv_num(value: float | None) -> str:
     return 'N/A' if value is None else f'{value:.6g}'
 
 
-def budget_to_failure(psr_by_budget: dict[int, float], threshold_percent: float
-                      ) -> int | None:
-    """Smallest measured budget whose PSR is <= the threshold; None if none reaches it."""
-    for budget in sorted(psr_by_budget):
-        if 100 * psr_by_budget[budget] <= threshold_percent + 1e-9:
-            return budget
-    return None
+def _minimal(psr: dict[int, float], threshold_percent: float) -> int | None:
+    """Smallest measured budget whose PSR is <= the threshold (``minimal_budgets``, the audit's
+    prefix rule, over the measured budgets); None if none reaches it."""
+    curve = [psr.get(m) for m in range(max(psr) + 1)] if psr else []
+    return minimal_budgets({'p': curve}, (threshold_percent / 100,))[
+        str(threshold_percent / 100)]['p']
 
 
-def table2(rows: dict[tuple, dict], cfg: BenchConfig) -> tuple[str, str]:
-    """Table II (Markdown, CSV): minimum measured budget reaching PSR <= 80/60/40/20/0 %.
+def table2(rows: dict[tuple, dict], cfg: BenchConfig,
+           families: dict[str, list[str]] | None = None) -> tuple[str, str]:
+    """Table II (Markdown, CSV): minimum budget reaching PSR <= 80/60/40/20/0 %.
 
-    The sweep is the measured budgets (0 = the unattacked scene, when run); ``> max`` when the
-    largest measured budget does not reach the threshold.
+    Per scene, the smallest measured budget (0 = the unattacked scene, when run) at or below
+    the threshold; with ``families`` (scene -> its variation scenes, ``variations``), the mean
+    over the scene and its variations that reach it (fractional, like the paper's), ``(k/n)``
+    when only k of n do, ``> max`` when none does within the largest measured budget.
+    Greedy picks are nested, so budgets 1..K of one seed are the prefixes of one attack.
     """
-    md = ['| Scene | Planner | Method | Budgets | ' + ' | '.join(f'{t}%' for t in THRESHOLDS)
-          + ' |', '|' + '---|' * (4 + len(THRESHOLDS))]
+    md = ['| Scene | Planner | Method | Budgets | Tasks | '
+          + ' | '.join(f'{t}%' for t in THRESHOLDS) + ' |',
+          '|' + '---|' * (5 + len(THRESHOLDS))]
     out = io.StringIO()
     writer = csv.writer(out, lineterminator='\n')
-    writer.writerow(['scene', 'planner', 'method', 'budgets', 'max_budget',
+    writer.writerow(['scene', 'planner', 'method', 'budgets', 'tasks', 'max_budget',
                      *[f'psr_le_{t}' for t in THRESHOLDS]])
     for scene in cfg.scenes:
+        members = [scene, *(families or {}).get(scene, [])]
         for planner in cfg.planners:
-            base = rows.get((scene, planner, BASELINE, 0))
             for method in cfg.methods:
-                psr = {b: rows[(scene, planner, method, b)]['psr'] for b in cfg.all_budgets
-                       if (scene, planner, method, b) in rows}
                 labels = [scene_label(cfg, scene), PLANNER_LABELS.get(planner, planner),
                           METHOD_LABELS.get(method, method)]
-                if not psr:
-                    md.append('| ' + ' | '.join(labels + ['--'] * (1 + len(THRESHOLDS)))
+                curves = []
+                for member in members:
+                    psr = {b: rows[(member, planner, method, b)]['psr'] for b in cfg.all_budgets
+                           if (member, planner, method, b) in rows}
+                    base = rows.get((member, planner, BASELINE, 0))
+                    if psr and base is not None and base['psr'] is not None:
+                        psr[0] = base['psr']
+                    if psr:
+                        curves.append(psr)
+                if not curves:
+                    md.append('| ' + ' | '.join(labels + ['--'] * (2 + len(THRESHOLDS)))
                               + ' |')
                     continue
-                if base is not None and base['psr'] is not None:
-                    psr[0] = base['psr']
-                top = max(psr)
-                values = [budget_to_failure(psr, t) for t in THRESHOLDS]
-                cells = [str(v) if v is not None else f'> {top}' for v in values]
-                swept = ','.join(str(b) for b in sorted(psr))
-                md.append('| ' + ' | '.join(labels + [swept] + cells) + ' |')
-                writer.writerow([scene, planner, method, swept, top,
-                                 *[v if v is not None else f'>{top}' for v in values]])
+                top = max(max(c) for c in curves)
+                cells, values = [], []
+                for t in THRESHOLDS:
+                    reached = [m for m in (_minimal(c, t) for c in curves) if m is not None]
+                    mean = sum(reached) / len(reached) if reached else None
+                    values.append(mean)
+                    text = f'> {top}' if mean is None else f'{mean:.2f}'.rstrip('0').rstrip('.')
+                    if reached and len(reached) < len(curves):
+                        text += f' ({len(reached)}/{len(curves)})'
+                    cells.append(text)
+                swept = ','.join(str(b) for b in sorted(set().union(*curves)))
+                md.append('| ' + ' | '.join(labels + [swept, str(len(curves))] + cells) + ' |')
+                writer.writerow([scene, planner, method, swept, len(curves), top,
+                                 *[_csv_num(v) if v is not None else f'>{top}'
+                                   for v in values]])
     return '\n'.join(md) + '\n', out.getvalue()
 
 

@@ -134,8 +134,7 @@ def _convert(args) -> int:
 
 
 def _vary(args) -> int:
-    from advocc_ros.model.scene import save_yaml_atomic
-    from advocc_ros.model.scenegen import VariationConfig, vary_scene
+    from advocc_ros.model.scenegen import VariationConfig, write_variation
 
     if args.count < 1:
         raise UserError('--count must be >= 1')
@@ -151,13 +150,7 @@ def _vary(args) -> int:
     out = pathlib.Path(args.out)
     rows = []
     for index in range(args.count):
-        var = vary_scene(scene, index, args.seed, config)
-        data = var.scene.to_data()
-        data['description'] = (f'variation {index} of {scene.name} (seed {args.seed}, jitter '
-                               f'pos {config.jitter_pos_m} m, size {config.jitter_size}, yaw '
-                               f'{config.jitter_yaw_rad} rad)')
-        path = out / f'{var.scene.name}.yaml'
-        save_yaml_atomic(path, data)
+        path, var = write_variation(scene, index, args.seed, out, config)
         rows.append({'file': str(path), 'index': index, 'draws': var.draws,
                      'redrawn_objects': var.redrawn_objects})
         if not args.json:

@@ -2,15 +2,16 @@
 few boxes make a planner fail one task), speed figures. No ROS.
 """
 
-from advocc_ros.evaluation.metrics import (FAILURE_MODES, MetricsConfig, TrialRecord, aggregate,
-                                           densify, evaluate_planner, failure_mode, format_value,
-                                           joint_deviation, min_clearance, min_manipulability,
+from advocc_ros.evaluation.metrics import (FAILURE_MODES, THRESHOLDS, MetricsConfig, TrialRecord,
+                                           aggregate, densify, evaluate_planner, failure_mode,
+                                           format_value, joint_deviation, min_clearance,
+                                           min_manipulability, minimal_budgets,
                                            random_directions, trial_metrics)
 from advocc_ros.evaluation.perf import benchmark_planning, machine
-from advocc_ros.evaluation.audit import AuditConfig, minimal_budgets, run_audit, write_audit
+from advocc_ros.evaluation.audit import AuditConfig, run_audit, write_audit
 
 __all__ = [
-    'AuditConfig', 'FAILURE_MODES', 'MetricsConfig', 'TrialRecord', 'aggregate',
+    'AuditConfig', 'FAILURE_MODES', 'MetricsConfig', 'THRESHOLDS', 'TrialRecord', 'aggregate',
     'benchmark_planning', 'densify', 'evaluate_planner', 'failure_mode', 'format_value',
     'joint_deviation', 'machine', 'min_clearance', 'min_manipulability', 'minimal_budgets',
     'random_directions', 'run_audit', 'trial_metrics', 'write_audit']

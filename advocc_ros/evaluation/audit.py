@@ -16,9 +16,10 @@ import pathlib
 import time
 from typing import Any, Callable
 
+from advocc_ros.evaluation.metrics import minimal_budgets
+
 log = logging.getLogger(__name__)
 
-THRESHOLDS = (0.8, 0.6, 0.4, 0.2, 0.0)
 """PSR thresholds of the minimal-budget table (fractions; Table II's 80/60/40/20/0 %)."""
 ANSWER_THRESHOLD = 0.2
 """A planner "fails" the task when its PSR is at most this (the answer's headline)."""
@@ -58,21 +59,6 @@ class AuditConfig:
             raise ValueError(f'audit: time budget must be > 0 s, got {self.time_budget_s}')
         if self.workers < 1:
             raise ValueError(f'audit: workers must be >= 1, got {self.workers}')
-
-
-def minimal_budgets(psr: dict[str, list[float]], thresholds=THRESHOLDS
-                    ) -> dict[str, dict[str, int | None]]:
-    """Per threshold (key ``str(threshold)``, e.g. ``'0.2'``) and planner: the smallest m whose
-    PSR (``psr[planner][m]``, a fraction; None = not measured) is <= the threshold, or None
-    when no measured m reaches it. The first crossing counts even if a later m is higher."""
-    out: dict[str, dict[str, int | None]] = {}
-    for threshold in thresholds:
-        row = {}
-        for planner, curve in psr.items():
-            row[planner] = next((m for m, value in enumerate(curve)
-                                 if value is not None and value <= threshold + 1e-9), None)
-        out[str(threshold)] = row
-    return out
 
 
 def planner_label(planner_id: str) -> str:

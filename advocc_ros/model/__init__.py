@@ -15,7 +15,7 @@ from advocc_ros.model.collision import CollisionWorld, coal_geometry
 from advocc_ros.model.voxels import SolidLUT, VoxelGrid, occupied_mask, points_in_shape
 from advocc_ros.model.ik import (GoalSampler, IkConfig, dls_ik, goal_configuration, goal_set,
                                  start_configuration)
-from advocc_ros.model.scenegen import Variation, VariationConfig, vary_scene
+from advocc_ros.model.scenegen import Variation, VariationConfig, vary_scene, write_variation
 
 __all__ = [
     'CollisionWorld', 'GoalRegion', 'GoalSampler', 'GoalTolerance', 'IkConfig', 'MbmRequest',
@@ -27,4 +27,4 @@ __all__ = [
     'load_scene', 'make_box', 'make_mesh_shape', 'objects_from_data',
     'objects_from_planning_scene', 'objects_to_data', 'occupied_mask', 'parse_goal_tolerance',
     'points_in_shape', 'read_yaml', 'resolve_path', 'save_yaml_atomic', 'scene_from_data',
-    'start_configuration', 'vary_scene']
+    'start_configuration', 'vary_scene', 'write_variation']

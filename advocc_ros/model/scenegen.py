@@ -21,13 +21,15 @@ from __future__ import annotations
 import dataclasses
 import fnmatch
 import logging
+import pathlib
 
 import numpy as np
 import pinocchio as pin
 
 from advocc_ros.model.collision import CollisionWorld
 from advocc_ros.model.robot import load_robot
-from advocc_ros.model.scene import GoalRegion, Pose, Scene, SceneError, SceneObject, Shape
+from advocc_ros.model.scene import (GoalRegion, Pose, Scene, SceneError, SceneObject, Shape,
+                                    save_yaml_atomic)
 
 log = logging.getLogger(__name__)
 
@@ -231,3 +233,17 @@ def vary_scene(scene: Scene, index: int, seed: int,
         return Variation(candidate, index, draw + 1, redrawn)
     raise SceneError(f'{scene.name}: no valid variation {index} (seed {seed}) in '
                      f'{config.max_draws} draws; reduce the jitter')
+
+
+def write_variation(scene: Scene, index: int, seed: int, out_dir: str | pathlib.Path,
+                    config: VariationConfig = VariationConfig()) -> tuple[pathlib.Path, Variation]:
+    """Variation ``index`` of ``scene`` as a scene file ``out_dir/<name>.yaml`` (atomic),
+    its description saying where it comes from."""
+    var = vary_scene(scene, index, seed, config)
+    data = var.scene.to_data()
+    data['description'] = (f'variation {index} of {scene.name} (seed {seed}, jitter pos '
+                           f'{config.jitter_pos_m} m, size {config.jitter_size}, yaw '
+                           f'{config.jitter_yaw_rad} rad)')
+    path = pathlib.Path(out_dir) / f'{var.scene.name}.yaml'
+    save_yaml_atomic(path, data)
+    return path, var

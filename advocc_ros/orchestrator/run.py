@@ -37,7 +37,8 @@ import sys
 import time
 from typing import Any
 
-from advocc_ros.bench.protocol import BenchConfig, BenchError, Unit, plan_units
+from advocc_ros.bench.protocol import (BenchConfig, BenchError, Unit, plan_units,
+                                       variation_scenes)
 from advocc_ros.bench.records import RecordStore, check_run_config, progress_summary, run_lock
 from advocc_ros.bench.report import write_report
 from advocc_ros.fileio import atomic_write_text
@@ -84,7 +85,8 @@ class Orchestrator(ShimPool, AttackSources):
             check_run_config(self.run_dir, self.cfg)
             self.store = RecordStore(self.run_dir / 'records.jsonl')
             available = self._available_methods()
-            units, self.notes = plan_units(self.cfg, available)
+            units, self.notes = plan_units(self.cfg, available,
+                                           variation_scenes(self.cfg, self.run_dir))
             self._write_config()
             old = {s: signal.signal(s, self._on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
             try:
