@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from advocc_ros.model.collision import CollisionWorld
+from advocc_ros.model.robot import load_robot
 from advocc_ros.commands.common import add_scene_args, scene_from_args
 from advocc_ros.model.mbm import (GoalTolerance, is_mbm_scene, load_any_scene, load_mbm_scene,
                                   parse_goal_tolerance)
@@ -73,16 +74,24 @@ def test_mbm_scene_objects_poses_and_start(panda):
     np.testing.assert_allclose(hi - lo, [0.3, 0.02, 0.4], atol=1e-9)
     ball = _shape(scene, 'ball')
     assert ball.kind == 'sphere' and ball.dims == pytest.approx((0.04,))
-    # start from robot_state (finger joints ignored), no goal without a request
-    assert list(scene.start.values()) == pytest.approx(READY)
+    # start from robot_state, fingers included: they lock the fingers (SPEC §4b)
+    assert [scene.start[j] for j in panda.joint_names] == pytest.approx(READY)
+    assert scene.start['panda_finger_joint1'] == pytest.approx(0.035)
+    assert dict(scene.robot.locked) == pytest.approx({'panda_finger_joint1': 0.035,
+                                                      'panda_finger_joint2': 0.035})
     assert scene.goal is None
-    assert CollisionWorld(panda, scene.shapes).is_valid(np.array(READY))
+    robot = load_robot(scene.robot)
+    assert robot.locked_values == pytest.approx({'panda_finger_joint1': 0.035,
+                                                 'panda_finger_joint2': 0.035})
+    assert robot.hash != panda.hash  # open fingers: another robot for heatmaps
+    assert CollisionWorld(robot, scene.shapes).is_valid(np.array(READY))
 
 
 def test_mbm_request_gives_start_and_goal_region_at_fk_of_goal_joints(panda):
     tol = GoalTolerance((0.01, 0.02, 0.03), (0.1, 0.2, 0.3))
     scene = load_mbm_scene(MBM / 'scene0001.yaml', MBM / 'request0001.yaml', tol)
-    assert list(scene.start.values()) == pytest.approx([0.1, -0.7, 0.0, -2.3, 0.0, 1.6, 0.785])
+    assert [scene.start[j] for j in panda.joint_names] == pytest.approx(
+        [0.1, -0.7, 0.0, -2.3, 0.0, 1.6, 0.785])
     T = panda.ee_pose(np.array(Q_GOAL))
     centre = scene.goal.center.to_se3()
     np.testing.assert_allclose(centre.translation, T.translation, atol=1e-9)

@@ -113,12 +113,36 @@ def _check(args) -> int:
                       ik_attempts=sampler.attempts, ik_converged=sampler.converged,
                       ik_in_collision=sampler.colliding, ik_valid=valid)
         ok &= valid > 0
+    if getattr(args, 'request', None):
+        report.update(_request_validity(args.request, scene, robot, world))
     if args.json:
         print(json.dumps(report, indent=1))
     else:
         for key, value in report.items():
             print(f'{key:>18}: {value}')
     return 0 if ok else 1
+
+
+def _request_validity(path: str, scene, robot, world) -> dict:
+    """Whether the request's own start and goal configurations are valid in our model (with the
+    joints outside the planning group locked at the task's robot state)."""
+    import numpy as np
+
+    from advocc_ros.model.mbm import load_request
+
+    request = load_request(path, robot)
+    names = [o.id for o in scene.objects for _ in o.shapes]
+    out = {'locked_joints': robot.locked_values}
+    for key, state in (('start', request.start), ('goal', request.goal)):
+        if state is None:
+            out[f'request_{key}_valid'] = None  # no start state / a pose goal
+            continue
+        q = np.array([state[j] for j in robot.joint_names])
+        out[f'request_{key}_valid'] = world.is_valid(q)
+        if not out[f'request_{key}_valid']:
+            out[f'request_{key}_within_limits'] = robot.within_limits(q)
+            out[f'request_{key}_collisions'] = [list(p) for p in world.colliding_pairs(q, names)]
+    return out
 
 
 def _convert(args) -> int:

@@ -84,6 +84,18 @@ class CollisionWorld:
     def is_valid(self, q: np.ndarray) -> bool:
         return self.robot.within_limits(q) and not self.in_collision(q)
 
+    def colliding_pairs(self, q: np.ndarray, shape_names: list[str] | None = None
+                        ) -> list[tuple[str, str]]:
+        """Every colliding pair at ``q``: robot geometry names, scene shapes as
+        ``shape_names[k]`` (default ``scene/k``)."""
+        pin.computeCollisions(self.model, self.data, self.geom_model, self.geom_data, q, False)
+        names = [g.name for g in self.geom_model.geometryObjects]
+        if shape_names is not None:
+            names[self.n_links:] = list(shape_names)
+        return [(names[p.first], names[p.second])
+                for p, r in zip(self.geom_model.collisionPairs, self.geom_data.collisionResults)
+                if r.isCollision()]
+
     def collisions_batch(self, Q: np.ndarray, threads: int = 1) -> np.ndarray:
         """Collision flags for configurations ``Q`` (N, nq), computed in parallel in C++."""
         if self._pool is None or self._pool.size() < threads:

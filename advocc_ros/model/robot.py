@@ -1,8 +1,11 @@
 """Robot model: kinematics (pinocchio), collision geometry (coal) and link solids.
 
 The arm is reduced to its planning group: every joint outside the group (the Panda's fingers) is
-locked at its reference value with ``pinocchio.buildReducedModel``, so ``q`` is always the arm
-configuration (7 values for the Panda) and nothing downstream has to slice it.
+locked with ``pinocchio.buildReducedModel``, so ``q`` is always the arm configuration (7 values
+for the Panda) and nothing downstream has to slice it. Locked joints take the values of the robot
+state that comes with the task (``RobotSpec.locked``, set by ``with_state``), clipped into their
+limits; without one, the SRDF group state. Mimic joints follow their leader (URDF ``<mimic>``).
+The locked values are part of the robot's identity (``RobotModel.hash``).
 
 Immutable model objects live here; per-thread scratch (``pinocchio.Data``, ``GeometryData``)
 is created by ``RobotModel.create_data`` / ``CollisionWorld``, the way pinocchio separates
@@ -56,6 +59,9 @@ class RobotSpec:
     """End-effector link for goal regions, manipulability and corridors."""
     group_state: str = 'default'
     """SRDF group state giving the values of locked joints (missing ones: 0)."""
+    locked: tuple[tuple[str, float], ...] = ()
+    """``(joint, value)`` pairs of the task's robot state for joints outside the group [rad or
+    m]; they override the SRDF group state. Set it with ``with_state``."""
 
     @classmethod
     def from_dict(cls, data: dict, where: str = 'robot') -> 'RobotSpec':
@@ -66,10 +72,28 @@ class RobotSpec:
         if unknown:
             raise RobotError(f'{where}: unknown field(s) {sorted(unknown)}; '
                              f'known: {sorted(fields)}')
+        data = dict(data)
+        locked = data.pop('locked', None) or {}
+        if not isinstance(locked, dict):
+            raise RobotError(f'{where}.locked: expected a mapping joint: value, got {locked!r}')
         for key, value in data.items():
             if not isinstance(value, str):
                 raise RobotError(f'{where}.{key}: expected a string, got {value!r}')
-        return cls(**data)
+        pairs = []
+        for name, value in locked.items():
+            if isinstance(value, bool) or not isinstance(value, (int, float)) \
+                    or not np.isfinite(value):
+                raise RobotError(f'{where}.locked.{name}: expected a finite number, got {value!r}')
+            pairs.append((str(name), float(value)))
+        return cls(**data, locked=tuple(sorted(pairs)))
+
+    def to_dict(self) -> dict:
+        """Plain data for YAML (``locked`` as a mapping, left out when empty)."""
+        data = {f.name: getattr(self, f.name) for f in dataclasses.fields(self)
+                if f.name != 'locked'}
+        if self.locked:
+            data['locked'] = {name: float(value) for name, value in self.locked}
+        return data
 
 
 def resolve_path(path: str) -> pathlib.Path:
@@ -95,6 +119,76 @@ def _srdf_state(srdf: ET.Element, name: str) -> dict[str, float]:
         if state.get('name') == name:
             return {j.get('name'): float(j.get('value')) for j in state.findall('joint')}
     return {}
+
+
+@functools.lru_cache(maxsize=16)
+def _srdf_group_cached(path: str, mtime: float, group: str) -> frozenset[str]:
+    try:
+        return frozenset(_srdf_group(ET.parse(path).getroot(), group))
+    except (OSError, ET.ParseError):
+        return frozenset()
+
+
+def with_state(spec: RobotSpec, joint_values: dict[str, float] | None) -> RobotSpec:
+    """``spec`` whose locked joints take their values from a task's robot state.
+
+    Only joints outside the planning group are kept (the arm's own values are the start, not the
+    robot); a state that names none of them leaves ``spec`` unchanged. Values are clipped into
+    the joint limits (with a warning) and mimic joints re-derived when the model is built.
+    """
+    if not joint_values or not spec.group:
+        return spec
+    srdf = resolve_path(spec.srdf)
+    try:
+        mtime = srdf.stat().st_mtime
+    except OSError:
+        return spec  # the model load reports the missing SRDF
+    group = _srdf_group_cached(str(srdf), mtime, spec.group)
+    if not group:
+        return spec
+    pairs = {name: float(value) for name, value in joint_values.items() if name not in group}
+    if not pairs:
+        return spec
+    return dataclasses.replace(spec, locked=tuple(sorted(pairs.items())))
+
+
+def _urdf_mimics(urdf: pathlib.Path) -> dict[str, tuple[str, float, float]]:
+    """``follower -> (leader, multiplier, offset)`` from the URDF's ``<mimic>`` tags."""
+    out = {}
+    try:
+        root = ET.parse(urdf).getroot()
+    except ET.ParseError as exc:
+        raise RobotError(f'{urdf}: not valid XML ({exc})') from exc
+    for joint in root.iter('joint'):
+        mimic = joint.find('mimic')
+        if mimic is not None and mimic.get('joint'):
+            out[joint.get('name')] = (mimic.get('joint'), float(mimic.get('multiplier', 1.0)),
+                                      float(mimic.get('offset', 0.0)))
+    return out
+
+
+def _resolve_locked(full: pin.Model, q_ref: np.ndarray, lock_ids: list[int],
+                    state: dict[str, float], mimics: dict, warn: bool) -> np.ndarray:
+    """``q_ref`` with the locked joints set from ``state`` (clipped), then mimic joints."""
+    q_ref = q_ref.copy()
+    locked = {full.names[j] for j in lock_ids}
+    for name, value in state.items():
+        if name not in locked or full.joints[full.getJointId(name)].nq != 1:
+            continue
+        idx = full.joints[full.getJointId(name)].idx_q
+        lo, hi = full.lowerPositionLimit[idx], full.upperPositionLimit[idx]
+        clipped = float(np.clip(value, lo, hi))
+        if warn and clipped != value:
+            log.warning('locked joint %s: the robot state gives %.6g, outside its limits '
+                        '[%.6g, %.6g]; clipped to %.6g', name, value, lo, hi, clipped)
+        q_ref[idx] = clipped
+    for follower, (leader, mult, offset) in mimics.items():
+        if follower in locked and leader in locked and full.existJointName(leader):
+            value = mult * q_ref[full.joints[full.getJointId(leader)].idx_q] + offset
+            idx = full.joints[full.getJointId(follower)].idx_q
+            q_ref[idx] = np.clip(value, full.lowerPositionLimit[idx],
+                                 full.upperPositionLimit[idx])
+    return q_ref
 
 
 def _geometry_trimesh(geom: pin.GeometryObject) -> trimesh.Trimesh:
@@ -142,13 +236,20 @@ class RobotModel:
             raise RobotError(f'{srdf}: no group named {spec.group!r} (use group: "" to plan '
                              'for every joint)')
         state = _srdf_state(srdf_xml, spec.group_state)
-        lock_ids, q_ref = [], pin.neutral(full)
+        lock_ids, q_srdf = [], pin.neutral(full)
         for jid in range(1, full.njoints):
             name = full.names[jid]
             if name not in group:
                 lock_ids.append(jid)
             if name in state and full.joints[jid].nq == 1:
-                q_ref[full.joints[jid].idx_q] = state[name]
+                q_srdf[full.joints[jid].idx_q] = state[name]
+        mimics = _urdf_mimics(urdf)
+        q_default = _resolve_locked(full, q_srdf, lock_ids, {}, mimics, warn=False)
+        q_ref = _resolve_locked(full, q_srdf, lock_ids, dict(spec.locked), mimics, warn=True)
+        self.locked_values: dict[str, float] = {
+            full.names[j]: float(q_ref[full.joints[j].idx_q])
+            for j in lock_ids if full.joints[j].nq == 1}
+        """Values the locked joints are held at, by joint name."""
         missing = [j for j in group if not full.existJointName(j)]
         if missing:
             raise RobotError(f'{srdf}: group {spec.group!r} names joints not in the URDF: '
@@ -174,9 +275,14 @@ class RobotModel:
             != self.collision_model.geometryObjects[p.second].parentJoint]
         self.link_names: tuple[str, ...] = tuple(
             g.name for g in self.collision_model.geometryObjects)
-        self.hash = hashlib.sha256(
-            urdf.read_bytes() + srdf.read_bytes()
-            + repr((spec.group, spec.ee_link, spec.group_state)).encode()).hexdigest()[:16]
+        identity = urdf.read_bytes() + srdf.read_bytes() + repr(
+            (spec.group, spec.ee_link, spec.group_state)).encode()
+        if not np.allclose(q_ref, q_default, rtol=0.0, atol=1e-9):
+            # A state that moves a locked joint makes another robot: a heatmap built with
+            # closed fingers must not be used with open ones.
+            identity += repr(sorted((k, round(v, 9)) for k, v in self.locked_values.items())
+                             ).encode()
+        self.hash = hashlib.sha256(identity).hexdigest()[:16]
         log.debug('robot %s: %d joints, %d geometries, %d self pairs', urdf.name,
                   self.model.nq, len(self.link_names), len(self.self_pairs))
 

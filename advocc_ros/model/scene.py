@@ -20,7 +20,7 @@ import yaml
 
 from advocc_ros.limits import (MAX_FILE_BYTES, MAX_MESH_TRIANGLES, MAX_MESH_VERTICES,
                                MAX_OBJECTS, yaml_size)  # MAX_*: re-exported
-from advocc_ros.model.robot import RobotSpec
+from advocc_ros.model.robot import RobotSpec, with_state
 
 SHAPES = ('box', 'sphere', 'cylinder', 'mesh')
 
@@ -224,11 +224,15 @@ class Scene:
 
     objects: tuple[SceneObject, ...] = ()
     start: dict[str, float] | None = None
-    """Start joint values by joint name (``None``: no start given)."""
+    """Start joint values by joint name (``None``: no start given). Values of joints outside the
+    planning group (fingers) lock those joints: ``robot`` is derived from them (SPEC §4b)."""
     goal: GoalRegion | None = None
     robot: RobotSpec = RobotSpec()
     name: str = 'scene'
     frame: str = 'panda_link0'
+
+    def __post_init__(self):
+        object.__setattr__(self, 'robot', with_state(self.robot, self.start))
 
     @property
     def shapes(self) -> list[Shape]:
@@ -251,7 +255,7 @@ class Scene:
 
     def to_data(self) -> dict:
         data: dict[str, Any] = {'name': self.name, 'frame': self.frame,
-                                'robot': dataclasses.asdict(self.robot)}
+                                'robot': self.robot.to_dict()}
         if self.start is not None:
             data['start'] = {k: float(v) for k, v in self.start.items()}
         if self.goal is not None:
