@@ -169,8 +169,8 @@ def test_task_makes_a_real_planner_fail(panda, heatmap, task, table_scene):
     result = attack(heatmap, panda, objects, q, goal, 3, 'task', seed=0)
     config = PlanningConfig()
     attacked = evaluate_planner(table_scene.with_objects(result.obstacles), 'rrtconnect', 3,
-                                2.0, seed=0, planning_config=config)
-    clean = evaluate_planner(table_scene, 'rrtconnect', 3, 2.0, seed=0, planning_config=config)
-    assert clean['psr'] == 1.0
-    assert attacked['psr'] < clean['psr']
+                                5.0, seed=0, planning_config=config)
+    clean = evaluate_planner(table_scene, 'rrtconnect', 3, 5.0, seed=0, planning_config=config)
+    assert clean['psr'] >= 2 / 3  # unattacked RRTConnect solves table_pick in ~0.3 s
+    assert attacked['psr'] <= 1 / 3
     assert attacked['failures']['goal blocked'] + attacked['failures']['timed out'] > 0
