@@ -5,9 +5,7 @@ from __future__ import annotations
 import os
 import time
 
-
-class CallFailed(RuntimeError):
-    """A service call that got no answer (dead or hung node)."""
+from advocc_ros.orchestrator.shims import CallFailed
 
 
 class Graph:

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 from advocc_msgs.msg import CollisionObject, GoalRegion as GoalRegionMsg, Obstacle as ObstacleMsg
-from advocc_msgs.srv import Attack
+from advocc_msgs.srv import Attack, Plan
 from builtin_interfaces.msg import Duration
 from geometry_msgs.msg import Point, Pose as PoseMsg, Quaternion
 from sensor_msgs.msg import JointState
@@ -222,6 +222,19 @@ def attack_request(scene: Scene, budget: int, method: str = 'ours', box_size_m: 
     req.goal_region = goal_region_to_msg(scene.goal, scene.frame)
     req.budget, req.method, req.box_size, req.seed = int(budget), method, float(box_size_m), \
         int(seed)
+    return req
+
+
+def plan_request(robot: RobotModel, q_start: np.ndarray, goal: GoalRegion, frame: str,
+                 planner_id: str, time_budget_s: float, seed: int = 0) -> Plan.Request:
+    """Plan.Request from ``q_start`` (nq,) [rad] in the robot's joint order to ``goal``."""
+    req = Plan.Request()
+    req.start_state = JointState(name=list(robot.joint_names),
+                                 position=[float(v) for v in q_start])
+    req.goal_region = goal_region_to_msg(goal, frame)
+    req.planner_id = planner_id
+    req.time_budget_s = float(time_budget_s)
+    req.seed = int(seed)
     return req
 
 
