@@ -232,3 +232,28 @@ def test_interrupted_run_reports_and_resumes(tmp_path):
     assert records[:len(first)] == first  # finished trials kept, not planned again
     assert len(pool.plans) == summary['planned'] - len(first)
     assert len(RecordStore(run / 'records.jsonl')) == summary['planned']
+
+
+def test_a_signal_while_a_record_is_written_keeps_it_counted(tmp_path, monkeypatch):
+    """SIGINT between the record's fsync and the store's update: the summary counts it."""
+    import os
+    import signal
+
+    run = tmp_path / 'run'
+    _cache_attack(run)
+    fsync = os.fsync
+    synced = []
+
+    def fsync_then_sigint(fd):
+        fsync(fd)
+        if os.readlink(f'/proc/self/fd/{fd}').endswith('records.jsonl'):
+            synced.append(fd)
+            if len(synced) == 3:
+                os.kill(os.getpid(), signal.SIGINT)
+
+    monkeypatch.setattr(os, 'fsync', fsync_then_sigint)
+    with pytest.raises(KeyboardInterrupt):
+        _run(run, lambda p, s, job: _success(job))
+    summary = json.loads((run / 'summary.json').read_text())
+    assert summary['status'] == 'interrupted'
+    assert summary['done'] == len(_records(run)) == 3

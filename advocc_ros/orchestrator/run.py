@@ -90,6 +90,8 @@ class Orchestrator(AttackSources):
         self.pool_factory = pool_factory
         self.pool: ShimPool | None = None
         self.server: Child | None = None
+        self._holding_signals = False
+        self._held_signal: int | None = None
         self._t0 = time.monotonic()
 
     # -- entry point -------------------------------------------------------------------------
@@ -138,7 +140,25 @@ class Orchestrator(AttackSources):
         return summary
 
     def _on_signal(self, signum, frame) -> None:
+        if self._holding_signals:  # raised once the record being written is in the store
+            self._held_signal = signum
+            return
         raise Interrupted(f'signal {signal.Signals(signum).name}')
+
+    def _append(self, record: dict) -> None:
+        """Append a trial's record; a signal meanwhile interrupts only after it is stored (an
+        Interrupted between the durable write and the store's update left the summary a trial
+        short of the file)."""
+        self._holding_signals = True
+        try:
+            appended = self.store.append(record)
+        finally:
+            self._holding_signals = False
+        if appended:
+            self.bar.update(1)
+        if self._held_signal is not None:
+            signum, self._held_signal = self._held_signal, None
+            raise Interrupted(f'signal {signal.Signals(signum).name}')
 
     def _shutdown(self) -> None:
         if self.bar is not None:
@@ -409,5 +429,4 @@ class Orchestrator(AttackSources):
         if success:
             record.update(trial_metrics(self.robot, self.world, answer.path, self.q_init,
                                         rng=np.random.default_rng(trial.seed)))
-        if self.store.append(record):
-            self.bar.update(1)
+        self._append(record)
