@@ -157,6 +157,21 @@ def test_planner_shim_end_to_end(ros, table_scene):
         res = _call(node, executor, plan, req, 10)
         assert res.error_code.val == code, res.message
         assert words in res.message, res.message
+    # 3b. A bad parameter value at run time is refused with the core's (PlanningConfig) message.
+    from rcl_interfaces.msg import Parameter, ParameterType, ParameterValue
+    from rcl_interfaces.srv import SetParameters
+
+    params = node.create_client(SetParameters, '/planner_shim/set_parameters')
+    assert params.wait_for_service(timeout_sec=10)
+
+    def set_double(name, value):
+        req = SetParameters.Request(parameters=[Parameter(name=name, value=ParameterValue(
+            type=ParameterType.PARAMETER_DOUBLE, double_value=value))])
+        return _call(node, executor, params, req, 10).results[0]
+
+    refused = set_double('time_budget_s', -1.0)
+    assert not refused.successful and 'planning parameter time_budget_s' in refused.reason
+    assert set_double('time_budget_s', 2.0).successful
     res = _call(node, executor, plan, request(seed=2, planner_id='bkpiece1'), 10)
     assert res.error_code.val in (ErrorCodes.SUCCESS, ErrorCodes.TIMED_OUT), res.message
     data = json.loads(_call(node, executor, info, GetInfo.Request(), 10).info_json)

@@ -24,11 +24,13 @@ from advocc_msgs.msg import CollisionObject, ErrorCodes, GoalRegion, Scene
 from advocc_msgs.srv import Attack
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.node import Node
-from shape_msgs.msg import SolidPrimitive
-from visualization_msgs.msg import Marker, MarkerArray
+from visualization_msgs.msg import MarkerArray
 
 from advocc_ros.attack import AttackConfig
+from advocc_ros.model.scene import Operation, SceneObject
 from advocc_ros.nodes import run
+from advocc_ros.ros.conversions import (attack_request_from_msgs, box_markers,
+                                        collision_object_to_msg, obstacles_from_msgs)
 from advocc_ros.ros.qos import COLLISION_OBJECT_TOPIC, GOAL_REGION_TOPIC, LATCHED_QOS, SCENE_TOPIC
 
 MARKER_NS = 'advocc_attack'
@@ -116,14 +118,10 @@ class Attacker(Node):
                     self.get_logger().info(f'waiting for {self._client.srv_name}')
                     self._waiting_logged = True
                 return
-            req = Attack.Request()
-            req.scene = list(self._scene.objects)
-            req.start_state = self._scene.start_state
-            req.goal_region = self._goal
-            req.budget = int(self.get_parameter('budget').value)
-            req.method = str(self.get_parameter('method').value)
-            req.box_size = float(self.get_parameter('box_size_m').value)
-            req.seed = int(self.get_parameter('seed').value)
+            req = attack_request_from_msgs(
+                self._scene, self._goal, self.get_parameter('budget').value,
+                self.get_parameter('method').value, self.get_parameter('box_size_m').value,
+                self.get_parameter('seed').value)
             self._dirty = False
             self._sent_at = time.monotonic()
             self._future = self._client.call_async(req)
@@ -154,30 +152,17 @@ class Attacker(Node):
     # -- outputs -----------------------------------------------------------------------------
 
     def _publish(self, obstacles: list) -> None:
-        """REMOVE our previous boxes, ADD the new ones, and replace the markers."""
-        for obj_id in self._placed:
-            msg = CollisionObject(id=obj_id, operation=CollisionObject.REMOVE)
-            msg.header.frame_id = self._frame
+        """REMOVE our previous boxes, ADD the new ones (``Obstacle`` messages), and replace
+        the markers."""
+        boxes = obstacles_from_msgs(obstacles)
+        msgs = [collision_object_to_msg(SceneObject(obj_id, ()), self._frame, Operation.REMOVE)
+                for obj_id in self._placed]
+        msgs += [collision_object_to_msg(box, self._frame, Operation.ADD) for box in boxes]
+        for msg in msgs:
             msg.header.stamp = self.get_clock().now().to_msg()
             self._objects_pub.publish(msg)
-        markers = MarkerArray(markers=[Marker(ns=MARKER_NS, action=Marker.DELETEALL)])
-        for i, obs in enumerate(obstacles):
-            msg = CollisionObject(id=obs.id, operation=CollisionObject.ADD)
-            msg.header.frame_id = self._frame
-            msg.header.stamp = self.get_clock().now().to_msg()
-            msg.pose.orientation.w = 1.0
-            msg.primitives.append(SolidPrimitive(type=SolidPrimitive.BOX,
-                                                 dimensions=[float(v) for v in obs.size]))
-            msg.primitive_poses.append(obs.pose)
-            self._objects_pub.publish(msg)
-            marker = Marker(ns=MARKER_NS, id=i, type=Marker.CUBE, action=Marker.ADD,
-                            pose=obs.pose)
-            marker.header.frame_id = self._frame
-            marker.scale.x, marker.scale.y, marker.scale.z = (float(v) for v in obs.size)
-            marker.color.r, marker.color.g, marker.color.b, marker.color.a = 0.9, 0.1, 0.1, 0.7
-            markers.markers.append(marker)
-        self._markers_pub.publish(markers)
-        self._placed = [obs.id for obs in obstacles]
+        self._markers_pub.publish(box_markers(boxes, self._frame, MARKER_NS))
+        self._placed = [box.id for box in boxes]
 
 
 def main(args=None) -> int:

@@ -94,21 +94,21 @@ class PlannerShim(Node):
         return dataclasses.replace(PlanningConfig(), **values)
 
     def _check_parameters(self, params) -> SetParametersResult:
+        """Start-up-only and planner names here; the planning values are PlanningConfig's to
+        check (its ValueError is the reason, as at start-up)."""
         for p in params:
             if p.name in ('scene_file', 'allowed_dirs') and hasattr(self, '_planner'):
                 return SetParametersResult(successful=False,
                                            reason=f'{p.name} is read at start-up only')
-            if p.name in ('time_budget_s', 'max_time_budget_s', 'motion_step_rad',
-                          'waypoint_step_rad', 'watchdog_margin_s') and \
-                    not (isinstance(p.value, float) and math.isfinite(p.value) and p.value > 0):
-                return SetParametersResult(successful=False,
-                                           reason=f'{p.name} must be a finite float > 0')
-            if p.name in ('ik_goals', 'max_goals') \
-                    and not (isinstance(p.value, int) and p.value >= 1):
-                return SetParametersResult(successful=False, reason=f'{p.name} must be >= 1')
             if p.name == 'default_planner' and p.value.lower() not in PLANNERS:
                 return SetParametersResult(successful=False,
                                            reason=f'unknown planner {p.value!r}')
+        changes = {p.name: p.value for p in params if p.name in _CONFIG_PARAMS}
+        if changes:
+            try:
+                dataclasses.replace(self._config(), **changes)
+            except (TypeError, ValueError) as exc:
+                return SetParametersResult(successful=False, reason=str(exc))
         return SetParametersResult(successful=True)
 
     # -- planning scene ----------------------------------------------------------------------

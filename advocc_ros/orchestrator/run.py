@@ -35,19 +35,27 @@ import pathlib
 import signal
 import sys
 import time
-from typing import Any
+from typing import Callable
 
-from advocc_ros.bench.protocol import (BenchConfig, BenchError, Unit, plan_units,
+import numpy as np
+
+from advocc_ros.bench.protocol import (BenchConfig, BenchError, Trial, Unit, plan_units,
                                        variation_scenes)
 from advocc_ros.bench.records import RecordStore, check_run_config, progress_summary, run_lock
 from advocc_ros.bench.report import write_report
 from advocc_ros.fileio import atomic_write_text
 from advocc_ros.orchestrator.graph import Graph
-from advocc_ros.orchestrator.shims import Shim, ShimPool, ShimState
+from advocc_ros.orchestrator.shims import (CallFailed, PlanAnswer, PlanJob, Shim, ShimPool,
+                                           ShimState, PlanQuery)
 from advocc_ros.orchestrator.sources import AttackSources
-from advocc_ros.ros.spawn import Child, node_name
+from advocc_ros.ros.spawn import Child
 
 log = logging.getLogger(__name__)
+
+# Plan outcomes that say the protocol itself is wrong (not the attack): stop the benchmark.
+_FATAL_CODES = {'INVALID_REQUEST', 'UNKNOWN_METHOD', 'INVALID_ROBOT_STATE',
+                'INVALID_GOAL_CONSTRAINTS', 'START_STATE_IN_COLLISION'}
+_CRASH_RETRIES = 2
 
 
 class Interrupted(KeyboardInterrupt):
@@ -57,11 +65,16 @@ class Interrupted(KeyboardInterrupt):
 # --------------------------------------------------------------------------------------------
 # The benchmark
 
-class Orchestrator(ShimPool, AttackSources):
-    """Runs ``cfg`` into ``run_dir`` (see the module docstring)."""
+class Orchestrator(AttackSources):
+    """Runs ``cfg`` into ``run_dir`` (see the module docstring).
+
+    ``pool_factory(orchestrator) -> ShimPool`` gives the planner shims of the current scene
+    (``orchestrator.scene``, ``.robot``, ...); None: ``RosShimPool`` (real nodes on a ROS graph).
+    """
 
     def __init__(self, cfg: BenchConfig, run_dir: str | pathlib.Path,
-                 heatmaps: dict[str, list[str]] | None = None, domain: int | None = None):
+                 heatmaps: dict[str, list[str]] | None = None, domain: int | None = None,
+                 pool_factory: Callable[['Orchestrator'], ShimPool] | None = None):
         self.cfg = cfg
         self.run_dir = pathlib.Path(run_dir)
         self.heatmap_sources = heatmaps or {}
@@ -75,6 +88,11 @@ class Orchestrator(ShimPool, AttackSources):
         self.restarts: collections.Counter = collections.Counter()
         self.notes: list[str] = []
         self.bar = None
+        self.pool_factory = pool_factory
+        self.pool: ShimPool | None = None
+        self.server: Child | None = None
+        self._holding_signals = False
+        self._held_signal: int | None = None
         self._t0 = time.monotonic()
 
     # -- entry point -------------------------------------------------------------------------
@@ -124,7 +142,25 @@ class Orchestrator(ShimPool, AttackSources):
         return summary
 
     def _on_signal(self, signum, frame) -> None:
+        if self._holding_signals:  # raised once the record being written is in the store
+            self._held_signal = signum
+            return
         raise Interrupted(f'signal {signal.Signals(signum).name}')
+
+    def _append(self, record: dict) -> None:
+        """Append a trial's record; a signal meanwhile interrupts only after it is stored (an
+        Interrupted between the durable write and the store's update left the summary a trial
+        short of the file)."""
+        self._holding_signals = True
+        try:
+            appended = self.store.append(record)
+        finally:
+            self._holding_signals = False
+        if appended:
+            self.bar.update(1)
+        if self._held_signal is not None:
+            signum, self._held_signal = self._held_signal, None
+            raise Interrupted(f'signal {signal.Signals(signum).name}')
 
     def _shutdown(self) -> None:
         if self.bar is not None:
@@ -198,7 +234,8 @@ class Orchestrator(ShimPool, AttackSources):
     def _run_units(self, units: list[Unit], heatmaps: dict[str, pathlib.Path]) -> None:
         from tqdm import tqdm
 
-        self.graph = Graph(self.domain)
+        if self.pool_factory is None:
+            self.graph = Graph(self.domain)
         planned = sum(len(u.trials) for u in units)
         done = sum(1 for u in units for t in u.trials if t.key in self.store)
         self.bar = tqdm(total=planned, initial=done, unit='trial', desc='bench',
@@ -208,10 +245,13 @@ class Orchestrator(ShimPool, AttackSources):
             self._run_scene(scene_name, [u for u in units if u.scene == scene_name],
                             heatmaps.get(scene_name))
 
+    def _ros_pool(self) -> ShimPool:
+        from advocc_ros.orchestrator.rospool import RosShimPool
+        return RosShimPool(self.graph, self.cfg, self.scene, self.scene_file, self.robot,
+                           self.env, self.run_dir / 'logs', self.children)
+
     def _run_scene(self, scene_name: str, units: list[Unit], heatmap: pathlib.Path | None
                    ) -> None:
-        from advocc_msgs.srv import Attack, GetInfo
-
         from advocc_ros.paths import scene_path
         from advocc_ros.planning import start_configuration
         from advocc_ros.model.robot import load_robot
@@ -222,44 +262,20 @@ class Orchestrator(ShimPool, AttackSources):
         self.scene_name = scene_name
         self.robot = load_robot(self.scene.robot)
         self.q_init = start_configuration(self.scene, self.robot)
-        stem = node_name(self.scene_file.stem)
-        logs = self.run_dir / 'logs'
-        self.server: Child | None = None
-        self.server_clients = None
         self.heatmap_file, self.heatmap = heatmap, None
+        self.server = None
         if heatmap is not None:
-            self.server = Child(f'advocc_heatmap_{stem}', 'heatmap_server',
-                                {'heatmap_file': str(heatmap)}, self.env, logs)
-            self.server.start()
-            self.children.append(self.server)
-            self.server_clients = (self.graph.client(Attack, f'/{self.server.name}/attack'),
-                                   self.graph.client(GetInfo, f'/{self.server.name}/get_info'))
-        self.shims: list[Shim] = []
-        for i in range(self.cfg.shims):
-            child = Child(f'advocc_shim_{stem}_{i}', 'planner_shim',
-                          {'scene_file': str(self.scene_file)}, self.env, logs)
-            child.start()
-            self.children.append(child)
-            self.shims.append(self._make_shim(f'/{child.name}', child))
+            self._start_server(heatmap)
+        self.pool = (self.pool_factory or Orchestrator._ros_pool)(self)
         self._write_children()
-        self.expected: dict[str, Any] = {}  # id -> SceneObject of the current injection
         self.pending: collections.deque = collections.deque()
-        self._discover()
+        self.pool.discover(wait=True)
         try:
             for unit in units:
                 self._run_unit(unit)
         finally:
-            self._publish_remove_all()
-            for child in [c for c in self.children if c is self.server
-                          or any(s.child is c for s in self.shims)]:
-                child.stop()
-                self.children.remove(child)
-            for shim in self.shims:
-                self.graph.drop(shim.plan)
-                self.graph.drop(shim.info)
-            if self.server_clients:
-                for client in self.server_clients:
-                    self.graph.drop(client)
+            self.pool.close()
+            self._stop_server()
 
     def _run_unit(self, unit: Unit) -> None:
         from advocc_ros.model.collision import CollisionWorld
@@ -272,22 +288,147 @@ class Orchestrator(ShimPool, AttackSources):
                                     [s for o in objects for s in o.shapes])
         self.unit = unit
         self.crashes: collections.Counter = collections.Counter()
-        self._inject(objects)
+        self.pool.inject(objects)
         last_discovery = time.monotonic()
-        while self.pending or any(s.state == ShimState.BUSY for s in self.shims):
+        while self.pending or self._busy():
             self._supervise()
             now = time.monotonic()
-            for shim in self.shims:
+            for shim in list(self.pool.shims):
                 self._step_shim(shim, now)
-            if all(s.state == ShimState.DEAD for s in self.shims):
+            if all(s.state == ShimState.DEAD for s in self.pool.shims):
                 raise BenchError('no planner shim left to run the trials')
             if self.cfg.external_shims and now - last_discovery > 10.0:
                 last_discovery = now
-                known = {s.name for s in self.shims}
-                for name in self.graph.plan_services():
-                    if name not in known:
-                        self.shims.append(self._make_shim(name, None))
-            self.graph.spin(0.02)
+                self.pool.discover()
+            self.pool.spin(0.02)
         label = 'unattacked' if unit.attack is None else unit.attack.tag
         self.bar.write(f'{self.scene.name}: {label}: {len(unit.trials)} trials done',
                        file=sys.stderr)
+
+    def _busy(self) -> bool:
+        return any(s.state == ShimState.BUSY for s in self.pool.shims)
+
+    # -- supervision -------------------------------------------------------------------------
+
+    def _write_children(self) -> None:
+        data = {c.name: {'pid': c.pid, 'module': c.module, 'starts': c.starts,
+                         'log': str(c.log_path)} for c in self.children}
+        atomic_write_text(self.run_dir / 'children.json', json.dumps(data, indent=2) + '\n')
+
+    def _count_restart(self, name: str, why: str, output) -> None:
+        """Count a restart of node ``name``; ``BenchError`` past ``cfg.max_restarts``."""
+        self.restarts[name] += 1
+        if self.restarts[name] > self.cfg.max_restarts:
+            raise BenchError(f'{name} failed {self.restarts[name]} times ({why}); '
+                             f'last output:\n{output()}')
+        msg = f'{name} {why}: restarting (#{self.restarts[name]})'
+        log.warning(msg)
+        if self.bar is not None:
+            self.bar.write(f'warning: {msg}', file=sys.stderr)
+
+    def _restart(self, child: Child, why: str) -> None:
+        self._count_restart(child.name, why, child.tail)
+        child.restart()
+        self._write_children()
+
+    def _supervise(self) -> None:
+        """Restart dead children; a dead shim's trial goes back to the queue."""
+        if self.server is not None and not self.server.alive():
+            self._restart(self.server, f'exited with code {self.server.proc.returncode}')
+            self._reset_server_clients()
+        for shim in self.pool.shims:
+            if shim.state == ShimState.DEAD:
+                continue
+            code = self.pool.exit_code(shim)
+            if code is not None:
+                self._shim_down(shim, f'exited with code {code}')
+
+    def _shim_down(self, shim: Shim, why: str) -> None:
+        """Requeue the shim's trial; restart it (ours) or stop using it (external)."""
+        if shim.trial is not None:
+            self.pending.appendleft(shim.trial)
+            shim.trial = None
+        if shim.external:
+            self.pool.drop(shim)
+            log.warning('external shim %s %s: no longer used', shim.name, why)
+            if self.bar is not None:
+                self.bar.write(f'warning: external shim {shim.name} {why}: dropped',
+                               file=sys.stderr)
+            return
+        self._count_restart(shim.name.lstrip('/'), why, lambda: self.pool.output(shim))
+        self.pool.restart(shim)
+        self._write_children()
+
+    # -- trials ------------------------------------------------------------------------------
+
+    def _step_shim(self, shim: Shim, now: float) -> None:
+        if shim.state in (ShimState.STARTING, ShimState.SYNC):
+            why = self.pool.sync(shim, now)
+            if why is not None:
+                self._shim_down(shim, why)
+            return
+        if shim.state == ShimState.IDLE and self.pending:
+            self._dispatch(shim, self.pending.popleft(), now)
+        elif shim.state == ShimState.BUSY:
+            try:
+                answer = self.pool.poll(shim)
+            except CallFailed as exc:
+                self._requeue(shim, exc)
+                return
+            if answer is not None:
+                self._finish(shim, answer)
+            elif now > shim.deadline:
+                self._shim_down(shim, f'did not answer a plan request within '
+                                      f'{shim.deadline - shim.since:.0f} s')
+
+    def _dispatch(self, shim: Shim, job: Trial | PlanQuery, now: float) -> None:
+        if isinstance(job, PlanQuery):
+            plan = PlanJob(job.q_start, job.goal, job.planner_id, job.time_budget_s, job.seed)
+        else:
+            plan = PlanJob(self.q_init, self.scene.goal, job.planner, self.cfg.time_budget_s,
+                           job.seed)
+        self.pool.plan(shim, plan)
+        shim.trial, shim.state, shim.since = job, ShimState.BUSY, now
+        shim.deadline = now + plan.time_budget_s + self.cfg.plan_timeout_margin_s
+
+    def _requeue(self, shim: Shim, exc: Exception) -> None:
+        trial, shim.trial, shim.state = shim.trial, None, ShimState.IDLE
+        shim.served += 1
+        log.warning('%s: plan call failed (%s); trial requeued', shim.name, exc)
+        self.pending.appendleft(trial)
+
+    def _finish(self, shim: Shim, answer: PlanAnswer) -> None:
+        from advocc_ros.evaluation.metrics import trial_metrics
+
+        trial, shim.trial, shim.state = shim.trial, None, ShimState.IDLE
+        shim.served += 1
+        status = answer.status
+        if isinstance(trial, PlanQuery):
+            trial.done(answer, self.robot.nq)
+            return
+        if status in _FATAL_CODES:
+            raise BenchError(f'{shim.name} rejected trial {trial.key}: {status}: '
+                             f'{answer.message}')
+        if status == 'CRASH' and self.crashes[trial.key] < _CRASH_RETRIES:
+            self.crashes[trial.key] += 1
+            log.warning('%s: planner crashed on %s (%s); retrying', shim.name, trial.key,
+                        answer.message)
+            self.pending.append(trial)
+            return
+        if self.pending and shim.state == ShimState.IDLE:  # keep the shim busy while we compute
+            self._dispatch(shim, self.pending.popleft(), time.monotonic())
+        success = status == 'SUCCESS'
+        record = {'key': trial.key, 'scene': trial.scene, 'planner': trial.planner,
+                  'method': trial.method, 'budget': trial.budget, 'trial': trial.trial,
+                  'seed': trial.seed, 'success': success, 'status': status,
+                  'error_code': answer.error_code, 'message': answer.message,
+                  'planning_time_s': float(answer.planning_time_s),
+                  'time_budget_s': float(self.cfg.time_budget_s),
+                  'attack': None if self.unit.attack is None else self.unit.attack.tag,
+                  'shim': shim.name, 'waypoints': answer.waypoints,
+                  'min_manipulability': None, 'min_clearance_rad': None, 'jds_rad': None,
+                  'unix': round(time.time(), 3)}
+        if success:
+            record.update(trial_metrics(self.robot, self.world, answer.path, self.q_init,
+                                        rng=np.random.default_rng(trial.seed)))
+        self._append(record)

@@ -14,14 +14,58 @@ import time
 from typing import Any
 
 from advocc_ros.bench.protocol import AttackSpec, BenchError
-from advocc_ros.orchestrator.graph import CallFailed
-from advocc_ros.orchestrator.shims import ShimQueries, ShimState
+from advocc_ros.orchestrator.shims import CallFailed, ShimQueries, ShimState
+from advocc_ros.ros.spawn import Child, node_name
 
 log = logging.getLogger(__name__)
 
 
 class AttackSources:
     """The Orchestrator's attack half: cached, served by ``heatmap_server``, or PFA/PFA++."""
+
+    # -- the heatmap server ------------------------------------------------------------------
+
+    def _start_server(self, heatmap: pathlib.Path) -> None:
+        stem = node_name(self.scene_file.stem)
+        self.server = Child(f'advocc_heatmap_{stem}', 'heatmap_server',
+                            {'heatmap_file': str(heatmap)}, self.env, self.run_dir / 'logs')
+        self.server.start()
+        self.children.append(self.server)
+        self.server_clients = None
+        self._reset_server_clients()
+
+    def _stop_server(self) -> None:
+        if self.server is None:
+            return
+        self.server.stop()
+        self.children.remove(self.server)
+        for client in self.server_clients:
+            self.graph.drop(client)
+        self.server = self.server_clients = None
+
+    def _reset_server_clients(self) -> None:
+        from advocc_msgs.srv import Attack, GetInfo
+        for client in self.server_clients or ():
+            self.graph.drop(client)
+        self.server_clients = (self.graph.client(Attack, f'/{self.server.name}/attack'),
+                               self.graph.client(GetInfo, f'/{self.server.name}/get_info'))
+
+    def _wait_server(self) -> None:
+        from advocc_msgs.srv import GetInfo
+        deadline = self.server.started_at + self.cfg.start_timeout_s
+        while True:
+            self._supervise()
+            try:
+                self.graph.call(self.server_clients[1], GetInfo.Request(), 2.0,
+                                self.server.alive)
+                return
+            except CallFailed:
+                if time.monotonic() > deadline:
+                    raise BenchError(f'{self.server.name} did not come up within '
+                                     f'{self.cfg.start_timeout_s:g} s; its output:\n'
+                                     f'{self.server.tail()}') from None
+
+    # -- attacks -----------------------------------------------------------------------------
 
     def _attack_path(self, spec: AttackSpec) -> pathlib.Path:
         from advocc_ros.paths import scene_path
@@ -116,7 +160,7 @@ class AttackSources:
         if self.heatmap is None:
             self.heatmap = load_heatmap(self.heatmap_file, robot_hash=self.robot.hash)
         pcfg = PfaConfig(**dict(self.cfg.pfa, planner_id=spec.planner or PFA_PLANNER))
-        queries = ShimQueries(sum(1 for s in self.shims if s.state != ShimState.DEAD))
+        queries = ShimQueries(sum(1 for s in self.pool.shims if s.state != ShimState.DEAD))
         done = [0]
 
         def progress(n: int, total: int) -> None:
@@ -143,29 +187,28 @@ class AttackSources:
                        f'on {queries.workers} shims', file=sys.stderr)
         thread.start()
         try:
-            while thread.is_alive() or self.pending \
-                    or any(s.state == ShimState.BUSY for s in self.shims):
+            while thread.is_alive() or self.pending or self._busy():
                 self._supervise()
                 while True:
                     try:
                         waiting.append(queries.requests.get_nowait())
                     except queue.Empty:
                         break
-                busy = any(s.state == ShimState.BUSY for s in self.shims)
-                if waiting and not self.pending and not busy and waiting[0].key != current:
+                if waiting and not self.pending and not self._busy() \
+                        and waiting[0].key != current:
                     current, sets = waiting[0].key, sets + 1
-                    self._inject(tuple(make_box(f'q{sets}_{i}', o.shapes[0].pose.position_m,
-                                                o.shapes[0].dims)
-                                       for i, o in enumerate(waiting[0].obstacles)))
+                    self.pool.inject(tuple(make_box(f'q{sets}_{i}', o.shapes[0].pose.position_m,
+                                                    o.shapes[0].dims)
+                                           for i, o in enumerate(waiting[0].obstacles)))
                 for job in [q for q in waiting if q.key == current]:
                     waiting.remove(job)
                     self.pending.append(job)
                 now = time.monotonic()
-                for shim in self.shims:
+                for shim in list(self.pool.shims):
                     self._step_shim(shim, now)
-                if all(s.state == ShimState.DEAD for s in self.shims):
+                if all(s.state == ShimState.DEAD for s in self.pool.shims):
                     raise BenchError('no planner shim left for the attack\'s queries')
-                self.graph.spin(0.01)
+                self.pool.spin(0.01)
         finally:
             queries.aborted.set()
             thread.join(timeout=10)

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import os
 import time
+from typing import Callable
 
 
 class ServiceError(OSError):
@@ -11,49 +12,78 @@ class ServiceError(OSError):
 
 
 class ServiceClient:
-    """Calls services with ``call_async`` + futures on its own context (never a blocking call)."""
+    """Calls services with ``call_async`` + futures on its own context (never a blocking call).
 
-    def __init__(self, name: str = 'advocc_call'):
+    ``domain_id``: the ROS domain (None: ``ROS_DOMAIN_ID``); ``handle_signals=False`` leaves
+    SIGINT/SIGTERM to the program (rclpy's handlers would shut the context down under it).
+    """
+
+    def __init__(self, name: str = 'advocc_call', domain_id: int | None = None,
+                 handle_signals: bool = True):
         import rclpy
         from rclpy.executors import SingleThreadedExecutor
+        from rclpy.signals import SignalHandlerOptions
 
         self._rclpy = rclpy
         self.context = rclpy.Context()
-        rclpy.init(context=self.context)
+        rclpy.init(context=self.context, domain_id=domain_id,
+                   signal_handler_options=None if handle_signals else SignalHandlerOptions.NO)
         self.node = rclpy.create_node(f'{name}_{os.getpid()}', context=self.context)
         self.executor = SingleThreadedExecutor(context=self.context)
         self.executor.add_node(self.node)
         self._clients: dict = {}
+
+    def spin(self, timeout_s: float = 0.05) -> None:
+        self.executor.spin_once(timeout_sec=timeout_s)
 
     def client(self, srv_type, service: str, timeout_s: float):
         """A ready client for ``service``, or ``ServiceError`` after ``timeout_s``."""
         if service not in self._clients:
             self._clients[service] = self.node.create_client(srv_type, service)
         client = self._clients[service]
+        self.wait_ready(client, timeout_s)
+        return client
+
+    def wait_ready(self, client, timeout_s: float, alive: Callable[[], bool] = lambda: True
+                   ) -> None:
+        """Spin until ``client``'s service is ready; ``ServiceError`` after ``timeout_s`` or
+        once ``alive()`` says the server died."""
         deadline = time.monotonic() + timeout_s
         while not client.service_is_ready():
-            if time.monotonic() > deadline:
-                raise ServiceError(f'service {service} is not available after {timeout_s:g} s '
-                                   '(is the node running, on this ROS_DOMAIN_ID?)')
-            self.executor.spin_once(timeout_sec=0.05)
-        return client
+            if time.monotonic() > deadline or not alive():
+                raise ServiceError(f'service {client.srv_name} is not available after '
+                                   f'{timeout_s:g} s (is the node running, on this '
+                                   'ROS_DOMAIN_ID?)')
+            self.spin(0.05)
+
+    def call_client(self, client, request, timeout_s: float,
+                    alive: Callable[[], bool] = lambda: True):
+        """The response of ``client`` within ``timeout_s`` (waiting for the service included),
+        or ``ServiceError``; spins meanwhile, so other callbacks keep running."""
+        deadline = time.monotonic() + timeout_s
+        self.wait_ready(client, timeout_s, alive)
+        future = client.call_async(request)
+        while not future.done():
+            if time.monotonic() > deadline or not alive():
+                client.remove_pending_request(future)
+                raise ServiceError(f'{client.srv_name}: no answer within {timeout_s:g} s'
+                                   if alive() else f'{client.srv_name}: the node died')
+            self.spin(0.05)
+        if future.exception() is not None:
+            raise ServiceError(f'{client.srv_name}: call failed ({future.exception()})')
+        return future.result()
 
     def call(self, srv_type, service: str, request, timeout_s: float):
         """The response, or ``ServiceError`` when there is none within ``timeout_s``."""
         client = self.client(srv_type, service, timeout_s)
-        future = client.call_async(request)
-        self.executor.spin_until_future_complete(future, timeout_sec=timeout_s)
-        if not future.done():
-            client.remove_pending_request(future)
-            raise ServiceError(f'{service}: no answer within {timeout_s:g} s')
-        if future.exception() is not None:
-            raise ServiceError(f'{service}: call failed ({future.exception()})')
-        return future.result()
+        return self.call_client(client, request, timeout_s)
 
     def close(self) -> None:
-        self.executor.shutdown()
-        self.node.destroy_node()
-        self._rclpy.try_shutdown(context=self.context)
+        try:
+            self.executor.shutdown()
+            self.node.destroy_node()
+        finally:
+            self._rclpy.try_shutdown(context=self.context)
 
     def __enter__(self) -> 'ServiceClient':
         return self

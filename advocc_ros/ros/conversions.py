@@ -8,13 +8,15 @@ error response.
 from __future__ import annotations
 
 import numpy as np
-from advocc_msgs.msg import CollisionObject, GoalRegion as GoalRegionMsg, Obstacle as ObstacleMsg
-from advocc_msgs.srv import Attack
+from advocc_msgs.msg import (CollisionObject, GoalRegion as GoalRegionMsg, Obstacle as ObstacleMsg,
+                             Scene as SceneMsg)
+from advocc_msgs.srv import Attack, Plan
 from builtin_interfaces.msg import Duration
 from geometry_msgs.msg import Point, Pose as PoseMsg, Quaternion
 from sensor_msgs.msg import JointState
 from shape_msgs.msg import Mesh, MeshTriangle, SolidPrimitive
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
+from visualization_msgs.msg import Marker, MarkerArray
 
 from advocc_ros.limits import (MAX_JOINTS, MAX_MESH_TRIANGLES, MAX_MESH_VERTICES, MAX_OBJECTS,
                                MAX_SCENE_VERTICES, MAX_SHAPES)
@@ -211,18 +213,52 @@ def joint_state_from_dict(positions: dict[str, float]) -> JointState:
     return JointState(name=list(positions), position=[float(v) for v in positions.values()])
 
 
+def scene_to_msg(scene: Scene) -> SceneMsg:
+    """The ``/advocc/scene`` message of a scene: its objects and start state."""
+    if scene.start is None:
+        raise SceneError(f'scene {scene.name!r} has no start state')
+    msg = SceneMsg(name=scene.name)
+    msg.header.frame_id = scene.frame
+    msg.objects = [collision_object_to_msg(o, scene.frame) for o in scene.objects]
+    msg.start_state = joint_state_from_dict(scene.start)
+    return msg
+
+
+def attack_request_from_msgs(scene: SceneMsg, goal: GoalRegionMsg, budget: int,
+                             method: str = 'ours', box_size_m: float = 0.0, seed: int = 0,
+                             goal_policy: str = '') -> Attack.Request:
+    """Attack.Request for a task as it arrives on ``/advocc/scene`` and ``/advocc/goal_region``
+    (passed on unchanged: the heatmap server validates it)."""
+    req = Attack.Request()
+    req.scene = list(scene.objects)
+    req.start_state = scene.start_state
+    req.goal_region = goal
+    req.budget, req.method, req.box_size, req.seed = int(budget), str(method), \
+        float(box_size_m), int(seed)
+    req.goal_policy = str(goal_policy)
+    return req
+
+
 def attack_request(scene: Scene, budget: int, method: str = 'ours', box_size_m: float = 0.0,
                    seed: int = 0, goal_policy: str = '') -> Attack.Request:
     """Attack.Request for a scene's objects, start and goal ('' policy: the server's)."""
     if scene.start is None or scene.goal is None:
         raise SceneError(f'scene {scene.name!r} needs a start and a goal to attack')
-    req = Attack.Request()
-    req.scene = [collision_object_to_msg(o, scene.frame) for o in scene.objects]
-    req.start_state = joint_state_from_dict(scene.start)
-    req.goal_region = goal_region_to_msg(scene.goal, scene.frame)
-    req.budget, req.method, req.box_size, req.seed = int(budget), method, float(box_size_m), \
-        int(seed)
-    req.goal_policy = goal_policy
+    goal = goal_region_to_msg(scene.goal, scene.frame)
+    return attack_request_from_msgs(scene_to_msg(scene), goal, budget, method, box_size_m, seed,
+                                    goal_policy)
+
+
+def plan_request(robot: RobotModel, q_start: np.ndarray, goal: GoalRegion, frame: str,
+                 planner_id: str, time_budget_s: float, seed: int = 0) -> Plan.Request:
+    """Plan.Request from ``q_start`` (nq,) [rad] in the robot's joint order to ``goal``."""
+    req = Plan.Request()
+    req.start_state = JointState(name=list(robot.joint_names),
+                                 position=[float(v) for v in q_start])
+    req.goal_region = goal_region_to_msg(goal, frame)
+    req.planner_id = planner_id
+    req.time_budget_s = float(time_budget_s)
+    req.seed = int(seed)
     return req
 
 
@@ -246,3 +282,18 @@ def attack_response_data(res: Attack.Response, round_trip_s: float | None = None
     if round_trip_s is not None:
         data['round_trip_ms'] = round(round_trip_s * 1e3, 3)
     return data
+
+
+def box_markers(objects: tuple[SceneObject, ...] | list[SceneObject], frame: str, ns: str
+                ) -> MarkerArray:
+    """DELETEALL of namespace ``ns``, then one red cube per box object."""
+    markers = MarkerArray(markers=[Marker(ns=ns, action=Marker.DELETEALL)])
+    for i, obj in enumerate(objects):
+        shape = obj.shapes[0]
+        marker = Marker(ns=ns, id=i, type=Marker.CUBE, action=Marker.ADD,
+                        pose=pose_to_msg(shape.pose))
+        marker.header.frame_id = frame
+        marker.scale.x, marker.scale.y, marker.scale.z = (float(v) for v in shape.dims)
+        marker.color.r, marker.color.g, marker.color.b, marker.color.a = 0.9, 0.1, 0.1, 0.7
+        markers.markers.append(marker)
+    return markers

@@ -14,7 +14,7 @@ import tempfile
 import time
 
 from advocc_ros.attack.obstacles import obstacles_file_data, save_obstacles
-from advocc_ros.model.scene import Scene, make_box
+from advocc_ros.model.scene import Scene
 from advocc_ros.ros.spawn import start_node, stop
 
 
@@ -29,8 +29,8 @@ def run_attack_nodes(heatmap_file: str | pathlib.Path, scene: Scene, out: str | 
     from advocc_msgs.msg import CollisionObject, GoalRegion, Scene as SceneMsg
     from rclpy.executors import SingleThreadedExecutor
 
-    from advocc_ros.ros.conversions import (collision_object_to_msg, goal_region_to_msg,
-                                            joint_state_from_dict)
+    from advocc_ros.ros.conversions import (collision_object_from_msg, goal_region_to_msg,
+                                            scene_to_msg)
     from advocc_ros.ros.qos import (COLLISION_OBJECT_TOPIC, GOAL_REGION_TOPIC, LATCHED_QOS,
                                     SCENE_TOPIC)
 
@@ -53,11 +53,7 @@ def run_attack_nodes(heatmap_file: str | pathlib.Path, scene: Scene, out: str | 
             CollisionObject, COLLISION_OBJECT_TOPIC,
             lambda m: added.append(m) if m.operation == CollisionObject.ADD else None,
             LATCHED_QOS)
-        msg = SceneMsg(name=scene.name)
-        msg.header.frame_id = scene.frame
-        msg.objects = [collision_object_to_msg(o, scene.frame) for o in scene.objects]
-        msg.start_state = joint_state_from_dict(scene.start)
-        node.create_publisher(SceneMsg, SCENE_TOPIC, LATCHED_QOS).publish(msg)
+        node.create_publisher(SceneMsg, SCENE_TOPIC, LATCHED_QOS).publish(scene_to_msg(scene))
         node.create_publisher(GoalRegion, GOAL_REGION_TOPIC, LATCHED_QOS).publish(
             goal_region_to_msg(scene.goal, scene.frame))
         t0 = time.monotonic()
@@ -84,9 +80,7 @@ def run_attack_nodes(heatmap_file: str | pathlib.Path, scene: Scene, out: str | 
         raise RuntimeError('the attacker published no boxes within '
                            f'{timeout_s:g} s\n--- heatmap_server:\n{output[0]}\n'
                            f'--- attacker:\n{output[1]}')
-    boxes = [make_box(m.id, (m.primitive_poses[0].position.x, m.primitive_poses[0].position.y,
-                             m.primitive_poses[0].position.z),
-                      tuple(float(v) for v in m.primitives[0].dimensions)) for m in added]
+    boxes = [collision_object_from_msg(m, 'attacker box')[1] for m in added]
     data = obstacles_file_data(
         boxes, method, budget, scene={'name': scene.name, 'objects_hash': scene.objects_hash()},
         extra={'source': 'heatmap_server + attacker nodes', 'heatmap_file': str(heatmap_file)})
