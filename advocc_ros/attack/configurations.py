@@ -14,17 +14,17 @@ from scipy import sparse
 
 from advocc_ros.attack.coverage import box_sum
 from advocc_ros.attack.region import SearchRegion
-from advocc_ros.heatmap.build import _LinkTables, _placement_arrays
+from advocc_ros.heatmap import LinkTables, placement_arrays
 from advocc_ros.model.collision import CollisionWorld
 from advocc_ros.model.robot import RobotModel
 
-_TABLES: dict[tuple[str, float], _LinkTables] = {}
+_TABLES: dict[tuple[str, float], LinkTables] = {}
 
 
-def _tables(robot: RobotModel, pitch_m: float) -> _LinkTables:
+def _tables(robot: RobotModel, pitch_m: float) -> LinkTables:
     key = (robot.hash, round(pitch_m, 9))
     if key not in _TABLES:
-        _TABLES[key] = _LinkTables(robot, pitch_m)
+        _TABLES[key] = LinkTables(robot, pitch_m)
     return _TABLES[key]
 
 
@@ -98,7 +98,7 @@ def cover_matrix(robot: RobotModel, world: CollisionWorld, Q: np.ndarray,
     dense = np.zeros((len(Q), len(cand)), dtype=np.bool_)
     grid = region.grid
     tables = _tables(robot, grid.voxel_m / 4)
-    R, t = _placement_arrays(world, Q)
+    R, t = placement_arrays(world, Q)
     origin = np.asarray(grid.origin_m) + np.asarray(region.lo) * grid.voxel_m
     k = max(region.k - shrink, 0)
     near = np.pad(box_sum(region.candidates.astype(np.float64), k) > 0, k)

@@ -41,8 +41,7 @@ from advocc_ros.attack.goals import GoalGuard
 from advocc_ros.attack.methods import MethodContext, register_method
 from advocc_ros.attack.region import SearchRegion
 from advocc_ros.attack.types import AttackConfig
-from advocc_ros.heatmap import HeatmapConfig
-from advocc_ros.heatmap.build import sample_weights
+from advocc_ros.heatmap import HeatmapConfig, sample_weights
 from advocc_ros.model.collision import CollisionWorld
 from advocc_ros.model.ik import goal_set
 

@@ -155,7 +155,7 @@ def _accumulate(H, stamp, free, grid_origin, voxel, grid_shape, R, t, weights, s
     return H
 
 
-class _LinkTables:
+class LinkTables:
     """All link look-up tables packed into flat arrays for the compiled kernel."""
 
     def __init__(self, robot: RobotModel, lut_pitch_m: float):
@@ -170,7 +170,7 @@ class _LinkTables:
         self.box_hi = np.array([m.bounds[1] for m in robot.link_meshes])
 
 
-def _placement_arrays(world: CollisionWorld, Q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def placement_arrays(world: CollisionWorld, Q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Rotations (n, L, 3, 3) and translations (n, L, 3) of every link for each q."""
     R = np.empty((len(Q), world.n_links, 3, 3))
     t = np.empty((len(Q), world.n_links, 3))
@@ -217,7 +217,7 @@ def _build_chunk(args) -> tuple[np.ndarray, int, int]:
         if done == 0 and drawn >= 50_000 and len(Q) == 0:
             raise RuntimeError('no valid configuration in 50,000 draws: is the robot inside '
                                'the scene?')
-        R, t = _placement_arrays(world, Q)
+        R, t = placement_arrays(world, Q)
         _accumulate(H, stamp, free_flat, np.asarray(grid.origin_m), grid.voxel_m,
                     np.asarray(grid.shape, dtype=np.int64), R, t,
                     sample_weights(robot, world, Q, cfg), done, tables.data, tables.offset,
@@ -249,7 +249,7 @@ def build_heatmap(scene: Scene, cfg: HeatmapConfig = HeatmapConfig(), seed: int 
     seqs = np.random.SeedSequence(seed).spawn(len(sizes))  # chunk i always gets stream i
     _CONTEXT.update(robot=robot, world=CollisionWorld(robot, shapes), grid=grid,
                     free=free.ravel(), cfg=cfg,
-                    tables=_LinkTables(robot, cfg.voxel_m * cfg.lut_pitch_fraction))
+                    tables=LinkTables(robot, cfg.voxel_m * cfg.lut_pitch_fraction))
     tasks = [(i, s, n) for i, (s, n) in enumerate(zip(seqs, sizes))][index::count]
     if not tasks:
         raise ValueError(f'shard {index}/{count} is empty: {len(sizes)} chunks of '
