@@ -122,8 +122,9 @@ class CollisionWorld:
         """Minimum distance between robot links and scene shapes [m]; ``inf`` if no scene."""
         if not self.shapes:
             return float('inf')
-        pin.computeDistances(self.model, self.data, self.dist_model, self.dist_data, q)
-        return float(min(r.min_distance for r in self.dist_data.distanceResults))
+        # pinocchio returns the index of the closest pair: no Python loop over the results.
+        i = pin.computeDistances(self.model, self.data, self.dist_model, self.dist_data, q)
+        return float(self.dist_data.distanceResults[i].min_distance)
 
     def link_placements(self, q: np.ndarray) -> list[pin.SE3]:
         """``T_base_geom`` of each robot collision geometry at ``q``."""
