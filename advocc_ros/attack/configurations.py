@@ -15,6 +15,7 @@ from scipy import sparse
 from advocc_ros.attack.coverage import box_sum
 from advocc_ros.attack.region import SearchRegion
 from advocc_ros.heatmap import LinkTables, placement_arrays
+from advocc_ros.heatmap.build import in_link, link_voxel_box
 from advocc_ros.model.collision import CollisionWorld
 from advocc_ros.model.robot import RobotModel
 
@@ -32,49 +33,28 @@ def _tables(robot: RobotModel, pitch_m: float) -> LinkTables:
 def _cover(cover, cand_id, near, stamp, win_origin, voxel, k, R, t, lut_data, lut_offset,
            lut_shape, lut_origin, lut_pitch, box_lo, box_hi):
     """``cover[s, cand_id[c]] = True`` for every candidate c whose cube U(c) (half-width k
-    voxels) holds a voxel centre inside a link of configuration s (window grid)."""
+    voxels) holds a voxel centre inside a link of configuration s (window grid). ``near`` and
+    ``stamp`` are padded by k: voxels with no candidate around them are skipped, and so are
+    voxels another link of the same configuration already did."""
     nx, ny, nz = cand_id.shape
+    lo_limit = np.full(3, -k, np.int64)
+    hi_limit = np.array([nx - 1 + k, ny - 1 + k, nz - 1 + k], np.int64)
+    inv = 1.0 / lut_pitch
     for s in range(R.shape[0]):
         for li in range(R.shape[1]):
-            r = R[s, li]
-            lo = np.empty(3, np.int64)
-            hi = np.empty(3, np.int64)
-            for a in range(3):
-                c = t[s, li, a]
-                e = 0.0
-                for b in range(3):
-                    mid = 0.5 * (box_lo[li, b] + box_hi[li, b])
-                    c += r[a, b] * mid
-                    e += abs(r[a, b]) * 0.5 * (box_hi[li, b] - box_lo[li, b])
-                n = cand_id.shape[a]
-                lo[a] = max(-k, int(np.ceil((c - e - win_origin[a]) / voxel - 0.5)))
-                hi[a] = min(n - 1 + k, int(np.floor((c + e - win_origin[a]) / voxel - 0.5)))
-            sx, sy, sz = lut_shape[li, 0], lut_shape[li, 1], lut_shape[li, 2]
-            off = lut_offset[li]
-            inv = 1.0 / lut_pitch
+            r, tl = R[s, li], t[s, li]
+            lo, hi = link_voxel_box(r, tl, box_lo[li], box_hi[li], win_origin, voxel,
+                                    lo_limit, hi_limit)
             for i in range(lo[0], hi[0] + 1):
-                px = win_origin[0] + (i + 0.5) * voxel - t[s, li, 0]
+                px = win_origin[0] + (i + 0.5) * voxel - tl[0]
                 for j in range(lo[1], hi[1] + 1):
-                    py = win_origin[1] + (j + 0.5) * voxel - t[s, li, 1]
+                    py = win_origin[1] + (j + 0.5) * voxel - tl[1]
                     for kk in range(lo[2], hi[2] + 1):
-                        # near/stamp are padded by k: skip voxels with no candidate around
-                        # them and voxels another link of this configuration already did
                         if not near[i + k, j + k, kk + k] or stamp[i + k, j + k, kk + k] == s:
                             continue
-                        pz = win_origin[2] + (kk + 0.5) * voxel - t[s, li, 2]
-                        gx = int(np.floor((r[0, 0] * px + r[1, 0] * py + r[2, 0] * pz
-                                           - lut_origin[li, 0]) * inv))
-                        if gx < 0 or gx >= sx:
-                            continue
-                        gy = int(np.floor((r[0, 1] * px + r[1, 1] * py + r[2, 1] * pz
-                                           - lut_origin[li, 1]) * inv))
-                        if gy < 0 or gy >= sy:
-                            continue
-                        gz = int(np.floor((r[0, 2] * px + r[1, 2] * py + r[2, 2] * pz
-                                           - lut_origin[li, 2]) * inv))
-                        if gz < 0 or gz >= sz:
-                            continue
-                        if not lut_data[off + (gx * sy + gy) * sz + gz]:
+                        pz = win_origin[2] + (kk + 0.5) * voxel - tl[2]
+                        if not in_link(r, px, py, pz, lut_data, lut_offset[li], lut_shape[li],
+                                       lut_origin[li], inv):
                             continue
                         stamp[i + k, j + k, kk + k] = s
                         for a0 in range(max(i - k, 0), min(i + k, nx - 1) + 1):

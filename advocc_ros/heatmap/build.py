@@ -98,6 +98,40 @@ def workspace_grid(robot: RobotModel, voxel_m: float, margin_m: float) -> VoxelG
 
 
 @numba.njit(cache=True, nogil=True)
+def link_voxel_box(r, t, box_lo, box_hi, origin, voxel, lo_limit, hi_limit):
+    """Per axis, the index range [lo, hi] of the voxel centres ``origin + (i + 0.5) voxel``
+    inside the rotated bounding box (``box_lo``, ``box_hi`` in the link frame) of a link at
+    ``T_base_link = (r, t)``, clipped to [``lo_limit``, ``hi_limit``]."""
+    lo = np.empty(3, np.int64)
+    hi = np.empty(3, np.int64)
+    for a in range(3):
+        c = t[a]
+        e = 0.0
+        for b in range(3):
+            c += r[a, b] * 0.5 * (box_lo[b] + box_hi[b])
+            e += abs(r[a, b]) * 0.5 * (box_hi[b] - box_lo[b])
+        lo[a] = max(lo_limit[a], int(np.ceil((c - e - origin[a]) / voxel - 0.5)))
+        hi[a] = min(hi_limit[a], int(np.floor((c + e - origin[a]) / voxel - 0.5)))
+    return lo, hi
+
+
+@numba.njit(cache=True, nogil=True)
+def in_link(r, px, py, pz, lut_data, offset, lut_shape, lut_origin, inv_pitch):
+    """Whether the point ``p - t`` (base-frame offset from the link origin) is inside the link's
+    look-up table: local = R^T p, then the table cell."""
+    gx = int(np.floor((r[0, 0] * px + r[1, 0] * py + r[2, 0] * pz - lut_origin[0]) * inv_pitch))
+    if gx < 0 or gx >= lut_shape[0]:
+        return False
+    gy = int(np.floor((r[0, 1] * px + r[1, 1] * py + r[2, 1] * pz - lut_origin[1]) * inv_pitch))
+    if gy < 0 or gy >= lut_shape[1]:
+        return False
+    gz = int(np.floor((r[0, 2] * px + r[1, 2] * py + r[2, 2] * pz - lut_origin[2]) * inv_pitch))
+    if gz < 0 or gz >= lut_shape[2]:
+        return False
+    return lut_data[offset + (gx * lut_shape[1] + gy) * lut_shape[2] + gz] != 0
+
+
+@numba.njit(cache=True, nogil=True)
 def _accumulate(H, stamp, free, grid_origin, voxel, grid_shape, R, t, weights, sample0,
                 lut_data, lut_offset, lut_shape, lut_origin, lut_pitch, box_lo, box_hi):
     """Add ``weights[s]`` to every free voxel whose centre is inside a link at sample ``s``.
@@ -107,47 +141,24 @@ def _accumulate(H, stamp, free, grid_origin, voxel, grid_shape, R, t, weights, s
     where links overlap (``stamp`` remembers the last sample that added to it).
     """
     ny, nz = grid_shape[1], grid_shape[2]
+    zero = np.zeros(3, np.int64)
+    top = np.asarray(grid_shape, np.int64) - 1
+    inv = 1.0 / lut_pitch
     for s in range(R.shape[0]):
         sid = sample0 + s
         w = weights[s]
         for li in range(R.shape[1]):
-            r = R[s, li]
-            lo = np.empty(3, np.int64)
-            hi = np.empty(3, np.int64)
-            for a in range(3):
-                c = t[s, li, a]
-                e = 0.0
-                for b in range(3):
-                    mid = 0.5 * (box_lo[li, b] + box_hi[li, b])
-                    c += r[a, b] * mid
-                    e += abs(r[a, b]) * 0.5 * (box_hi[li, b] - box_lo[li, b])
-                # voxel centres origin + (i + 0.5) voxel inside [c - e, c + e]
-                lo[a] = max(0, int(np.ceil((c - e - grid_origin[a]) / voxel - 0.5)))
-                hi[a] = min(grid_shape[a] - 1,
-                            int(np.floor((c + e - grid_origin[a]) / voxel - 0.5)))
-            sx, sy, sz = lut_shape[li, 0], lut_shape[li, 1], lut_shape[li, 2]
-            off = lut_offset[li]
-            inv = 1.0 / lut_pitch
+            r, tl = R[s, li], t[s, li]
+            lo, hi = link_voxel_box(r, tl, box_lo[li], box_hi[li], grid_origin, voxel, zero,
+                                    top)
             for i in range(lo[0], hi[0] + 1):
-                px = grid_origin[0] + (i + 0.5) * voxel - t[s, li, 0]
+                px = grid_origin[0] + (i + 0.5) * voxel - tl[0]
                 for j in range(lo[1], hi[1] + 1):
-                    py = grid_origin[1] + (j + 0.5) * voxel - t[s, li, 1]
+                    py = grid_origin[1] + (j + 0.5) * voxel - tl[1]
                     for k in range(lo[2], hi[2] + 1):
-                        pz = grid_origin[2] + (k + 0.5) * voxel - t[s, li, 2]
-                        # local = R^T p, then look-up-table cell
-                        gx = int(np.floor((r[0, 0] * px + r[1, 0] * py + r[2, 0] * pz
-                                           - lut_origin[li, 0]) * inv))
-                        if gx < 0 or gx >= sx:
-                            continue
-                        gy = int(np.floor((r[0, 1] * px + r[1, 1] * py + r[2, 1] * pz
-                                           - lut_origin[li, 1]) * inv))
-                        if gy < 0 or gy >= sy:
-                            continue
-                        gz = int(np.floor((r[0, 2] * px + r[1, 2] * py + r[2, 2] * pz
-                                           - lut_origin[li, 2]) * inv))
-                        if gz < 0 or gz >= sz:
-                            continue
-                        if lut_data[off + (gx * sy + gy) * sz + gz]:
+                        pz = grid_origin[2] + (k + 0.5) * voxel - tl[2]
+                        if in_link(r, px, py, pz, lut_data, lut_offset[li], lut_shape[li],
+                                   lut_origin[li], inv):
                             v = (i * ny + j) * nz + k
                             if free[v] and stamp[v] != sid:
                                 stamp[v] = sid
