@@ -17,6 +17,7 @@ import coal
 import numpy as np
 import pinocchio as pin
 
+from advocc_ros.model.cloud import cloud_octree
 from advocc_ros.model.robot import RobotModel
 from advocc_ros.model.scene import Shape
 
@@ -29,6 +30,8 @@ def coal_geometry(shape: Shape) -> coal.CollisionGeometry:
         return coal.Sphere(shape.dims[0])
     if shape.kind == 'cylinder':
         return coal.Cylinder(shape.dims[1], shape.dims[0])  # radius, length (height)
+    if shape.kind == 'cloud':
+        return cloud_octree(shape)
     # Meshes (e.g. a sensed reconstruction) may be concave: keep the triangles in a BVH.
     bvh = coal.BVHModelOBBRSS()
     bvh.beginModel(len(shape.faces), len(shape.vertices))
