@@ -27,8 +27,9 @@ DEFAULT_RESOLUTION_M = 0.02
 """Octree leaf edge [m] when a cloud object does not name one."""
 CLOUD_SUFFIXES = ('.ply', '.pcd')
 
-_OCTREES: dict[tuple[str, float], coal.OcTree] = {}
-_OCTREE_CACHE_SIZE = 16
+_CACHE: dict[tuple[str, float], dict[str, Any]] = {}
+"""(content hash, resolution) -> {'octree': coal.OcTree, 'keys': sorted leaf keys}."""
+_CACHE_SIZE = 16
 
 
 def make_cloud_shape(points, resolution_m: float = DEFAULT_RESOLUTION_M, pose: Pose = Pose(),
@@ -105,17 +106,32 @@ def cloud_to_data(shape: Shape) -> dict[str, Any]:
             'points': np.asarray(shape.vertices).tolist()}
 
 
-def cloud_octree(shape: Shape) -> coal.OcTree:
-    """coal ``OcTree`` of a cloud shape in its own frame (cached by content)."""
+def _cached(shape: Shape) -> dict[str, Any]:
     key = (hashlib.sha256(np.ascontiguousarray(shape.vertices).tobytes()).hexdigest(),
            round(shape.dims[0], 9))
-    tree = _OCTREES.get(key)
-    if tree is None:
-        tree = coal.makeOctree(np.ascontiguousarray(shape.vertices, dtype=float), shape.dims[0])
-        if len(_OCTREES) >= _OCTREE_CACHE_SIZE:
-            _OCTREES.pop(next(iter(_OCTREES)))
-        _OCTREES[key] = tree
-    return tree
+    entry = _CACHE.get(key)
+    if entry is None:
+        if len(_CACHE) >= _CACHE_SIZE:
+            _CACHE.pop(next(iter(_CACHE)))
+        entry = _CACHE[key] = {}
+    return entry
+
+
+def cloud_octree(shape: Shape) -> coal.OcTree:
+    """coal ``OcTree`` of a cloud shape in its own frame (cached by content)."""
+    entry = _cached(shape)
+    if 'octree' not in entry:
+        entry['octree'] = coal.makeOctree(np.ascontiguousarray(shape.vertices, dtype=float),
+                                          shape.dims[0])
+    return entry['octree']
+
+
+def _leaf_keys(shape: Shape) -> np.ndarray:
+    """Sorted int64 keys of the occupied leaves (cached by content)."""
+    entry = _cached(shape)
+    if 'keys' not in entry:
+        entry['keys'] = np.sort(_encode(cloud_cells(shape.vertices, shape.dims[0])))
+    return entry['keys']
 
 
 def points_in_cloud(shape: Shape, points_m: np.ndarray) -> np.ndarray:
@@ -124,7 +140,7 @@ def points_in_cloud(shape: Shape, points_m: np.ndarray) -> np.ndarray:
     res = shape.dims[0]
     local = (np.asarray(points_m, dtype=float) - T.translation) @ T.rotation
     keys = _encode(np.floor(local / res).astype(np.int64))
-    occupied = np.sort(_encode(cloud_cells(shape.vertices, res)))
+    occupied = _leaf_keys(shape)
     pos = np.clip(np.searchsorted(occupied, keys), 0, len(occupied) - 1)
     return occupied[pos] == keys
 
