@@ -303,6 +303,20 @@ def load_scene(path: str | pathlib.Path) -> Scene:
     return scene_from_data(read_yaml(path), str(path), path.parent)
 
 
+def referenced_files(path: str | pathlib.Path) -> list[pathlib.Path]:
+    """Files a scene file's objects read (mesh and cloud ``file`` fields), resolved against
+    the scene's folder: what a node must confine before loading the scene."""
+    path = pathlib.Path(path)
+    data = read_yaml(path)
+    objects = data.get('objects') if isinstance(data, dict) else None
+    out = []
+    for entry in objects if isinstance(objects, list) else []:
+        if isinstance(entry, dict) and 'file' in entry:
+            file = pathlib.Path(str(entry['file']))
+            out.append(file if file.is_absolute() else path.parent / file)
+    return out
+
+
 def save_yaml_atomic(path: str | pathlib.Path, data: Any) -> None:
     """Write YAML so that a crash leaves either the old or the new file, never half of one."""
     from advocc_ros.fileio import atomic_write_text
