@@ -59,7 +59,6 @@ def test_the_server_attacks_a_sensed_scene(ros, ros_env, heatmap_file, sensed_ta
     from advocc_msgs.msg import ErrorCodes
     from advocc_msgs.srv import Attack
 
-    from advocc_ros.ros.clouds import cloud_msg
     from advocc_ros.ros.conversions import attack_request
 
     node, executor, children = ros
@@ -67,10 +66,9 @@ def test_the_server_attacks_a_sensed_scene(ros, ros_env, heatmap_file, sensed_ta
     children.append(server)
     client = node.create_client(Attack, '/heatmap_server/attack')
     _wait_service(executor, client, server)
-    shape = sensed_table.shapes[0]
-    req = attack_request(sensed_table.without_objects(), 3, 'task')
-    req.cloud = cloud_msg(shape.vertices, 'panda_link0')
-    req.cloud_resolution = shape.dims[0]
+    req = attack_request(sensed_table, 3, 'task')  # the cloud goes in req.cloud
+    assert not req.scene and req.cloud.width == len(sensed_table.shapes[0].vertices)
+    assert req.cloud_resolution == 0.02
     res = _call(executor, client, req, timeout_s=60)
     assert res.error_code.val == ErrorCodes.SUCCESS, res.message
     assert len(res.obstacles) == 3
@@ -163,6 +161,16 @@ def _cloud(points, dtype='<f4', height=1, pad=0, fields='xyz'):
     rows = pts.reshape(height, -1, 3)
     msg.data = b''.join(r.tobytes() + b'\0' * pad for r in rows)
     return msg
+
+
+def test_clouds_have_no_collision_object_form(sensed_table, table_scene):
+    from advocc_ros.model.scene import SceneError
+    from advocc_ros.ros.conversions import collision_object_to_msg, scene_to_msg
+
+    with pytest.raises(SceneError, match='PointCloud2'):
+        collision_object_to_msg(sensed_table.objects[0], 'panda_link0')
+    mixed = table_scene.with_objects(sensed_table.objects)
+    assert [o.id for o in scene_to_msg(mixed).objects] == [o.id for o in table_scene.objects]
 
 
 def test_point_cloud2_parsing_layouts_and_errors():

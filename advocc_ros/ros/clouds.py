@@ -10,16 +10,15 @@ Clouds out: the heatmap's hottest voxels with x, y, z, intensity (= H) float32 f
 from __future__ import annotations
 
 import numpy as np
-from geometry_msgs.msg import Point
+from geometry_msgs.msg import Point, Pose as PoseMsg
 from sensor_msgs.msg import PointCloud2, PointField
 from std_msgs.msg import ColorRGBA
 from visualization_msgs.msg import Marker, MarkerArray
 
 from advocc_ros.limits import MAX_CLOUD_POINTS
 from advocc_ros.model.cloud import make_cloud_shape
-from advocc_ros.model.scene import SceneError, SceneObject, Shape
+from advocc_ros.model.scene import Pose, SceneError, SceneObject, Shape
 from advocc_ros.model.shapes import cloud_cells
-from advocc_ros.ros.conversions import pose_to_msg
 
 CLOUD_TOPIC = '/advocc/cloud'
 CLOUD_PARAMS = {'cloud_resolution': 0.02, 'cloud_crop_min': [-1.5, -1.5, -0.5],
@@ -95,6 +94,37 @@ def cloud_msg(points_m: np.ndarray, frame: str, intensity: np.ndarray | None = N
     return msg
 
 
+def _pose_msg(pose: Pose) -> PoseMsg:
+    msg = PoseMsg()
+    msg.position.x, msg.position.y, msg.position.z = (float(v) for v in pose.position_m)
+    (msg.orientation.x, msg.orientation.y, msg.orientation.z,
+     msg.orientation.w) = (float(v) for v in pose.quat_xyzw)
+    return msg
+
+
+def scene_cloud(objects) -> tuple[np.ndarray, float] | None:
+    """The cloud objects among ``objects`` as one (points in the base frame (N, 3), finest
+    resolution) pair for ``/advocc/cloud`` or a request's ``cloud``; None without clouds."""
+    shapes = [s for o in objects for s in o.shapes if s.kind == 'cloud']
+    if not shapes:
+        return None
+    points = []
+    for shape in shapes:
+        T = shape.pose.to_se3()
+        points.append(np.asarray(shape.vertices) @ T.rotation.T + T.translation)
+    return np.concatenate(points), min(s.dims[0] for s in shapes)
+
+
+def without_clouds(objects) -> tuple[SceneObject, ...]:
+    """``objects`` minus their cloud shapes (what CollisionObject messages can carry)."""
+    out = []
+    for obj in objects:
+        shapes = tuple(s for s in obj.shapes if s.kind != 'cloud')
+        if shapes:
+            out.append(SceneObject(obj.id, shapes))
+    return tuple(out)
+
+
 def _color(r: float, g: float, b: float, a: float) -> ColorRGBA:
     return ColorRGBA(r=r, g=g, b=b, a=a)
 
@@ -106,7 +136,7 @@ def scene_markers(objects, frame: str, ns: str, start_id: int = 0) -> list[Marke
         for shape in obj.shapes:
             m = Marker(ns=ns, id=start_id + len(markers), action=Marker.ADD)
             m.header.frame_id = frame
-            m.pose = pose_to_msg(shape.pose)
+            m.pose = _pose_msg(shape.pose)
             m.color = _color(0.6, 0.6, 0.65, 0.6)
             m.text = obj.id
             if shape.kind == 'box':
