@@ -112,7 +112,10 @@ def test_collision_world_uses_the_octree(panda, sensed_table):
     world = CollisionWorld(panda, sensed_table.shapes)
     q = start_configuration(sensed_table, panda)
     assert world.is_valid(q)
-    assert 0.05 < world.scene_distance(q) < 1.0
+    d = world.scene_distance(q)
+    assert 0.05 < d < 1.0
+    assert world.scene_distance(q, upto_m=0.5) == d  # only the pairs within 0.5 m: same min
+    assert world.scene_distance(q, upto_m=0.01) == 0.01  # none within 1 cm
     q_low = q.copy()
     q_low[1], q_low[3] = 1.2, -0.5  # shoulder down: the hand goes through the table top
     assert world.in_collision(q_low)
