@@ -121,6 +121,7 @@ def test_collision_world_uses_the_octree(panda, sensed_table):
     assert world.in_collision(q_low)
 
 
+@pytest.mark.slow
 def test_sensed_table_pick_plans_builds_a_heatmap_and_takes_a_task_attack(panda, sensed_table):
     from advocc_ros.attack import attack
     from advocc_ros.evaluation.metrics import evaluate_planner
