@@ -22,6 +22,7 @@ RUNTIME = [
     'tqdm==4.70.1',
     'cmaes==0.13.1',
     'numba==0.68.1',
+    'pypcd4==1.5.1',  # PCD point-cloud files (cloud scene objects)
 ]
 # Wheels needed to build the interface package msg_defs/ (advocc_msgs) with cmake.
 BUILD = [
@@ -64,7 +65,7 @@ setup(
     data_files=[
         ('share/ament_index/resource_index/packages', [f'resource/{PACKAGE}']),
         (f'share/{PACKAGE}', ['package.xml']),
-        (f'share/{PACKAGE}/config', glob('config/*.yaml')),
+        (f'share/{PACKAGE}/config', glob('config/*.yaml') + ['config/advocc.rviz']),
         (f'share/{PACKAGE}/config/scenes', glob('config/scenes/*.yaml')),
     ],
     python_requires='>=3.11,<3.12',

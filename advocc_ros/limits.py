@@ -22,6 +22,12 @@ MAX_MESH_TRIANGLES = 400_000
 """Triangles of one mesh."""
 MAX_SCENE_VERTICES = 1_000_000
 """Mesh vertices over a whole scene or request."""
+MAX_CLOUD_POINTS = 2_000_000
+"""Points of one sensed cloud (file or ``PointCloud2``), before the octree is built."""
+MIN_CLOUD_RESOLUTION_M = 0.002
+"""Smallest octree leaf edge of a cloud [m]."""
+MAX_CLOUD_RESOLUTION_M = 0.5
+"""Largest octree leaf edge of a cloud [m]."""
 MAX_JOINTS = 1024
 """Names in one joint state."""
 MAX_HEATMAP_VOXELS = 128 * 1024 * 1024
@@ -42,6 +48,9 @@ TABLE = [
     ('vertices per mesh', f'{MAX_MESH_VERTICES:,}', 'limits.MAX_MESH_VERTICES'),
     ('triangles per mesh', f'{MAX_MESH_TRIANGLES:,}', 'limits.MAX_MESH_TRIANGLES'),
     ('mesh vertices per scene/request', f'{MAX_SCENE_VERTICES:,}', 'limits.MAX_SCENE_VERTICES'),
+    ('points per sensed cloud', f'{MAX_CLOUD_POINTS:,}', 'limits.MAX_CLOUD_POINTS'),
+    ('cloud octree resolution', f'{MIN_CLOUD_RESOLUTION_M}-{MAX_CLOUD_RESOLUTION_M} m',
+     'limits.MIN/MAX_CLOUD_RESOLUTION_M'),
     ('joint names per joint state', f'{MAX_JOINTS:,}', 'limits.MAX_JOINTS'),
     ('heatmap voxels', f'{MAX_HEATMAP_VOXELS:,}', 'limits.MAX_HEATMAP_VOXELS'),
     ('attack budget M', '100', 'heatmap_server max_budget'),

@@ -140,7 +140,10 @@ def test_attacker_publishes_what_the_core_computes(ros, ros_env, heatmap_file, t
     while not markers and time.monotonic() < deadline:
         executor.spin_once(timeout_sec=0.1)
     assert markers[-1].markers[0].action == Marker.DELETEALL
-    assert [m.type for m in markers[-1].markers[1:]] == [Marker.CUBE] * 3
+    boxes = [m for m in markers[-1].markers[1:] if m.ns == 'advocc_attack']
+    assert [m.type for m in boxes] == [Marker.CUBE] * 3
+    scene = [m for m in markers[-1].markers[1:] if m.ns == 'advocc_scene']
+    assert sorted(m.text for m in scene) == sorted(o.id for o in table_scene.objects)
 
     # A new goal: the previous boxes are removed first, then the new ones added.
     goal2 = dataclasses.replace(table_scene.goal, center=Pose(
@@ -280,8 +283,10 @@ def test_config_files_match_the_core_defaults():
     for field in dataclasses.fields(AttackConfig):
         assert params[field.name] == getattr(AttackConfig(), field.name), field.name
     attacker = yaml.safe_load((REPO / 'config' / 'attacker.yaml').read_text())
-    assert set(attacker['/attacker']['ros__parameters']) == \
-        {'server', 'budget', 'method', 'box_size_m', 'seed', 'timeout_s'}
+    from advocc_ros.ros.clouds import CLOUD_PARAMS
+    assert attacker['/attacker']['ros__parameters'] == {
+        'server': '/heatmap_server', 'budget': 3, 'method': 'ours', 'box_size_m': 0.0,
+        'seed': 0, 'timeout_s': 10.0, **CLOUD_PARAMS}
 
 
 def test_run_attack_nodes_for_the_demo(ros_env, monkeypatch, heatmap_file, table_scene,

@@ -29,7 +29,7 @@ import numpy as np
 from advocc_ros.model.collision import CollisionWorld
 from advocc_ros.model.ik import goal_set
 from advocc_ros.model.robot import RobotModel
-from advocc_ros.model.scene import GoalRegion, SceneObject, objects_to_data
+from advocc_ros.model.scene import GoalRegion, SceneObject
 
 POLICIES = ('paper', 'reachable')
 VALIDATION_SEED = 7_345_001
@@ -86,8 +86,9 @@ class GoalSamples:
 
 def _task_key(robot: RobotModel, objects: tuple[SceneObject, ...], goal: GoalRegion,
               n: int) -> str:
-    text = json.dumps([robot.hash, objects_to_data(objects), goal.to_data(), n],
-                      sort_keys=True, default=float)
+    # Fingerprints, not objects_to_data: a sensed cloud's points would be serialized each time.
+    shapes = [[o.id, [s.fingerprint() for s in o.shapes]] for o in objects]
+    text = json.dumps([robot.hash, shapes, goal.to_data(), n], sort_keys=True, default=float)
     return hashlib.sha256(text.encode()).hexdigest()
 
 

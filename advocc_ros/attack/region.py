@@ -211,26 +211,11 @@ def search_region(heatmap: Heatmap, robot: RobotModel, objects: tuple[SceneObjec
     return SearchRegion(grid, lo, hi, weights, cand, k, s, cfg.d_min_m, checks, stats)
 
 
-def _shape_bounds(shape: Shape) -> tuple[np.ndarray, np.ndarray]:
-    """Axis-aligned bounds of a shape in the base frame (cheap, possibly loose)."""
-    T = shape.pose.to_se3()
-    if shape.kind == 'box':
-        ext = np.abs(T.rotation) @ (np.asarray(shape.dims) / 2)
-    elif shape.kind == 'sphere':
-        ext = np.full(3, shape.dims[0])
-    elif shape.kind == 'cylinder':
-        ext = np.full(3, math.hypot(shape.dims[0] / 2, shape.dims[1]))
-    else:
-        pts = np.asarray(shape.vertices) @ T.rotation.T + T.translation
-        return pts.min(axis=0), pts.max(axis=0)
-    return T.translation - ext, T.translation + ext
-
-
 def _occupied(grid: VoxelGrid, shapes: list[Shape]) -> np.ndarray:
     """Voxels whose centre is inside any shape (``voxels.occupied_mask`` with cheap bounds)."""
     mask = np.zeros(grid.shape, dtype=bool)
     for shape in shapes:
-        b_lo, b_hi = _shape_bounds(shape)
+        b_lo, b_hi = shape.bounds_m()
         i0 = np.clip(grid.index_of(b_lo), 0, grid.shape)
         i1 = np.clip(grid.index_of(b_hi) + 1, 0, grid.shape)
         if np.any(i1 <= i0):

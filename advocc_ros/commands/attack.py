@@ -138,10 +138,10 @@ def _attack_in_the_loop(args: argparse.Namespace, heatmap, robot, scene, q_init,
         with LocalPlanners(scene, args.workers) as planners:
             planners.start()  # process start-up is not part of the attack's online time
             if not args.no_progress:
-                from tqdm import tqdm
+                from advocc_ros.progress import progress_bar
                 victim = pcfg.planner_id if args.method == 'pfa++' else PFA_PLANNER
-                bar = tqdm(total=pcfg.queries, unit='query', file=sys.stderr,
-                           desc=f'{args.method} ({victim})')
+                bar = progress_bar(pcfg.queries, f'{args.method} ({victim})', 'query',
+                                   file=sys.stderr)
             return attack(heatmap, robot, scene.objects, q_init, scene.goal, args.budget,
                           args.method, cfg, seed=args.seed,
                           method_options=PfaOptions(planners, pcfg,

@@ -70,9 +70,8 @@ def run(args: argparse.Namespace) -> int:
     scene = load_task(args, args.obstacles)
     config = dataclasses.replace(PlanningConfig(), simplify=not args.no_simplify)
 
-    from tqdm import tqdm
-    bar = tqdm(total=args.trials, file=sys.stderr, disable=None, unit='plan',
-               desc=f'{scene.name} {args.planner}')
+    from advocc_ros.progress import progress_bar
+    bar = progress_bar(args.trials, f'{scene.name} {args.planner}', 'plan', file=sys.stderr)
     counts = [0, 0]  # successes, trials
 
     def progress(record) -> None:
@@ -91,8 +90,9 @@ def run(args: argparse.Namespace) -> int:
     if args.json:
         print(json.dumps(result, indent=1))
         return 0
-    print(f'{"scene":<14}{"planner":<12}{"PSR":>7}{"SMR":>8}{"CMR":>8}{"JDS":>8}{"PT":>8}')
-    print(f'{scene.name:<14}{args.planner:<12}{format_value(result["psr"]):>7}'
+    w = max(14, len(scene.name) + 2)
+    print(f'{"scene":<{w}}{"planner":<12}{"PSR":>7}{"SMR":>8}{"CMR":>8}{"JDS":>8}{"PT":>8}')
+    print(f'{scene.name:<{w}}{args.planner:<12}{format_value(result["psr"]):>7}'
           f'{format_value(result["smr"]):>8}{format_value(result["cmr"]):>8}'
           f'{format_value(result["jds"]):>8}{format_value(result["pt"]):>8}')
     return 0

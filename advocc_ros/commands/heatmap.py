@@ -72,9 +72,8 @@ def _build(args) -> int:
         raise UserError(f'--shard: expected I/K with 0 <= I < K, got {args.shard!r}') from None
     scene = scene_from_args(args)
     cfg = HeatmapConfig(samples=args.samples, voxel_m=args.voxel, robot_only=args.robot_only)
-    from tqdm import tqdm
-    with tqdm(total=args.samples, unit='q', desc='heatmap', file=sys.stderr,
-              disable=None, leave=False) as bar:
+    from advocc_ros.progress import progress_bar
+    with progress_bar(args.samples, 'heatmap', 'q', file=sys.stderr, leave=False) as bar:
         heatmap = build_heatmap(scene, cfg, seed=args.seed, workers=args.workers,
                                 progress=bar.update, shard=shard)
     return _save_and_report(heatmap, args)

@@ -1,4 +1,5 @@
-"""``advocc scenes list|check|convert|vary``: shipped scenes, imports and seeded variations."""
+"""``advocc scenes list|check|convert|vary|sense``: shipped scenes, imports, seeded variations
+and simulated sensed clouds."""
 
 from __future__ import annotations
 
@@ -55,6 +56,19 @@ def register(sub: argparse._SubParsersAction) -> None:
                            '(default %(default)s)')
     vary.add_argument('--json', action='store_true')
     vary.set_defaults(func=_vary)
+
+    sense = ssub.add_parser('sense', help='replace a scene\'s objects by one simulated sensed '
+                                          'point cloud (NAME_sensed.yaml + .ply)')
+    add_scene_args(sense)
+    sense.add_argument('--out', required=True, help='output folder')
+    sense.add_argument('--spacing', type=float, default=0.005,
+                       help='surface sample spacing [m] (default %(default)s)')
+    sense.add_argument('--noise', type=float, default=0.001,
+                       help='point noise standard deviation [m] (default %(default)s)')
+    sense.add_argument('--resolution', type=float, default=0.02,
+                       help='octree leaf edge [m] (default %(default)s)')
+    sense.add_argument('--seed', type=int, default=0)
+    sense.set_defaults(func=_sense)
 
 
 def _patterns(text: str) -> tuple[str, ...]:
@@ -182,4 +196,15 @@ def _vary(args) -> int:
             sys.stdout.flush()
     if args.json:
         print(json.dumps(rows, indent=1))
+    return 0
+
+
+def _sense(args) -> int:
+    from advocc_ros.model.sensing import SensingConfig, write_sensed_scene
+
+    if not (args.spacing > 0 and args.noise >= 0):
+        raise UserError('--spacing must be > 0 and --noise >= 0')
+    cfg = SensingConfig(spacing_m=args.spacing, noise_m=args.noise,
+                        resolution_m=args.resolution, seed=args.seed)
+    print(write_sensed_scene(scene_from_args(args), args.out, cfg))
     return 0

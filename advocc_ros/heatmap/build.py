@@ -204,7 +204,8 @@ def sample_weights(robot: RobotModel, world: CollisionWorld, Q: np.ndarray,
     if world.shapes:
         near = world.near_scene_batch(Q, cfg.d_safe_m)
         for i in np.flatnonzero(near):
-            s_clr[i] = min(max(world.scene_distance(Q[i]), 0.0) / cfg.d_safe_m, 1.0)
+            d = world.scene_distance(Q[i], upto_m=cfg.d_safe_m)
+            s_clr[i] = min(max(d, 0.0) / cfg.d_safe_m, 1.0)
     return s_man ** cfg.gamma_man * s_clr ** cfg.gamma_clr
 
 

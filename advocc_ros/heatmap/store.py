@@ -63,6 +63,20 @@ class Heatmap:
 # --------------------------------------------------------------------------------------------
 # File format
 
+def hottest_voxels(heatmap: Heatmap, percentile: float = 80.0
+                   ) -> tuple[np.ndarray, np.ndarray]:
+    """Centres (K, 3) [m] and H (K,) of the voxels whose H is at or above the ``percentile``
+    of the non-zero voxels (80: the top 20 %), for RViz."""
+    if not 0.0 <= percentile <= 100.0:
+        raise ValueError(f'percentile must be in 0..100, got {percentile}')
+    H = heatmap.values
+    positive = H[H > 0]
+    if positive.size == 0:
+        return np.zeros((0, 3)), np.zeros(0)
+    idx = np.argwhere(H >= max(np.percentile(positive, percentile), np.nextafter(0, 1)))
+    return heatmap.grid.centers(idx), H[tuple(idx.T)]
+
+
 def save_heatmap(heatmap: Heatmap, path: str | pathlib.Path) -> None:
     """Write atomically: a crash mid-write leaves any previous file intact."""
     meta = json.dumps(heatmap.meta, sort_keys=True).encode()

@@ -17,6 +17,7 @@ import coal
 import numpy as np
 import pinocchio as pin
 
+from advocc_ros.model.cloud import cloud_octree
 from advocc_ros.model.robot import RobotModel
 from advocc_ros.model.scene import Shape
 
@@ -29,6 +30,8 @@ def coal_geometry(shape: Shape) -> coal.CollisionGeometry:
         return coal.Sphere(shape.dims[0])
     if shape.kind == 'cylinder':
         return coal.Cylinder(shape.dims[1], shape.dims[0])  # radius, length (height)
+    if shape.kind == 'cloud':
+        return cloud_octree(shape)
     # Meshes (e.g. a sensed reconstruction) may be concave: keep the triangles in a BVH.
     bvh = coal.BVHModelOBBRSS()
     bvh.beginModel(len(shape.faces), len(shape.vertices))
@@ -75,6 +78,7 @@ class CollisionWorld:
         _no_warm_start(self.dist_data.distanceRequests)
         self._pool: pin.GeometryPool | None = None
         self._margin_pool: tuple[float, pin.GeometryPool] | None = None
+        self._near_data: tuple[float, pin.GeometryData] | None = None
 
     def in_collision(self, q: np.ndarray) -> bool:
         """Self or scene collision at ``q`` (joint limits not checked)."""
@@ -118,13 +122,36 @@ class CollisionWorld:
             max(threads, 1), self._margin_pool[1], np.asfortranarray(Q.T), True, False),
             dtype=bool)
 
-    def scene_distance(self, q: np.ndarray) -> float:
-        """Minimum distance between robot links and scene shapes [m]; ``inf`` if no scene."""
+    def scene_distance(self, q: np.ndarray, upto_m: float | None = None) -> float:
+        """Minimum distance between robot links and scene shapes [m]; ``inf`` if no scene.
+
+        With ``upto_m``, only (link, shape) pairs closer than ``upto_m`` (found by one collision
+        pass with that security margin) get a distance query, and ``upto_m`` is returned if no
+        pair is: the same minimum wherever it is below ``upto_m`` (up to coal's tolerance at
+        the margin), and ~1.8x faster (sensed clouds: coal's octree distance costs ~0.7 ms per
+        link).
+        """
         if not self.shapes:
             return float('inf')
-        # pinocchio returns the index of the closest pair: no Python loop over the results.
-        i = pin.computeDistances(self.model, self.data, self.dist_model, self.dist_data, q)
-        return float(self.dist_data.distanceResults[i].min_distance)
+        if upto_m is None:
+            # pinocchio returns the index of the closest pair: no Python loop over the results.
+            i = pin.computeDistances(self.model, self.data, self.dist_model, self.dist_data, q)
+            return float(self.dist_data.distanceResults[i].min_distance)
+        if self._near_data is None or self._near_data[0] != upto_m:
+            near_data = self.dist_model.createData()
+            _no_warm_start(near_data.collisionRequests)
+            for req in near_data.collisionRequests:
+                req.security_margin = upto_m
+            self._near_data = (upto_m, near_data)
+        near_data = self._near_data[1]
+        pin.updateGeometryPlacements(self.model, self.data, self.dist_model, near_data, q)
+        pin.computeCollisions(self.dist_model, near_data, False)
+        near = [k for k, r in enumerate(near_data.collisionResults) if r.isCollision()]
+        if not near:
+            return float(upto_m)
+        pin.updateGeometryPlacements(self.model, self.data, self.dist_model, self.dist_data, q)
+        return float(min(pin.computeDistance(self.dist_model, self.dist_data, k).min_distance
+                         for k in near))
 
     def link_placements(self, q: np.ndarray) -> list[pin.SE3]:
         """``T_base_geom`` of each robot collision geometry at ``q``."""

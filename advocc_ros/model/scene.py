@@ -15,114 +15,14 @@ from typing import Any
 
 import numpy as np
 import pinocchio as pin
-import trimesh
 import yaml
 
-from advocc_ros.limits import (MAX_FILE_BYTES, MAX_MESH_TRIANGLES, MAX_MESH_VERTICES,
+from advocc_ros.limits import (MAX_FILE_BYTES, MAX_MESH_TRIANGLES, MAX_MESH_VERTICES,  # noqa: F401
                                MAX_OBJECTS, yaml_size)  # MAX_*: re-exported
+from advocc_ros.model.cloud import cloud_shape_from_data, cloud_to_data
 from advocc_ros.model.robot import RobotSpec, with_state
-
-SHAPES = ('box', 'sphere', 'cylinder', 'mesh')
-
-
-class SceneError(ValueError):
-    """A malformed scene, goal region or obstacles file; the message names file and field."""
-
-
-def finite_array(values, where: str, n: int | None = None, positive: bool = False,
-                 nonneg: bool = False) -> np.ndarray:
-    """``values`` as a float array, or a ``SceneError`` naming ``where``: numbers, finite,
-    optionally ``n`` of them and positive / non-negative."""
-    try:
-        arr = np.asarray(values, dtype=float)
-    except (TypeError, ValueError):
-        raise SceneError(f'{where}: expected numbers, got {values!r}') from None
-    if n is not None and arr.shape != (n,):
-        raise SceneError(f'{where}: expected {n} numbers, got {values!r}')
-    if not np.all(np.isfinite(arr)):
-        raise SceneError(f'{where}: values must be finite, got {values!r}')
-    if positive and not np.all(arr > 0):
-        raise SceneError(f'{where}: values must be > 0, got {values!r}')
-    if nonneg and not np.all(arr >= 0):
-        raise SceneError(f'{where}: values must be >= 0, got {values!r}')
-    return arr
-
-
-@dataclasses.dataclass(frozen=True)
-class Pose:
-    """Rigid pose: ``position_m`` (3,) and unit quaternion ``quat_xyzw`` (4,)."""
-
-    position_m: tuple[float, float, float] = (0.0, 0.0, 0.0)
-    quat_xyzw: tuple[float, float, float, float] = (0.0, 0.0, 0.0, 1.0)
-
-    @classmethod
-    def from_data(cls, data: Any, where: str) -> 'Pose':
-        if data is None:
-            return cls()
-        if not isinstance(data, dict):
-            raise SceneError(f'{where}: expected a mapping with position/orientation')
-        unknown = set(data) - {'position', 'orientation'}
-        if unknown:
-            raise SceneError(f'{where}: unknown field(s) {sorted(unknown)}')
-        pos = finite_array(data.get('position', [0, 0, 0]), f'{where}.position', 3)
-        quat = finite_array(data.get('orientation', [0, 0, 0, 1]), f'{where}.orientation', 4)
-        norm = np.linalg.norm(quat / np.max(np.abs(quat))) * np.max(np.abs(quat)) \
-            if np.any(quat) else 0.0  # scaled: components near 1e308 must not overflow to inf
-        if not 1e-6 <= norm < np.inf:
-            raise SceneError(f'{where}.orientation: zero or overflowing quaternion '
-                             f'{quat.tolist()}')
-        return cls(tuple(pos.tolist()), tuple((quat / norm).tolist()))
-
-    @classmethod
-    def from_se3(cls, T: pin.SE3) -> 'Pose':
-        quat = pin.Quaternion(T.rotation).coeffs()  # x, y, z, w
-        return cls(tuple(T.translation.tolist()), tuple(np.asarray(quat).tolist()))
-
-    def to_se3(self) -> pin.SE3:
-        x, y, z, w = self.quat_xyzw
-        return pin.SE3(pin.Quaternion(w, x, y, z).normalized().matrix(),
-                       np.array(self.position_m))
-
-    def to_data(self) -> dict:
-        return {'position': [float(v) for v in self.position_m],
-                'orientation': [float(v) for v in self.quat_xyzw]}
-
-
-@dataclasses.dataclass(frozen=True)
-class Shape:
-    """One solid: a primitive or a triangle mesh, posed in the base frame."""
-
-    kind: str
-    """box | sphere | cylinder | mesh"""
-    dims: tuple[float, ...] = ()
-    """box: (x, y, z) edge lengths; sphere: (radius,); cylinder: (height, radius) as in
-    shape_msgs/SolidPrimitive; mesh: ()."""
-    pose: Pose = Pose()
-    vertices: np.ndarray | None = dataclasses.field(default=None, compare=False, repr=False)
-    """mesh only: (V, 3) vertices in the shape frame [m]."""
-    faces: np.ndarray | None = dataclasses.field(default=None, compare=False, repr=False)
-    """mesh only: (F, 3) vertex indices."""
-
-    def trimesh(self) -> trimesh.Trimesh:
-        """Solid of the shape in the base frame."""
-        if self.kind == 'box':
-            mesh = trimesh.creation.box(extents=self.dims)
-        elif self.kind == 'sphere':
-            mesh = trimesh.creation.icosphere(subdivisions=3, radius=self.dims[0])
-        elif self.kind == 'cylinder':
-            mesh = trimesh.creation.cylinder(radius=self.dims[1], height=self.dims[0],
-                                             sections=32)
-        else:
-            mesh = trimesh.Trimesh(self.vertices, self.faces, process=False)
-        mesh.apply_transform(self.pose.to_se3().homogeneous)
-        return mesh
-
-    def fingerprint(self) -> list:
-        data = [self.kind, [round(d, 9) for d in self.dims], self.pose.to_data()]
-        if self.kind == 'mesh':
-            data.append(hashlib.sha256(np.ascontiguousarray(self.vertices).tobytes()
-                                       + np.ascontiguousarray(self.faces).tobytes()).hexdigest())
-        return data
+from advocc_ros.model.shapes import (SHAPES, Pose, SceneError, Shape,  # noqa: F401 (re-exported)
+                                     finite_array, make_mesh_shape, mesh_shape_from_data)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -276,6 +176,8 @@ def objects_to_data(objects) -> list[dict]:
                 entry['radius'] = float(shape.dims[0])
             elif shape.kind == 'cylinder':
                 entry['height'], entry['radius'] = float(shape.dims[0]), float(shape.dims[1])
+            elif shape.kind == 'cloud':
+                entry.update(cloud_to_data(shape))
             else:
                 entry['vertices'] = np.asarray(shape.vertices).tolist()
                 entry['faces'] = np.asarray(shape.faces).tolist()
@@ -288,7 +190,7 @@ def _shape_from_data(entry: dict, where: str, base_dir: pathlib.Path | None) -> 
     if kind not in SHAPES:
         raise SceneError(f'{where}.type: expected one of {list(SHAPES)}, got {kind!r}')
     allowed = {'id', 'type', 'pose', 'size', 'radius', 'height', 'file', 'scale', 'vertices',
-               'faces'}
+               'faces', 'resolution', 'points'}
     unknown = set(entry) - allowed
     if unknown:
         raise SceneError(f'{where}: unknown field(s) {sorted(unknown)}')
@@ -310,58 +212,9 @@ def _shape_from_data(entry: dict, where: str, base_dir: pathlib.Path | None) -> 
         h = finite_array([entry['height']], f'{where}.height', 1, positive=True)[0]
         r = finite_array([entry['radius']], f'{where}.radius', 1, positive=True)[0]
         return Shape('cylinder', (float(h), float(r)), pose)
-    return _mesh_shape(entry, where, base_dir, pose)
-
-
-def _mesh_shape(entry: dict, where: str, base_dir: pathlib.Path | None, pose: Pose) -> Shape:
-    scale = finite_array(entry.get('scale', [1, 1, 1]), f'{where}.scale', 3, positive=True)
-    if 'file' in entry:
-        path = pathlib.Path(str(entry['file']))
-        if not path.is_absolute() and base_dir is not None:
-            path = base_dir / path
-        if path.suffix.lower() not in ('.stl', '.obj', '.ply'):
-            raise SceneError(f'{where}.file: {path} is not an STL, OBJ or PLY file')
-        if not path.is_file():
-            raise SceneError(f'{where}.file: {path} not found')
-        if path.stat().st_size > MAX_FILE_BYTES:
-            raise SceneError(f'{where}.file: {path} is {path.stat().st_size} bytes, limit '
-                             f'{MAX_FILE_BYTES} (MAX_FILE_BYTES)')
-        try:
-            mesh = trimesh.load_mesh(str(path), force='mesh')
-        except Exception as exc:  # trimesh raises many types on bad files
-            raise SceneError(f'{where}.file: {path} could not be read ({exc})') from exc
-        vertices, faces = np.asarray(mesh.vertices, float), np.asarray(mesh.faces, np.int64)
-    elif 'vertices' in entry and 'faces' in entry:
-        vertices = finite_array(entry['vertices'], f'{where}.vertices')
-        try:
-            faces = np.asarray(entry['faces'], dtype=np.int64)
-        except (TypeError, ValueError):
-            raise SceneError(f'{where}.faces: expected integer triples') from None
-    else:
-        raise SceneError(f'{where}: a mesh needs file, or vertices and faces')
-    return make_mesh_shape(vertices * scale, faces, pose, where)
-
-
-def make_mesh_shape(vertices, faces, pose: Pose, where: str = 'mesh') -> Shape:
-    """Validated mesh shape (bounded size, indices in range, non-degenerate)."""
-    vertices = np.asarray(vertices, dtype=float)
-    faces = np.asarray(faces)
-    if vertices.ndim != 2 or vertices.shape[1] != 3 or len(vertices) < 4:
-        raise SceneError(f'{where}.vertices: expected at least 4 points (V, 3)')
-    if len(vertices) > MAX_MESH_VERTICES:
-        raise SceneError(f'{where}.vertices: {len(vertices)} vertices, limit {MAX_MESH_VERTICES}')
-    if not np.all(np.isfinite(vertices)):
-        raise SceneError(f'{where}.vertices: non-finite values')
-    if faces.ndim != 2 or faces.shape[1] != 3 or len(faces) < 4:
-        raise SceneError(f'{where}.faces: expected at least 4 triangles (F, 3)')
-    if len(faces) > MAX_MESH_TRIANGLES:
-        raise SceneError(f'{where}.faces: {len(faces)} triangles, limit {MAX_MESH_TRIANGLES}')
-    if not np.issubdtype(faces.dtype, np.integer) or faces.min() < 0 \
-            or faces.max() >= len(vertices):
-        raise SceneError(f'{where}.faces: vertex indices out of range 0..{len(vertices) - 1}')
-    if np.ptp(vertices, axis=0).min() <= 0:
-        raise SceneError(f'{where}.vertices: the mesh is flat (zero volume)')
-    return Shape('mesh', (), pose, vertices, faces.astype(np.int64))
+    if kind == 'cloud':
+        return cloud_shape_from_data(entry, where, base_dir, pose)
+    return mesh_shape_from_data(entry, where, base_dir, pose)
 
 
 def objects_from_data(entries: Any, where: str, base_dir: pathlib.Path | None = None
@@ -448,6 +301,20 @@ def load_scene(path: str | pathlib.Path) -> Scene:
     """Load one of our scene YAML files; errors name the file and the field."""
     path = pathlib.Path(path)
     return scene_from_data(read_yaml(path), str(path), path.parent)
+
+
+def referenced_files(path: str | pathlib.Path) -> list[pathlib.Path]:
+    """Files a scene file's objects read (mesh and cloud ``file`` fields), resolved against
+    the scene's folder: what a node must confine before loading the scene."""
+    path = pathlib.Path(path)
+    data = read_yaml(path)
+    objects = data.get('objects') if isinstance(data, dict) else None
+    out = []
+    for entry in objects if isinstance(objects, list) else []:
+        if isinstance(entry, dict) and 'file' in entry:
+            file = pathlib.Path(str(entry['file']))
+            out.append(file if file.is_absolute() else path.parent / file)
+    return out
 
 
 def save_yaml_atomic(path: str | pathlib.Path, data: Any) -> None:

@@ -3,7 +3,8 @@
 A voxel is *occupied* by a solid when the voxel's centre lies inside the solid. Primitives are
 tested analytically; meshes (robot links, sensed reconstructions) through a fine boolean
 look-up table built once with trimesh (surface voxelization + fill), so each test is an array
-index, and a batch of thousands of configurations is a few numpy operations.
+index, and a batch of thousands of configurations is a few numpy operations. A sensed cloud
+occupies the centres that fall in one of its octree leaves.
 """
 
 from __future__ import annotations
@@ -13,6 +14,7 @@ import dataclasses
 import numpy as np
 import trimesh
 
+from advocc_ros.model.cloud import points_in_cloud
 from advocc_ros.model.scene import Shape
 
 
@@ -128,6 +130,8 @@ def points_in_shape(shape: Shape, points_m: np.ndarray, lut_pitch_m: float = 0.0
         height, radius = shape.dims
         return (np.abs(local[..., 2]) <= height / 2) & \
             (np.linalg.norm(local[..., :2], axis=-1) <= radius)
+    if shape.kind == 'cloud':
+        return points_in_cloud(shape, points_m)
     mesh = trimesh.Trimesh(shape.vertices, shape.faces, process=False)
     return SolidLUT.from_mesh(mesh, lut_pitch_m).contains(local)
 
@@ -136,7 +140,7 @@ def occupied_mask(grid: VoxelGrid, shapes: list[Shape]) -> np.ndarray:
     """Boolean grid of voxels whose centre is inside any shape."""
     mask = np.zeros(grid.shape, dtype=bool)
     for shape in shapes:
-        lo, hi = shape.trimesh().bounds
+        lo, hi = shape.bounds_m()
         i0 = np.clip(grid.index_of(lo), 0, grid.shape)
         i1 = np.clip(grid.index_of(hi) + 1, 0, grid.shape)
         if np.any(i1 <= i0):

@@ -8,7 +8,12 @@ meanwhile coalesce into one more request with the latest task), then
 
 - publishes REMOVE for each box it placed before and ADD for the new ones on
   ``/advocc/collision_object`` (advocc_msgs/CollisionObject, MoveIt semantics), and
-- publishes a ``visualization_msgs/MarkerArray`` on ``~/markers`` (DELETEALL + one cube each).
+- publishes a ``visualization_msgs/MarkerArray`` on ``~/markers`` (DELETEALL + one red cube
+  per box, then the scene's objects in grey and the sensed cloud's octree leaves in blue).
+
+The sensed part of the scene arrives on ``/advocc/cloud`` (sensor_msgs/PointCloud2, latched, xyz
+in the robot base frame): cropped to ``cloud_crop_min/max`` and sent with every request as an
+octree of ``cloud_resolution``, as MoveIt's occupancy-map updater feeds its octomap.
 
 A failed attack (error code) or a timeout removes the previous boxes, which no longer match the
 task. Parameters: ``server``, ``budget``, ``method``, ``box_size_m`` (0: server default),
@@ -24,13 +29,17 @@ from advocc_msgs.msg import CollisionObject, ErrorCodes, GoalRegion, Scene
 from advocc_msgs.srv import Attack
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.node import Node
+from sensor_msgs.msg import PointCloud2
 from visualization_msgs.msg import MarkerArray
 
 from advocc_ros.attack import AttackConfig
-from advocc_ros.model.scene import Operation, SceneObject
+from advocc_ros.model.scene import Operation, SceneError, SceneObject
 from advocc_ros.nodes import run
+from advocc_ros.ros.clouds import (CLOUD_TOPIC, cloud_msg, cloud_shape_from_node_params,
+                                   declare_cloud_parameters, markers_with_scene)
 from advocc_ros.ros.conversions import (attack_request_from_msgs, box_markers,
-                                        collision_object_to_msg, obstacles_from_msgs)
+                                        collision_object_to_msg, obstacles_from_msgs,
+                                        scene_from_msgs)
 from advocc_ros.ros.qos import COLLISION_OBJECT_TOPIC, GOAL_REGION_TOPIC, LATCHED_QOS, SCENE_TOPIC
 
 MARKER_NS = 'advocc_attack'
@@ -47,6 +56,7 @@ class Attacker(Node):
         self.declare_parameter('box_size_m', 0.0)
         self.declare_parameter('seed', 0)
         self.declare_parameter('timeout_s', 10.0)
+        declare_cloud_parameters(self)
         self.add_on_set_parameters_callback(self._check_parameters)
 
         server = self.get_parameter('server').value.rstrip('/')
@@ -56,6 +66,8 @@ class Attacker(Node):
         self._markers_pub = self.create_publisher(MarkerArray, '~/markers', LATCHED_QOS)
         self.create_subscription(Scene, SCENE_TOPIC, self._on_scene, LATCHED_QOS)
         self.create_subscription(GoalRegion, GOAL_REGION_TOPIC, self._on_goal, LATCHED_QOS)
+        self.create_subscription(PointCloud2, CLOUD_TOPIC, self._on_cloud, LATCHED_QOS)
+        self._cloud: SceneObject | None = None  # the sensed part of the scene
         self._scene: Scene | None = None
         self._goal: GoalRegion | None = None
         self._dirty = False          # the task changed since the last request was sent
@@ -92,6 +104,20 @@ class Attacker(Node):
         self.get_logger().info(f'scene {msg.name!r}: {len(msg.objects)} objects')
         self._tick()
 
+    def _on_cloud(self, msg: PointCloud2) -> None:
+        try:
+            frame = msg.header.frame_id
+            if frame and frame != self._frame:
+                raise SceneError(f'frame {frame!r} is not the robot base frame {self._frame!r}')
+            shape = cloud_shape_from_node_params(self, msg)
+            self._cloud = None if shape is None else SceneObject('sensed_cloud', (shape,))
+            self._dirty = True
+            self.get_logger().info(f'cloud: {msg.width * msg.height} points, '
+                                   f'{0 if shape is None else len(shape.vertices)} in the box')
+            self._tick()
+        except (SceneError, ValueError) as exc:
+            self.get_logger().error(f'cloud rejected: {exc}')
+
     def _on_goal(self, msg: GoalRegion) -> None:
         self._goal = msg
         self._dirty = True
@@ -122,6 +148,10 @@ class Attacker(Node):
                 self._scene, self._goal, self.get_parameter('budget').value,
                 self.get_parameter('method').value, self.get_parameter('box_size_m').value,
                 self.get_parameter('seed').value)
+            if self._cloud is not None:
+                shape = self._cloud.shapes[0]
+                req.cloud = cloud_msg(shape.vertices, self._frame)
+                req.cloud_resolution = float(shape.dims[0])
             self._dirty = False
             self._sent_at = time.monotonic()
             self._future = self._client.call_async(req)
@@ -161,7 +191,10 @@ class Attacker(Node):
         for msg in msgs:
             msg.header.stamp = self.get_clock().now().to_msg()
             self._objects_pub.publish(msg)
-        self._markers_pub.publish(box_markers(boxes, self._frame, MARKER_NS))
+        objects = scene_from_msgs(list(self._scene.objects)) if self._scene else ()
+        objects += (self._cloud,) if self._cloud is not None else ()
+        self._markers_pub.publish(markers_with_scene(box_markers(boxes, self._frame, MARKER_NS),
+                                                     objects, self._frame, 'advocc_scene'))
         self._placed = [box.id for box in boxes]
 
 

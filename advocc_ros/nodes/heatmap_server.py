@@ -11,6 +11,11 @@ Services:
   covered mass + compute time. Every bad request gets a code and a message; nothing raises out
   of a callback, so the node keeps serving.
 - ``~/get_info`` (advocc_msgs/srv/GetInfo): robot, grid, heatmap summary, parameters as JSON.
+
+Topics: ``~/heatmap`` (sensor_msgs/PointCloud2, latched, published once at start-up): x, y, z,
+intensity = H of the voxels at or above the ``heatmap_percentile`` of the non-zero voxels (80:
+the top 20 %), in ``base_frame``, for RViz (``config/advocc.rviz``). A request's ``cloud`` (the
+sensed part of the scene) becomes one more scene object, an octree of ``cloud_resolution``.
 """
 
 from __future__ import annotations
@@ -25,16 +30,20 @@ from advocc_msgs.msg import ErrorCodes
 from advocc_msgs.srv import Attack, GetInfo
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.node import Node
+from sensor_msgs.msg import PointCloud2
 
 from advocc_ros.attack import (AttackConfig, AttackStatus, attack, available_methods,
                                link_luts)
 from advocc_ros.ros.conversions import (goal_region_from_msg, obstacle_to_msg, q_from_joint_state,
                                         scene_from_msgs)
-from advocc_ros.heatmap import HeatmapError, load_heatmap
+from advocc_ros.heatmap import HeatmapError, hottest_voxels, load_heatmap
 from advocc_ros.nodes import run
 from advocc_ros.paths import allowed_dirs, confine
 from advocc_ros.model.robot import RobotError, RobotSpec, load_robot, resolve_path
-from advocc_ros.model.scene import SceneError
+from advocc_ros.model.cloud import DEFAULT_RESOLUTION_M
+from advocc_ros.model.scene import SceneError, SceneObject
+from advocc_ros.ros.clouds import cloud_msg, cloud_shape_from_msg
+from advocc_ros.ros.qos import LATCHED_QOS
 
 # AttackConfig fields exposed as parameters (same names, same defaults).
 _CONFIG_PARAMS = tuple(f.name for f in dataclasses.fields(AttackConfig))
@@ -66,6 +75,9 @@ def non_finite_field(msg, path: str = '') -> str | None:
             found = non_finite_field(value, where)
             if found:
                 return found
+        elif isinstance(value, (bytes, bytearray)) or (
+                isinstance(value, array.array) and value.typecode not in 'fd'):
+            continue  # raw bytes (a PointCloud2's data), integers: nothing to check
         elif isinstance(value, (list, tuple, array.array)) or hasattr(value, 'dtype'):
             for i, item in enumerate(value):
                 if hasattr(item, 'get_fields_and_field_types'):
@@ -91,6 +103,7 @@ class HeatmapServer(Node):
             self.declare_parameter(param, getattr(spec, field))
         self.declare_parameter('base_frame', 'panda_link0')
         self.declare_parameter('allowed_dirs', [''])  # ['']: the defaults, see paths.py
+        self.declare_parameter('heatmap_percentile', 80.0)
         self.add_on_set_parameters_callback(self._check_parameters)
 
         path = self.get_parameter('heatmap_file').value
@@ -114,8 +127,19 @@ class HeatmapServer(Node):
         self.get_logger().info(
             f'heatmap {path}: grid {summary["shape"]} x {summary["voxel_m"]} m, '
             f'{summary["valid_samples"]} samples, robot-only={self.heatmap.robot_only}')
+        self._heatmap_pub = self.create_publisher(PointCloud2, '~/heatmap', LATCHED_QOS)
+        self._publish_heatmap()
         self.create_service(Attack, '~/attack', self._on_attack)
         self.create_service(GetInfo, '~/get_info', self._on_get_info)
+
+    def _publish_heatmap(self) -> None:
+        percentile = float(self.get_parameter('heatmap_percentile').value)
+        points, H = hottest_voxels(self.heatmap, percentile)
+        msg = cloud_msg(points, self.get_parameter('base_frame').value, H)
+        msg.header.stamp = self.get_clock().now().to_msg()
+        self._heatmap_pub.publish(msg)
+        self.get_logger().info(f'published {len(points)} heatmap voxels (H >= the '
+                               f'{percentile:g}th percentile) on {self._heatmap_pub.topic_name}')
 
     # -- parameters --------------------------------------------------------------------------
 
@@ -125,7 +149,8 @@ class HeatmapServer(Node):
     def _check_parameters(self, params) -> SetParametersResult:
         if not hasattr(self, 'cfg'):  # start-up: validated when the config is built
             return SetParametersResult(successful=True)
-        fixed = {'heatmap_file', 'base_frame', 'allowed_dirs', *_ROBOT_PARAMS}
+        fixed = {'heatmap_file', 'base_frame', 'allowed_dirs', 'heatmap_percentile',
+                 *_ROBOT_PARAMS}
         values = dataclasses.asdict(self.cfg)
         for p in params:
             if p.name in fixed:
@@ -173,6 +198,8 @@ class HeatmapServer(Node):
         frames = {(o.header.frame_id, f'scene[{i}] {o.id!r}')
                   for i, o in enumerate(request.scene)}
         frames.add((request.goal_region.header.frame_id, 'goal_region'))
+        if request.cloud.width * request.cloud.height:
+            frames.add((request.cloud.header.frame_id, 'cloud'))
         for frame, what in sorted(frames):
             if frame and frame != base:
                 return fail(ErrorCodes.INVALID_REQUEST if what != 'goal_region'
@@ -181,6 +208,12 @@ class HeatmapServer(Node):
                             '(no tf here)')
         try:
             objects = scene_from_msgs(list(request.scene))
+            if request.cloud.width * request.cloud.height:
+                cloud = cloud_shape_from_msg(request.cloud, request.cloud_resolution
+                                             or DEFAULT_RESOLUTION_M, [-math.inf] * 3,
+                                             [math.inf] * 3)
+                if cloud is not None:
+                    objects = objects + (SceneObject('sensed_cloud', (cloud,)),)
         except SceneError as exc:
             return fail(ErrorCodes.INVALID_REQUEST, str(exc))
         try:

@@ -6,6 +6,10 @@ joiner still receives an attack's operations). Injected operations never touch t
 objects: a REMOVE with an empty id clears the injected objects only, and an id that names a
 static object is rejected, so an attacker can reset its boxes without deleting the table.
 
+The sensed part of the scene arrives on ``/advocc/cloud`` (sensor_msgs/PointCloud2, latched,
+xyz in the planning frame): cropped to ``cloud_crop_min/max``, it becomes one octree object
+(``cloud_resolution``) that each new cloud replaces, as in MoveIt's occupancy-map updater.
+
 Services:
 - ``~/plan`` (advocc_msgs/srv/Plan): start state, goal region, planner id, budget, seed ->
   MoveIt error code + message + trajectory + planning time. Requests run in a watched worker
@@ -30,15 +34,19 @@ from advocc_msgs.srv import GetInfo, Plan
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
 from rclpy.node import Node
+from sensor_msgs.msg import PointCloud2
 
 from advocc_ros.ros.conversions import (collision_object_from_msg, goal_region_from_msg,
                                         q_from_joint_state, trajectory_to_msg)
 from advocc_ros.nodes import run
+from advocc_ros.ros.clouds import (CLOUD_TOPIC, cloud_shape_from_node_params,
+                                   declare_cloud_parameters)
 from advocc_ros.ros.qos import COLLISION_OBJECT_TOPIC, LATCHED_QOS
 from advocc_ros.paths import allowed_dirs, confine, scene_path
 from advocc_ros.planning import PLANNERS, Planner, PlanningConfig, PlanStatus
 from advocc_ros.model.robot import RobotError, resolve_path
-from advocc_ros.model.scene import Scene, SceneError, apply_operation, load_scene
+from advocc_ros.model.scene import (Scene, SceneError, SceneObject, apply_operation, load_scene,
+                                    referenced_files)
 
 # Parameters that map onto PlanningConfig fields (defaults come from the dataclass).
 _CONFIG_PARAMS = ('time_budget_s', 'max_time_budget_s', 'motion_step_rad', 'ik_goals',
@@ -55,6 +63,7 @@ class PlannerShim(Node):
         self.declare_parameter('scene_file', 'table_pick')
         self.declare_parameter('default_planner', 'rrtconnect')
         self.declare_parameter('allowed_dirs', [''])  # ['']: the defaults, see paths.py
+        declare_cloud_parameters(self)
         for name in _CONFIG_PARAMS:
             self.declare_parameter(name, getattr(defaults, name))
         self.add_on_set_parameters_callback(self._check_parameters)
@@ -62,8 +71,10 @@ class PlannerShim(Node):
         scene_arg = self.get_parameter('scene_file').value
         allowed = allowed_dirs(self.get_parameter('allowed_dirs').value)
         if scene_arg:
-            self._static: Scene = load_scene(confine(scene_path(scene_arg), allowed,
-                                                     'scene_file'))
+            scene_file = confine(scene_path(scene_arg), allowed, 'scene_file')
+            for file in referenced_files(scene_file):  # meshes and clouds follow the same rule
+                confine(file, allowed, 'scene_file object file')
+            self._static: Scene = load_scene(scene_file)
             for field in ('urdf', 'srdf'):  # a scene file names the robot files to read
                 confine(resolve_path(getattr(self._static.robot, field)),
                         allowed + [resolve_path('example-robot-data://')],
@@ -71,6 +82,7 @@ class PlannerShim(Node):
         else:
             self._static = Scene()
         self._injected: dict = {}
+        self._sensed: tuple[SceneObject, ...] = ()  # the cloud of /advocc/cloud
         self._scene_lock = threading.Lock()
         self._planner = Planner(self._static, self._config())
         self._planner.start()
@@ -82,6 +94,8 @@ class PlannerShim(Node):
         scene_group = MutuallyExclusiveCallbackGroup()
         self.create_subscription(CollisionObject, COLLISION_OBJECT_TOPIC, self._on_object,
                                  LATCHED_QOS, callback_group=scene_group)
+        self.create_subscription(PointCloud2, CLOUD_TOPIC, self._on_cloud, LATCHED_QOS,
+                                 callback_group=scene_group)
         self.create_service(GetInfo, '~/get_info', self._on_get_info,
                             callback_group=scene_group)
         self.create_service(Plan, '~/plan', self._on_plan,
@@ -115,7 +129,21 @@ class PlannerShim(Node):
 
     def _scene(self) -> Scene:
         with self._scene_lock:
-            return self._static.with_objects(list(self._injected.values()))
+            return self._static.with_objects(list(self._injected.values()) + list(self._sensed))
+
+    def _on_cloud(self, msg: PointCloud2) -> None:
+        try:
+            frame = msg.header.frame_id
+            if frame and frame != self._static.frame:
+                raise SceneError(f'frame {frame!r} is not the planning frame '
+                                 f'{self._static.frame!r} (no tf here)')
+            shape = cloud_shape_from_node_params(self, msg)
+            with self._scene_lock:
+                self._sensed = () if shape is None else (SceneObject('sensed_cloud', (shape,)),)
+            self.get_logger().info(f'cloud: {msg.width * msg.height} points, '
+                                   f'{0 if shape is None else len(shape.vertices)} in the box')
+        except (SceneError, ValueError) as exc:
+            self.get_logger().error(f'cloud rejected: {exc}')
 
     def _on_object(self, msg: CollisionObject) -> None:
         try:
@@ -204,6 +232,7 @@ class PlannerShim(Node):
         try:
             with self._scene_lock:
                 injected = sorted(self._injected)
+                sensed = {o.id: len(o.shapes[0].vertices) for o in self._sensed}
             robot = self._planner.robot
             info = {
                 'node': self.get_fully_qualified_name(),
@@ -211,6 +240,7 @@ class PlannerShim(Node):
                 'scene_file': self.get_parameter('scene_file').value,
                 'static_objects': [o.id for o in self._static.objects],
                 'injected_objects': injected,
+                'sensed_points': sensed,
                 'robot': {'joints': list(robot.joint_names), 'ee_link': robot.spec.ee_link,
                           'hash': robot.hash},
                 'planners': sorted(PLANNERS),

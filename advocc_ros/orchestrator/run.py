@@ -232,14 +232,14 @@ class Orchestrator(AttackSources):
     # -- per scene ---------------------------------------------------------------------------
 
     def _run_units(self, units: list[Unit], heatmaps: dict[str, pathlib.Path]) -> None:
-        from tqdm import tqdm
+        from advocc_ros.progress import progress_bar
 
         if self.pool_factory is None:
             self.graph = Graph(self.domain)
         planned = sum(len(u.trials) for u in units)
         done = sum(1 for u in units for t in u.trials if t.key in self.store)
-        self.bar = tqdm(total=planned, initial=done, unit='trial', desc='bench',
-                        file=sys.stderr, dynamic_ncols=True, smoothing=0.05)
+        self.bar = progress_bar(planned, 'bench', 'trial', initial=done, file=sys.stderr,
+                                smoothing=0.05)
         scenes = list(dict.fromkeys(u.scene for u in units))
         for scene_name in scenes:
             self._run_scene(scene_name, [u for u in units if u.scene == scene_name],

@@ -23,6 +23,7 @@ from advocc_ros.limits import (MAX_JOINTS, MAX_MESH_TRIANGLES, MAX_MESH_VERTICES
 from advocc_ros.model.robot import RobotError, RobotModel
 from advocc_ros.model.scene import (GoalRegion, Operation, Pose, Scene, SceneError, SceneObject,
                                     Shape, make_box, make_mesh_shape, objects_to_data)
+from advocc_ros.ros.clouds import cloud_msg, scene_cloud, without_clouds
 from advocc_ros.ros.errors import code_name
 
 
@@ -159,6 +160,9 @@ def collision_object_to_msg(obj: SceneObject, frame: str,
     msg = CollisionObject(id=obj.id, operation=bytes([operation]))
     msg.header.frame_id = frame
     for shape in obj.shapes if operation != Operation.REMOVE else ():
+        if shape.kind == 'cloud':
+            raise SceneError(f'object {obj.id!r}: a point cloud has no CollisionObject form; '
+                             'send it as sensor_msgs/PointCloud2 (/advocc/cloud)')
         if shape.kind == 'mesh':
             msg.meshes.append(Mesh(
                 triangles=[MeshTriangle(vertex_indices=[int(i) for i in f])
@@ -219,7 +223,8 @@ def scene_to_msg(scene: Scene) -> SceneMsg:
         raise SceneError(f'scene {scene.name!r} has no start state')
     msg = SceneMsg(name=scene.name)
     msg.header.frame_id = scene.frame
-    msg.objects = [collision_object_to_msg(o, scene.frame) for o in scene.objects]
+    # Sensed clouds travel separately (/advocc/cloud, a request's cloud): see ros/clouds.py.
+    msg.objects = [collision_object_to_msg(o, scene.frame) for o in without_clouds(scene.objects)]
     msg.start_state = joint_state_from_dict(scene.start)
     return msg
 
@@ -245,8 +250,12 @@ def attack_request(scene: Scene, budget: int, method: str = 'ours', box_size_m: 
     if scene.start is None or scene.goal is None:
         raise SceneError(f'scene {scene.name!r} needs a start and a goal to attack')
     goal = goal_region_to_msg(scene.goal, scene.frame)
-    return attack_request_from_msgs(scene_to_msg(scene), goal, budget, method, box_size_m, seed,
-                                    goal_policy)
+    req = attack_request_from_msgs(scene_to_msg(scene), goal, budget, method, box_size_m, seed,
+                                   goal_policy)
+    cloud = scene_cloud(scene.objects)
+    if cloud is not None:
+        req.cloud, req.cloud_resolution = cloud_msg(cloud[0], scene.frame), float(cloud[1])
+    return req
 
 
 def plan_request(robot: RobotModel, q_start: np.ndarray, goal: GoalRegion, frame: str,

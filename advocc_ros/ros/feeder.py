@@ -29,6 +29,9 @@ def run_attack_nodes(heatmap_file: str | pathlib.Path, scene: Scene, out: str | 
     from advocc_msgs.msg import CollisionObject, GoalRegion, Scene as SceneMsg
     from rclpy.executors import SingleThreadedExecutor
 
+    from sensor_msgs.msg import PointCloud2
+
+    from advocc_ros.ros.clouds import CLOUD_TOPIC, cloud_msg, scene_cloud
     from advocc_ros.ros.conversions import (collision_object_from_msg, goal_region_to_msg,
                                             scene_to_msg)
     from advocc_ros.ros.qos import (COLLISION_OBJECT_TOPIC, GOAL_REGION_TOPIC, LATCHED_QOS,
@@ -39,9 +42,12 @@ def run_attack_nodes(heatmap_file: str | pathlib.Path, scene: Scene, out: str | 
     domain = 150 + os.getpid() % 80 if domain is None else domain
     env = dict(os.environ, ROS_DOMAIN_ID=str(domain), PYTHONUNBUFFERED='1')
     logs = [tempfile.TemporaryFile(mode='w+') for _ in range(2)]
+    cloud = scene_cloud(scene.objects)
+    attacker_params = {'budget': int(budget), 'method': method}
+    if cloud is not None:
+        attacker_params['cloud_resolution'] = float(cloud[1])
     procs = [start_node('heatmap_server', {'heatmap_file': heatmap_file}, env=env, log=logs[0]),
-             start_node('attacker', {'budget': int(budget), 'method': method}, env=env,
-                        log=logs[1])]
+             start_node('attacker', attacker_params, env=env, log=logs[1])]
     context = rclpy.Context()
     rclpy.init(context=context, domain_id=domain)
     node = rclpy.create_node('advocc_demo_feeder', context=context)
@@ -53,6 +59,9 @@ def run_attack_nodes(heatmap_file: str | pathlib.Path, scene: Scene, out: str | 
             CollisionObject, COLLISION_OBJECT_TOPIC,
             lambda m: added.append(m) if m.operation == CollisionObject.ADD else None,
             LATCHED_QOS)
+        if cloud is not None:
+            node.create_publisher(PointCloud2, CLOUD_TOPIC, LATCHED_QOS).publish(
+                cloud_msg(cloud[0], scene.frame))
         node.create_publisher(SceneMsg, SCENE_TOPIC, LATCHED_QOS).publish(scene_to_msg(scene))
         node.create_publisher(GoalRegion, GOAL_REGION_TOPIC, LATCHED_QOS).publish(
             goal_region_to_msg(scene.goal, scene.frame))

@@ -1,0 +1,151 @@
+"""Sensed point clouds as scene objects: files (PLY, PCD), validation and coal octrees.
+
+A cloud object ``{id, type: cloud, file: cloud.ply, resolution: 0.02, pose: ...}`` holds points
+in the object's frame; it is occupied where an octree leaf of edge ``resolution`` holds a point.
+Collision and distance use coal's ``OcTree`` built by ``coal.makeOctree`` (one hit per point, no
+ray casting: the FCL/MoveIt octomap semantics), voxel occupancy uses the same leaves
+(:func:`advocc_ros.model.shapes.cloud_cells`), so both agree cell for cell.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import logging
+import pathlib
+from typing import Any
+
+import coal
+import numpy as np
+
+from advocc_ros.limits import (MAX_CLOUD_POINTS, MAX_CLOUD_RESOLUTION_M, MAX_FILE_BYTES,
+                               MIN_CLOUD_RESOLUTION_M)
+from advocc_ros.model.shapes import Pose, SceneError, Shape, cloud_cells, finite_array
+
+log = logging.getLogger(__name__)
+
+DEFAULT_RESOLUTION_M = 0.02
+"""Octree leaf edge [m] when a cloud object does not name one."""
+CLOUD_SUFFIXES = ('.ply', '.pcd')
+
+_CACHE: dict[tuple[str, float], dict[str, Any]] = {}
+"""(content hash, resolution) -> {'octree': coal.OcTree, 'keys': sorted leaf keys}."""
+_CACHE_SIZE = 16
+
+
+def make_cloud_shape(points, resolution_m: float = DEFAULT_RESOLUTION_M, pose: Pose = Pose(),
+                     where: str = 'cloud') -> Shape:
+    """Validated cloud shape: (N, 3) finite points in the shape frame, 1 <= N <=
+    ``MAX_CLOUD_POINTS``, resolution within ``MIN/MAX_CLOUD_RESOLUTION_M``."""
+    try:
+        pts = np.asarray(points, dtype=float)
+    except (TypeError, ValueError):
+        raise SceneError(f'{where}.points: expected (N, 3) numbers') from None
+    if pts.ndim != 2 or pts.shape[1] != 3:
+        raise SceneError(f'{where}.points: expected (N, 3) points, got shape {pts.shape}')
+    if len(pts) == 0:
+        raise SceneError(f'{where}.points: the cloud is empty')
+    if len(pts) > MAX_CLOUD_POINTS:
+        raise SceneError(f'{where}.points: {len(pts):,} points, limit {MAX_CLOUD_POINTS:,} '
+                         '(MAX_CLOUD_POINTS)')
+    bad = ~np.all(np.isfinite(pts), axis=1)
+    if bad.any():
+        raise SceneError(f'{where}.points: {int(bad.sum())} NaN/inf point(s), first at row '
+                         f'{int(np.argmax(bad))}')
+    res = float(finite_array([resolution_m], f'{where}.resolution', 1, positive=True)[0])
+    if not MIN_CLOUD_RESOLUTION_M <= res <= MAX_CLOUD_RESOLUTION_M:
+        raise SceneError(f'{where}.resolution: {res} m is outside {MIN_CLOUD_RESOLUTION_M}..'
+                         f'{MAX_CLOUD_RESOLUTION_M} m (MIN/MAX_CLOUD_RESOLUTION_M)')
+    return Shape('cloud', (res,), pose, np.ascontiguousarray(pts), None)
+
+
+def read_cloud_file(path: str | pathlib.Path, where: str = 'cloud') -> np.ndarray:
+    """(N, 3) xyz points of a PLY (via trimesh) or PCD (via pypcd4) file; ``SceneError``
+    naming ``where`` on a missing, oversized or unreadable file."""
+    path = pathlib.Path(path)
+    if path.suffix.lower() not in CLOUD_SUFFIXES:
+        raise SceneError(f'{where}.file: {path} is not a PLY or PCD file')
+    if not path.is_file():
+        raise SceneError(f'{where}.file: {path} not found')
+    size = path.stat().st_size
+    if size > MAX_FILE_BYTES:
+        raise SceneError(f'{where}.file: {path} is {size} bytes, limit {MAX_FILE_BYTES} '
+                         '(MAX_FILE_BYTES)')
+    try:
+        if path.suffix.lower() == '.ply':
+            import trimesh
+            loaded = trimesh.load(str(path), process=False)
+            points = np.asarray(loaded.vertices, dtype=float)
+        else:
+            from pypcd4 import PointCloud
+            pc = PointCloud.from_path(str(path))
+            points = np.asarray(pc.numpy(('x', 'y', 'z')), dtype=float)
+    except Exception as exc:  # the readers raise many types on bad files
+        raise SceneError(f'{where}.file: {path} could not be read ({exc})') from exc
+    return points.reshape(-1, 3) if points.size else np.zeros((0, 3))
+
+
+def cloud_shape_from_data(entry: dict, where: str, base_dir: pathlib.Path | None,
+                          pose: Pose) -> Shape:
+    """A ``type: cloud`` scene-file entry (``file`` or inline ``points``, ``resolution``)."""
+    resolution = entry.get('resolution', DEFAULT_RESOLUTION_M)
+    if 'file' in entry:
+        path = pathlib.Path(str(entry['file']))
+        if not path.is_absolute() and base_dir is not None:
+            path = base_dir / path
+        points = read_cloud_file(path, where)
+    elif 'points' in entry:
+        points = entry['points']
+    else:
+        raise SceneError(f'{where}: a cloud needs file (PLY/PCD) or points')
+    return make_cloud_shape(points, resolution, pose, where)
+
+
+def cloud_to_data(shape: Shape) -> dict[str, Any]:
+    """Inline scene-file fields of a cloud shape (``points``, ``resolution``)."""
+    return {'resolution': float(shape.dims[0]),
+            'points': np.asarray(shape.vertices).tolist()}
+
+
+def _cached(shape: Shape) -> dict[str, Any]:
+    key = (hashlib.sha256(np.ascontiguousarray(shape.vertices).tobytes()).hexdigest(),
+           round(shape.dims[0], 9))
+    entry = _CACHE.get(key)
+    if entry is None:
+        if len(_CACHE) >= _CACHE_SIZE:
+            _CACHE.pop(next(iter(_CACHE)))
+        entry = _CACHE[key] = {}
+    return entry
+
+
+def cloud_octree(shape: Shape) -> coal.OcTree:
+    """coal ``OcTree`` of a cloud shape in its own frame (cached by content)."""
+    entry = _cached(shape)
+    if 'octree' not in entry:
+        entry['octree'] = coal.makeOctree(np.ascontiguousarray(shape.vertices, dtype=float),
+                                          shape.dims[0])
+    return entry['octree']
+
+
+def _leaf_keys(shape: Shape) -> np.ndarray:
+    """Sorted int64 keys of the occupied leaves (cached by content)."""
+    entry = _cached(shape)
+    if 'keys' not in entry:
+        entry['keys'] = np.sort(_encode(cloud_cells(shape.vertices, shape.dims[0])))
+    return entry['keys']
+
+
+def points_in_cloud(shape: Shape, points_m: np.ndarray) -> np.ndarray:
+    """Which points (..., 3) in the base frame lie in an occupied leaf of the cloud."""
+    T = shape.pose.to_se3()
+    res = shape.dims[0]
+    local = (np.asarray(points_m, dtype=float) - T.translation) @ T.rotation
+    keys = _encode(np.floor(local / res).astype(np.int64))
+    occupied = _leaf_keys(shape)
+    pos = np.clip(np.searchsorted(occupied, keys), 0, len(occupied) - 1)
+    return occupied[pos] == keys
+
+
+def _encode(cells: np.ndarray) -> np.ndarray:
+    """One int64 per cell index (..., 3) (21 bits per axis, like octomap's 16-bit keys)."""
+    c = np.clip(cells + (1 << 20), 0, (1 << 21) - 1)
+    return (c[..., 0] << 42) | (c[..., 1] << 21) | c[..., 2]
