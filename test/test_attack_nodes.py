@@ -208,7 +208,7 @@ def test_server_answers_bad_requests_and_keeps_serving(ros, ros_env, heatmap_fil
         (bad(req__method='pfa'), ErrorCodes.UNKNOWN_METHOD, 'pfa'),
         (bad(req__method='nope'), ErrorCodes.UNKNOWN_METHOD, 'nope'),
         (bad(req__box_size=float('nan')), ErrorCodes.INVALID_REQUEST, 'box_size'),
-        (bad(req__box_size=-0.05), ErrorCodes.INVALID_REQUEST, 'box_size'),
+        (bad(req__box_size=-0.05), ErrorCodes.INVALID_REQUEST, 'box size'),  # the core's message
         (bad(goal_region__center__position__x=float('inf')), ErrorCodes.INVALID_REQUEST,
          'goal_region.center.position.x'),
         (bad(scene__0__primitive_poses__0__position__z=float('nan')),
