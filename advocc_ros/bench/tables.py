@@ -260,7 +260,7 @@ def table4(attacks: list[dict], heatmaps: dict[str, dict]) -> tuple[str, str]:
             order.index(g[0]) if g[0] in order else 99, g[0], g[1] or '')):
         times = groups[(method, planner)]
         online = sum(times) / len(times)
-        offline = offline_ours if method == 'ours' else None
+        offline = offline_ours if method in ('ours', 'task') else None  # both search H > 0
         total = online + (offline or 0.0)
         label = METHOD_LABELS.get(method, method)
         if planner:
