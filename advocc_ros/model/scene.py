@@ -14,78 +14,16 @@ import pathlib
 from typing import Any
 
 import numpy as np
-import pinocchio as pin
 import trimesh
 import yaml
 
 from advocc_ros.limits import (MAX_FILE_BYTES, MAX_MESH_TRIANGLES, MAX_MESH_VERTICES,
                                MAX_OBJECTS, yaml_size)  # MAX_*: re-exported
+from advocc_ros.model.goal import GoalRegion  # noqa: F401 (re-exported)
+from advocc_ros.model.pose import Pose, SceneError, finite_array  # noqa: F401 (re-exported)
 from advocc_ros.model.robot import RobotSpec, with_state
 
 SHAPES = ('box', 'sphere', 'cylinder', 'mesh')
-
-
-class SceneError(ValueError):
-    """A malformed scene, goal region or obstacles file; the message names file and field."""
-
-
-def finite_array(values, where: str, n: int | None = None, positive: bool = False,
-                 nonneg: bool = False) -> np.ndarray:
-    """``values`` as a float array, or a ``SceneError`` naming ``where``: numbers, finite,
-    optionally ``n`` of them and positive / non-negative."""
-    try:
-        arr = np.asarray(values, dtype=float)
-    except (TypeError, ValueError):
-        raise SceneError(f'{where}: expected numbers, got {values!r}') from None
-    if n is not None and arr.shape != (n,):
-        raise SceneError(f'{where}: expected {n} numbers, got {values!r}')
-    if not np.all(np.isfinite(arr)):
-        raise SceneError(f'{where}: values must be finite, got {values!r}')
-    if positive and not np.all(arr > 0):
-        raise SceneError(f'{where}: values must be > 0, got {values!r}')
-    if nonneg and not np.all(arr >= 0):
-        raise SceneError(f'{where}: values must be >= 0, got {values!r}')
-    return arr
-
-
-@dataclasses.dataclass(frozen=True)
-class Pose:
-    """Rigid pose: ``position_m`` (3,) and unit quaternion ``quat_xyzw`` (4,)."""
-
-    position_m: tuple[float, float, float] = (0.0, 0.0, 0.0)
-    quat_xyzw: tuple[float, float, float, float] = (0.0, 0.0, 0.0, 1.0)
-
-    @classmethod
-    def from_data(cls, data: Any, where: str) -> 'Pose':
-        if data is None:
-            return cls()
-        if not isinstance(data, dict):
-            raise SceneError(f'{where}: expected a mapping with position/orientation')
-        unknown = set(data) - {'position', 'orientation'}
-        if unknown:
-            raise SceneError(f'{where}: unknown field(s) {sorted(unknown)}')
-        pos = finite_array(data.get('position', [0, 0, 0]), f'{where}.position', 3)
-        quat = finite_array(data.get('orientation', [0, 0, 0, 1]), f'{where}.orientation', 4)
-        norm = np.linalg.norm(quat / np.max(np.abs(quat))) * np.max(np.abs(quat)) \
-            if np.any(quat) else 0.0  # scaled: components near 1e308 must not overflow to inf
-        if not 1e-6 <= norm < np.inf:
-            raise SceneError(f'{where}.orientation: zero or overflowing quaternion '
-                             f'{quat.tolist()}')
-        return cls(tuple(pos.tolist()), tuple((quat / norm).tolist()))
-
-    @classmethod
-    def from_se3(cls, T: pin.SE3) -> 'Pose':
-        quat = pin.Quaternion(T.rotation).coeffs()  # x, y, z, w
-        return cls(tuple(T.translation.tolist()), tuple(np.asarray(quat).tolist()))
-
-    def to_se3(self) -> pin.SE3:
-        x, y, z, w = self.quat_xyzw
-        return pin.SE3(pin.Quaternion(w, x, y, z).normalized().matrix(),
-                       np.array(self.position_m))
-
-    def to_data(self) -> dict:
-        return {'position': [float(v) for v in self.position_m],
-                'orientation': [float(v) for v in self.quat_xyzw]}
 
 
 @dataclasses.dataclass(frozen=True)
@@ -137,85 +75,6 @@ def make_box(obj_id: str, center_m, size_m) -> SceneObject:
     """Axis-aligned box object centred at ``center_m`` with edge lengths ``size_m``."""
     pose = Pose(tuple(float(v) for v in center_m))
     return SceneObject(obj_id, (Shape('box', tuple(float(v) for v in size_m), pose),))
-
-
-def _rotation_error(R_center: np.ndarray, R: np.ndarray) -> np.ndarray:
-    """Rotation vector of ``R`` relative to ``R_center`` (the MoveIt ROTATION_VECTOR form)."""
-    return pin.log3(R_center.T @ R)
-
-
-@dataclasses.dataclass(frozen=True)
-class GoalRegion:
-    """Tolerance box around an end-effector pose (paper §III-A, SPEC §1).
-
-    A pose ``T_base_tool`` is inside when its position, expressed in the centre's frame, lies in
-    the box ``|p| <= position_tolerance_m`` and the rotation vector of ``R_center^T R`` lies
-    within ``orientation_tolerance_rad`` per axis (MoveIt's ``absolute_*_axis_tolerance`` with
-    the rotation-vector parameterization).
-    """
-
-    center: Pose
-    position_tolerance_m: tuple[float, float, float] = (0.02, 0.02, 0.02)
-    orientation_tolerance_rad: tuple[float, float, float] = (0.1, 0.1, 0.1)
-    link: str = 'panda_hand'
-    tool_offset: Pose = Pose()
-    """Pose of the tool point in ``link``; the region constrains the tool point."""
-
-    def __post_init__(self):
-        finite_array(self.position_tolerance_m, 'goal.position_tolerance', 3, nonneg=True)
-        finite_array(self.orientation_tolerance_rad, 'goal.orientation_tolerance', 3, nonneg=True)
-        if not self.link:
-            raise SceneError('goal.link: empty link name')
-
-    @classmethod
-    def from_data(cls, data: Any, where: str = 'goal') -> 'GoalRegion':
-        if not isinstance(data, dict):
-            raise SceneError(f'{where}: expected a mapping')
-        known = {'link', 'center', 'position_tolerance', 'orientation_tolerance', 'tool_offset'}
-        unknown = set(data) - known
-        if unknown:
-            raise SceneError(f'{where}: unknown field(s) {sorted(unknown)}; '
-                             f'known: {sorted(known)}')
-        if 'center' not in data:
-            raise SceneError(f'{where}.center: missing')
-        link = data.get('link', 'panda_hand')
-        if not isinstance(link, str) or not link:
-            raise SceneError(f'{where}.link: expected a link name, got {link!r}')
-        return cls(
-            center=Pose.from_data(data['center'], f'{where}.center'),
-            position_tolerance_m=tuple(finite_array(
-                data.get('position_tolerance', [0.02] * 3), f'{where}.position_tolerance', 3,
-                nonneg=True).tolist()),
-            orientation_tolerance_rad=tuple(finite_array(
-                data.get('orientation_tolerance', [0.1] * 3), f'{where}.orientation_tolerance',
-                3, nonneg=True).tolist()),
-            link=link,
-            tool_offset=Pose.from_data(data.get('tool_offset'), f'{where}.tool_offset'))
-
-    def to_data(self) -> dict:
-        return {'link': self.link, 'center': self.center.to_data(),
-                'position_tolerance': list(self.position_tolerance_m),
-                'orientation_tolerance': list(self.orientation_tolerance_rad),
-                'tool_offset': self.tool_offset.to_data()}
-
-    def error(self, T_base_tool: pin.SE3) -> tuple[np.ndarray, np.ndarray]:
-        """(position error in the centre frame [m], rotation-vector error [rad])."""
-        T_c = self.center.to_se3()
-        p_local = T_c.rotation.T @ (T_base_tool.translation - T_c.translation)
-        return p_local, _rotation_error(T_c.rotation, T_base_tool.rotation)
-
-    def contains(self, T_base_tool: pin.SE3, slack: float = 1e-6) -> bool:
-        p_err, r_err = self.error(T_base_tool)
-        return bool(np.all(np.abs(p_err) <= np.asarray(self.position_tolerance_m) + slack)
-                    and np.all(np.abs(r_err) <= np.asarray(self.orientation_tolerance_rad)
-                               + slack))
-
-    def box_corners_m(self) -> np.ndarray:
-        """(8, 3) corners of the position box in the base frame."""
-        T_c = self.center.to_se3()
-        signs = np.array([[i, j, k] for i in (-1, 1) for j in (-1, 1) for k in (-1, 1)], float)
-        local = signs * np.asarray(self.position_tolerance_m)
-        return local @ T_c.rotation.T + T_c.translation
 
 
 @dataclasses.dataclass(frozen=True)
