@@ -32,18 +32,46 @@ class GoalRegion:
     link: str = 'panda_hand'
     tool_offset: Pose = Pose()
     """Pose of the tool point in ``link``; the region constrains the tool point."""
+    seed_joints: tuple[str, ...] = ()
+    """Joint names of ``seeds``."""
+    seeds: tuple[tuple[float, ...], ...] = ()
+    """Goal configurations [rad | m] by ``seed_joints``, meant to lie in the region (a request's
+    joint goal): the planners' goal sampler offers them first and seeds IK near them, the way
+    MoveIt plans to a joint goal itself. The region stays the goal; a seed is only a hint."""
 
     def __post_init__(self):
         finite_array(self.position_tolerance_m, 'goal.position_tolerance', 3, nonneg=True)
         finite_array(self.orientation_tolerance_rad, 'goal.orientation_tolerance', 3, nonneg=True)
         if not self.link:
             raise SceneError('goal.link: empty link name')
+        if self.seeds and not self.seed_joints:
+            raise SceneError('goal.seeds: seeds without joint names')
+        for k, seed in enumerate(self.seeds):
+            finite_array(seed, f'goal.seeds[{k}]', len(self.seed_joints))
+
+    @staticmethod
+    def _seeds_from_data(data: Any, where: str) -> tuple[tuple[str, ...], tuple]:
+        """(joint names, configurations) of ``seeds: [{joint: value, ...}, ...]``."""
+        if data is None:
+            return (), ()
+        if not isinstance(data, list) or not all(isinstance(d, dict) and d for d in data):
+            raise SceneError(f'{where}: expected a list of mappings joint_name: position')
+        names = tuple(str(n) for n in data[0])
+        seeds = []
+        for k, seed in enumerate(data):
+            if set(map(str, seed)) != set(names):
+                raise SceneError(f'{where}[{k}]: joints {sorted(map(str, seed))} differ from '
+                                 f'the first seed\'s {sorted(names)}')
+            seed = {str(n): v for n, v in seed.items()}
+            seeds.append(tuple(finite_array([seed[n] for n in names], f'{where}[{k}]').tolist()))
+        return names, tuple(seeds)
 
     @classmethod
     def from_data(cls, data: Any, where: str = 'goal') -> 'GoalRegion':
         if not isinstance(data, dict):
             raise SceneError(f'{where}: expected a mapping')
-        known = {'link', 'center', 'position_tolerance', 'orientation_tolerance', 'tool_offset'}
+        known = {'link', 'center', 'position_tolerance', 'orientation_tolerance', 'tool_offset',
+                 'seeds'}
         unknown = set(data) - known
         if unknown:
             raise SceneError(f'{where}: unknown field(s) {sorted(unknown)}; '
@@ -53,6 +81,7 @@ class GoalRegion:
         link = data.get('link', 'panda_hand')
         if not isinstance(link, str) or not link:
             raise SceneError(f'{where}.link: expected a link name, got {link!r}')
+        seed_joints, seeds = cls._seeds_from_data(data.get('seeds'), f'{where}.seeds')
         return cls(
             center=Pose.from_data(data['center'], f'{where}.center'),
             position_tolerance_m=tuple(finite_array(
@@ -62,13 +91,18 @@ class GoalRegion:
                 data.get('orientation_tolerance', [0.1] * 3), f'{where}.orientation_tolerance',
                 3, nonneg=True).tolist()),
             link=link,
-            tool_offset=Pose.from_data(data.get('tool_offset'), f'{where}.tool_offset'))
+            tool_offset=Pose.from_data(data.get('tool_offset'), f'{where}.tool_offset'),
+            seed_joints=seed_joints, seeds=seeds)
 
     def to_data(self) -> dict:
-        return {'link': self.link, 'center': self.center.to_data(),
+        data = {'link': self.link, 'center': self.center.to_data(),
                 'position_tolerance': list(self.position_tolerance_m),
                 'orientation_tolerance': list(self.orientation_tolerance_rad),
                 'tool_offset': self.tool_offset.to_data()}
+        if self.seeds:  # absent otherwise: seedless goals keep their files and hashes
+            data['seeds'] = [{n: float(v) for n, v in zip(self.seed_joints, seed)}
+                             for seed in self.seeds]
+        return data
 
     def error(self, T_base_tool: pin.SE3) -> tuple[np.ndarray, np.ndarray]:
         """(position error in the centre frame [m], rotation-vector error [rad])."""
