@@ -64,3 +64,22 @@ def test_seeds_of_another_robot_are_ignored(task):
     scene, robot = task
     goal = dataclasses.replace(scene.goal, seed_joints=('elbow',), seeds=((0.1,),))
     assert seed_configurations(robot, goal).shape == (0, robot.nq)
+
+
+def test_the_planner_worker_reaches_a_joint_goal_through_its_seed(task):
+    """With one DLS iteration per IK attempt, random-seed IK never lands in a 0.1 mm / 1 mrad
+    region; the seed (already inside) and walks near it do, so the seed crossed the worker's
+    process boundary. The seedless goal fails as NO_IK_SOLUTION."""
+    from advocc_ros.planning import Planner, PlanningConfig
+    scene, robot = task
+    tight = dataclasses.replace(scene.goal, position_tolerance_m=(1e-4,) * 3,
+                                orientation_tolerance_rad=(1e-3,) * 3)
+    q_start = start_configuration(scene, robot)
+    with Planner(scene.without_objects(), PlanningConfig(ik_iterations=1)) as planner:
+        seeded = planner.plan(q_start, tight, 'rrtconnect', 10.0, seed=3)
+        seedless = planner.plan(q_start, dataclasses.replace(tight, seeds=(), seed_joints=()),
+                                'rrtconnect', 1.0, seed=3)
+    assert seeded.status.name == 'SUCCESS', seeded.message
+    T = robot.ee_pose(seeded.path[-1]) * tight.tool_offset.to_se3()
+    assert tight.contains(T)
+    assert seedless.status.name == 'NO_IK_SOLUTION', seedless.message
