@@ -12,7 +12,8 @@ import importlib
 import logging
 import sys
 
-COMMANDS = ['heatmap', 'perf', 'demo', 'audit', 'evaluate', 'attack', 'call', 'scenes', 'bench']
+COMMANDS = ['heatmap', 'perf', 'demo', 'audit', 'evaluate', 'attack', 'call', 'scenes', 'bench',
+            'robot']
 
 
 class UserError(Exception):

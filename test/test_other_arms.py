@@ -17,7 +17,7 @@ from advocc_ros.planning import start_configuration
 
 REPO = pathlib.Path(__file__).resolve().parents[1]
 ARMS = ('ur5_table', 'xarm7_table')
-METHODS = ('ours', 'random')
+METHODS = ('task', 'ours', 'random')
 
 
 @pytest.fixture(scope='module', params=ARMS)

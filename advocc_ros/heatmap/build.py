@@ -286,6 +286,7 @@ def build_heatmap(scene: Scene, cfg: HeatmapConfig = HeatmapConfig(), seed: int 
     build_s = time.perf_counter() - t0
     meta = {
         'robot_hash': robot.hash, 'robot_urdf': scene.robot.urdf,
+        'robot': robot.spec.to_dict(),  # the identity it was built with, locked joints included
         'robot_joints': list(robot.joint_names), 'robot_links': list(robot.link_names),
         'scene_hash': None if cfg.robot_only else scene.objects_hash(),
         'scene_name': None if cfg.robot_only else scene.name,

@@ -141,10 +141,37 @@ def load_heatmap(path: str | pathlib.Path, robot_hash: str | None = None) -> Hea
         raise HeatmapError(f'{path}: H holds negative or non-finite values')
     if not isinstance(meta, dict):
         raise HeatmapError(f'{path}: metadata is not a mapping')
-    if robot_hash is not None and meta.get('robot_hash') != robot_hash:
+    heatmap = Heatmap(grid, values, free, meta)
+    if robot_hash is not None:
+        check_robot(heatmap, robot_hash, path)
+    return heatmap
+
+
+def check_robot(heatmap: Heatmap, robot_hash: str, path: str | pathlib.Path = 'heatmap'
+                ) -> None:
+    """``HeatmapError`` unless the heatmap was built for the robot of ``robot_hash``."""
+    meta = heatmap.meta
+    if meta.get('robot_hash') != robot_hash:
         raise HeatmapError(f'{path}: built for robot {meta.get("robot_hash")!r} '
                            f'({meta.get("robot_urdf")}), not this robot ({robot_hash})')
-    return Heatmap(grid, values, free, meta)
+
+
+def locked_joints(meta: dict, urdf: str, srdf: str, group: str
+                  ) -> tuple[tuple[str, float], ...] | None:
+    """The locked joint values of the robot a heatmap was built for (``meta['robot']``, the
+    RobotSpec of its build), when that robot is ``urdf``/``srdf``/``group``; else None (also
+    for files that predate the field)."""
+    spec = meta.get('robot')
+    if not isinstance(spec, dict) or (spec.get('urdf'), spec.get('srdf'), spec.get('group')) \
+            != (urdf, srdf, group):
+        return None
+    locked = spec.get('locked') or {}
+    if not isinstance(locked, dict):
+        return None
+    try:
+        return tuple(sorted((str(k), float(v)) for k, v in locked.items()))
+    except (TypeError, ValueError):
+        return None
 
 
 def _comparable(meta: dict, key: str):

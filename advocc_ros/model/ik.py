@@ -3,13 +3,14 @@
 - :func:`goal_configuration`: one deterministic solution from ``q_init`` to the goal centre
   (the attack keeps the hand clear there);
 - :class:`GoalSampler`: collision-free configurations anywhere in a goal region (the planners'
-  goal set, scene checks);
+  goal set, scene checks), the region's seeds first (a request's joint goal);
 - :func:`goal_set`: many goal configurations fast (the ``task`` attack, goal checks).
 """
 
 from __future__ import annotations
 
 import dataclasses
+import logging
 import math
 import time
 from typing import Callable
@@ -19,6 +20,8 @@ import pinocchio as pin
 
 from advocc_ros.model.robot import RobotModel
 from advocc_ros.model.scene import GoalRegion, Scene, SceneError
+
+log = logging.getLogger(__name__)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -66,6 +69,20 @@ def dls_ik(robot: RobotModel, data, frame_id: int, q: np.ndarray, T_target: pin.
     return q, False
 
 
+def seed_configurations(robot: RobotModel, goal: GoalRegion) -> np.ndarray:
+    """The goal's seeds as (k, nq) arm configurations clipped into the joint limits; (0, nq) when
+    it has none or they miss some of the robot's joints (seeds of another robot: ignored)."""
+    if not goal.seeds:
+        return np.zeros((0, robot.nq))
+    index = {name: k for k, name in enumerate(goal.seed_joints)}
+    missing = [j for j in robot.joint_names if j not in index]
+    if missing:
+        log.warning('goal seeds ignored: they miss joints %s of the robot', missing)
+        return np.zeros((0, robot.nq))
+    cols = [index[j] for j in robot.joint_names]
+    return np.clip(np.asarray(goal.seeds, dtype=float)[:, cols], robot.lower, robot.upper)
+
+
 def goal_configuration(robot: RobotModel, goal: GoalRegion, q_init: np.ndarray,
                        iterations: int = 200) -> np.ndarray | None:
     """One configuration whose tool point is at the goal centre (damped least squares from
@@ -76,6 +93,10 @@ def goal_configuration(robot: RobotModel, goal: GoalRegion, q_init: np.ndarray,
     model = robot.model
     data = model.createData()
     fid = model.getFrameId(goal.link)
+    for q in seed_configurations(robot, goal):  # a joint goal is the configuration to keep clear
+        pin.framesForwardKinematics(model, data, q)
+        if goal.contains(data.oMf[fid] * goal.tool_offset.to_se3()):
+            return q
     T_des = goal.center.to_se3() * goal.tool_offset.to_se3().inverse()  # T_base_link wanted
     q, _ = dls_ik(robot, data, fid, np.array(q_init, dtype=float), T_des, iterations, 1e-6,
                   lambda T, err: np.linalg.norm(err) < 1e-4, gain=0.5, log_jacobian=True)
@@ -91,9 +112,16 @@ class GoalSampler:
     Each attempt draws a target pose uniformly inside the region (position box x rotation-vector
     box) and a random seed configuration, then iterates DLS on the link frame until the tool
     pose enters the region (not necessarily the target: any point of the region will do).
-    ``config``: anything with ``ik_iterations`` and ``ik_damping`` (``IkConfig``,
-    ``PlanningConfig``).
+    When the region has seeds (a request's joint goal), the first attempts offer them (pulled
+    into the region if they are not quite inside), and every other attempt after that is a
+    local walk around one (perturbed by N(0, ``walk_rad``) per joint, pulled back with at most
+    ``walk_iterations`` DLS steps): the joint goal itself, its neighbourhood, and the rest of
+    the region's IK branches. ``config``: anything with ``ik_iterations`` and ``ik_damping``
+    (``IkConfig``, ``PlanningConfig``).
     """
+
+    walk_rad = 0.3
+    walk_iterations = 12
 
     def __init__(self, robot: RobotModel, in_collision, goal: GoalRegion,
                  rng: np.random.Generator, config=IkConfig()):
@@ -110,6 +138,7 @@ class GoalSampler:
         self.tol_p = np.clip(np.abs(goal.position_tolerance_m), 0.0, 10.0)
         self.tol_r = np.clip(np.abs(goal.orientation_tolerance_rad), 0.0, math.pi)
         self.attempts = self.converged = self.colliding = 0
+        self.seeds = seed_configurations(robot, goal)
 
     def tool_pose(self, q: np.ndarray) -> pin.SE3:
         pin.framesForwardKinematics(self.model, self.data, q)
@@ -125,17 +154,30 @@ class GoalSampler:
         return float(np.linalg.norm(dp) + np.linalg.norm(dr))
 
     def attempt(self) -> np.ndarray | None:
-        """One IK attempt; a valid goal configuration or None."""
+        """One IK attempt (a seed, a walk near one, or random-seed IK); a valid goal
+        configuration or None."""
         self.attempts += 1
-        T_target_tool = self.T_center * pin.SE3(
-            pin.exp3(self.rng.uniform(-self.tol_r, self.tol_r)),
-            self.rng.uniform(-self.tol_p, self.tol_p))
-        T_target = T_target_tool * self.T_tool_link
-        q = self.rng.uniform(self.robot.lower, self.robot.upper)
-        q, reached = dls_ik(self.robot, self.data, self.frame, q, T_target,
-                            self.config.ik_iterations, self.config.ik_damping,
-                            lambda T, err: self.goal.contains(T * self.T_link_tool),
-                            max_step=0.5)
+        k, n = self.attempts - 1, len(self.seeds)
+        if k < n:
+            q = self.seeds[k]
+            if self.region_distance(q) > 0.0:
+                q = self.pull(q, self.config.ik_iterations)
+            reached = q is not None
+        elif n and (k - n) % 2 == 0:
+            q = self.pull(self.seeds[int(self.rng.integers(n))]
+                          + self.rng.normal(0.0, self.walk_rad, self.robot.nq),
+                          self.walk_iterations)
+            reached = q is not None
+        else:
+            T_target_tool = self.T_center * pin.SE3(
+                pin.exp3(self.rng.uniform(-self.tol_r, self.tol_r)),
+                self.rng.uniform(-self.tol_p, self.tol_p))
+            T_target = T_target_tool * self.T_tool_link
+            q = self.rng.uniform(self.robot.lower, self.robot.upper)
+            q, reached = dls_ik(self.robot, self.data, self.frame, q, T_target,
+                                self.config.ik_iterations, self.config.ik_damping,
+                                lambda T, err: self.goal.contains(T * self.T_link_tool),
+                                max_step=0.5)
         if not reached:
             return None
         self.converged += 1
@@ -213,4 +255,4 @@ def start_configuration(scene: Scene, robot: RobotModel) -> np.ndarray:
 
 
 __all__ = ['GoalSampler', 'IkConfig', 'dls_ik', 'goal_configuration', 'goal_set',
-           'start_configuration']
+           'seed_configurations', 'start_configuration']

@@ -2,8 +2,11 @@
 
 Parameters (defaults = ``advocc_ros.attack.api.AttackConfig`` and ``RobotSpec``; see
 ``config/heatmap_server.yaml``): ``heatmap_file`` (required), the attack parameters, the robot
-description and ``base_frame``. A heatmap that cannot be loaded, or was built for another robot,
-stops the node at start-up with a clear message and exit code 1.
+description and ``base_frame``. The values of joints outside the planning group (SPEC §4b) come
+from ``robot_locked`` (``['joint=value', ...]``) or else from the heatmap file, which records the
+robot it was built for (a heatmap of a Panda with open fingers serves with open fingers). A
+heatmap that cannot be loaded, or was built for another robot, stops the node at start-up with a
+clear message and exit code 1.
 
 Services:
 - ``~/attack`` (advocc_msgs/srv/Attack): scene objects, start state, goal region, budget,
@@ -37,6 +40,7 @@ from advocc_ros.attack import (AttackConfig, AttackStatus, attack, available_met
 from advocc_ros.ros.conversions import (goal_region_from_msg, obstacle_to_msg, q_from_joint_state,
                                         scene_from_msgs)
 from advocc_ros.heatmap import HeatmapError, hottest_voxels, load_heatmap
+from advocc_ros.heatmap.store import check_robot, locked_joints
 from advocc_ros.nodes import run
 from advocc_ros.paths import allowed_dirs, confine
 from advocc_ros.model.robot import RobotError, RobotSpec, load_robot, resolve_path
@@ -90,6 +94,24 @@ def non_finite_field(msg, path: str = '') -> str | None:
     return None
 
 
+def _parse_locked(entries) -> tuple[tuple[str, float], ...] | None:
+    """``['joint=value', ...]`` as RobotSpec.locked; None when no entry is given."""
+    entries = [e for e in entries if e]
+    if not entries:
+        return None
+    pairs = []
+    for entry in entries:
+        name, sep, value = entry.partition('=')
+        try:
+            number = float(value)
+        except ValueError:
+            number = math.nan
+        if not sep or not name.strip() or not math.isfinite(number):
+            raise RobotError(f'robot_locked: expected joint=value entries, got {entry!r}')
+        pairs.append((name.strip(), number))
+    return tuple(sorted(pairs))
+
+
 class HeatmapServer(Node):
     """Attack service over one heatmap (see the module docstring)."""
 
@@ -101,6 +123,7 @@ class HeatmapServer(Node):
         spec = RobotSpec()
         for param, field in _ROBOT_PARAMS.items():
             self.declare_parameter(param, getattr(spec, field))
+        self.declare_parameter('robot_locked', [''])  # ['']: the heatmap file's values
         self.declare_parameter('base_frame', 'panda_link0')
         self.declare_parameter('allowed_dirs', [''])  # ['']: the defaults, see paths.py
         self.declare_parameter('heatmap_percentile', 80.0)
@@ -115,10 +138,15 @@ class HeatmapServer(Node):
         for param in ('robot_urdf', 'robot_srdf'):
             confine(resolve_path(self.get_parameter(param).value),
                     self._allowed + [resolve_path('example-robot-data://')], param)
-        self._spec = RobotSpec(**{field: self.get_parameter(param).value
-                                  for param, field in _ROBOT_PARAMS.items()})
+        spec = RobotSpec(**{field: self.get_parameter(param).value
+                            for param, field in _ROBOT_PARAMS.items()})
+        self.heatmap = load_heatmap(path)
+        locked = _parse_locked(self.get_parameter('robot_locked').value)
+        if locked is None:
+            locked = locked_joints(self.heatmap.meta, spec.urdf, spec.srdf, spec.group) or ()
+        self._spec = dataclasses.replace(spec, locked=locked)
         self.robot = load_robot(self._spec)
-        self.heatmap = load_heatmap(path, robot_hash=self.robot.hash)
+        check_robot(self.heatmap, self.robot.hash, path)
         self.cfg = self._config()
         link_luts(self.robot, self.heatmap.grid.voxel_m / 4)  # warm the cache: ~1 s once
         self._path = path
@@ -150,7 +178,7 @@ class HeatmapServer(Node):
         if not hasattr(self, 'cfg'):  # start-up: validated when the config is built
             return SetParametersResult(successful=True)
         fixed = {'heatmap_file', 'base_frame', 'allowed_dirs', 'heatmap_percentile',
-                 *_ROBOT_PARAMS}
+                 'robot_locked', *_ROBOT_PARAMS}
         values = dataclasses.asdict(self.cfg)
         for p in params:
             if p.name in fixed:
@@ -251,6 +279,7 @@ class HeatmapServer(Node):
             'heatmap': self.heatmap.summary(),
             'robot': {'hash': self.robot.hash, 'urdf': self._spec.urdf,
                       'joints': list(self.robot.joint_names), 'ee_link': self._spec.ee_link,
+                      'locked': dict(self._spec.locked),
                       'base_frame': self.get_parameter('base_frame').value},
             'grid': self.heatmap.grid.to_data(),
             'robot_only': self.heatmap.robot_only,

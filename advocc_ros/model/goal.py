@@ -1,0 +1,127 @@
+"""Goal regions: a tolerance box around an end-effector pose (paper §III-A, SPEC §1)."""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Any
+
+import numpy as np
+import pinocchio as pin
+
+from advocc_ros.model.pose import Pose, SceneError, finite_array
+
+
+def _rotation_error(R_center: np.ndarray, R: np.ndarray) -> np.ndarray:
+    """Rotation vector of ``R`` relative to ``R_center`` (the MoveIt ROTATION_VECTOR form)."""
+    return pin.log3(R_center.T @ R)
+
+
+@dataclasses.dataclass(frozen=True)
+class GoalRegion:
+    """Tolerance box around an end-effector pose (paper §III-A, SPEC §1).
+
+    A pose ``T_base_tool`` is inside when its position, expressed in the centre's frame, lies in
+    the box ``|p| <= position_tolerance_m`` and the rotation vector of ``R_center^T R`` lies
+    within ``orientation_tolerance_rad`` per axis (MoveIt's ``absolute_*_axis_tolerance`` with
+    the rotation-vector parameterization).
+    """
+
+    center: Pose
+    position_tolerance_m: tuple[float, float, float] = (0.02, 0.02, 0.02)
+    orientation_tolerance_rad: tuple[float, float, float] = (0.1, 0.1, 0.1)
+    link: str = 'panda_hand'
+    tool_offset: Pose = Pose()
+    """Pose of the tool point in ``link``; the region constrains the tool point."""
+    seed_joints: tuple[str, ...] = ()
+    """Joint names of ``seeds``."""
+    seeds: tuple[tuple[float, ...], ...] = ()
+    """Goal configurations [rad | m] by ``seed_joints``, meant to lie in the region (a request's
+    joint goal): the planners' goal sampler offers them first and seeds IK near them, the way
+    MoveIt plans to a joint goal itself. The region stays the goal; a seed is only a hint."""
+
+    def __post_init__(self):
+        finite_array(self.position_tolerance_m, 'goal.position_tolerance', 3, nonneg=True)
+        finite_array(self.orientation_tolerance_rad, 'goal.orientation_tolerance', 3, nonneg=True)
+        if not self.link:
+            raise SceneError('goal.link: empty link name')
+        if self.seeds and not self.seed_joints:
+            raise SceneError('goal.seeds: seeds without joint names')
+        for k, seed in enumerate(self.seeds):
+            finite_array(seed, f'goal.seeds[{k}]', len(self.seed_joints))
+
+    @staticmethod
+    def _seeds_from_data(data: Any, where: str) -> tuple[tuple[str, ...], tuple]:
+        """(joint names, configurations) of ``seeds: [{joint: value, ...}, ...]``."""
+        if data is None:
+            return (), ()
+        if not isinstance(data, list) or not all(isinstance(d, dict) and d for d in data):
+            raise SceneError(f'{where}: expected a list of mappings joint_name: position')
+        names = tuple(str(n) for n in data[0])
+        seeds = []
+        for k, seed in enumerate(data):
+            if set(map(str, seed)) != set(names):
+                raise SceneError(f'{where}[{k}]: joints {sorted(map(str, seed))} differ from '
+                                 f'the first seed\'s {sorted(names)}')
+            seed = {str(n): v for n, v in seed.items()}
+            seeds.append(tuple(finite_array([seed[n] for n in names], f'{where}[{k}]').tolist()))
+        return names, tuple(seeds)
+
+    @classmethod
+    def from_data(cls, data: Any, where: str = 'goal') -> 'GoalRegion':
+        if not isinstance(data, dict):
+            raise SceneError(f'{where}: expected a mapping')
+        known = {'link', 'center', 'position_tolerance', 'orientation_tolerance', 'tool_offset',
+                 'seeds'}
+        unknown = set(data) - known
+        if unknown:
+            raise SceneError(f'{where}: unknown field(s) {sorted(unknown)}; '
+                             f'known: {sorted(known)}')
+        if 'center' not in data:
+            raise SceneError(f'{where}.center: missing')
+        link = data.get('link', 'panda_hand')
+        if not isinstance(link, str) or not link:
+            raise SceneError(f'{where}.link: expected a link name, got {link!r}')
+        seed_joints, seeds = cls._seeds_from_data(data.get('seeds'), f'{where}.seeds')
+        return cls(
+            center=Pose.from_data(data['center'], f'{where}.center'),
+            position_tolerance_m=tuple(finite_array(
+                data.get('position_tolerance', [0.02] * 3), f'{where}.position_tolerance', 3,
+                nonneg=True).tolist()),
+            orientation_tolerance_rad=tuple(finite_array(
+                data.get('orientation_tolerance', [0.1] * 3), f'{where}.orientation_tolerance',
+                3, nonneg=True).tolist()),
+            link=link,
+            tool_offset=Pose.from_data(data.get('tool_offset'), f'{where}.tool_offset'),
+            seed_joints=seed_joints, seeds=seeds)
+
+    def to_data(self) -> dict:
+        data = {'link': self.link, 'center': self.center.to_data(),
+                'position_tolerance': list(self.position_tolerance_m),
+                'orientation_tolerance': list(self.orientation_tolerance_rad),
+                'tool_offset': self.tool_offset.to_data()}
+        if self.seeds:  # absent otherwise: seedless goals keep their files and hashes
+            data['seeds'] = [{n: float(v) for n, v in zip(self.seed_joints, seed)}
+                             for seed in self.seeds]
+        return data
+
+    def error(self, T_base_tool: pin.SE3) -> tuple[np.ndarray, np.ndarray]:
+        """(position error in the centre frame [m], rotation-vector error [rad])."""
+        T_c = self.center.to_se3()
+        p_local = T_c.rotation.T @ (T_base_tool.translation - T_c.translation)
+        return p_local, _rotation_error(T_c.rotation, T_base_tool.rotation)
+
+    def contains(self, T_base_tool: pin.SE3, slack: float = 1e-6) -> bool:
+        p_err, r_err = self.error(T_base_tool)
+        return bool(np.all(np.abs(p_err) <= np.asarray(self.position_tolerance_m) + slack)
+                    and np.all(np.abs(r_err) <= np.asarray(self.orientation_tolerance_rad)
+                               + slack))
+
+    def box_corners_m(self) -> np.ndarray:
+        """(8, 3) corners of the position box in the base frame."""
+        T_c = self.center.to_se3()
+        signs = np.array([[i, j, k] for i in (-1, 1) for j in (-1, 1) for k in (-1, 1)], float)
+        local = signs * np.asarray(self.position_tolerance_m)
+        return local @ T_c.rotation.T + T_c.translation
+
+
+__all__ = ['GoalRegion']
