@@ -29,20 +29,23 @@ def _tables(robot: RobotModel, pitch_m: float) -> LinkTables:
     return _TABLES[key]
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, nogil=True, parallel=True)
 def _cover(cover, cand_id, near, stamp, win_origin, voxel, k, R, t, lut_data, lut_offset,
            lut_shape, lut_origin, lut_pitch, box_lo, box_hi):
     """``cover[s, cand_id[c]] = True`` for every candidate c whose cube U(c) (half-width k
     voxels) holds a voxel centre inside a link of configuration s (window grid). ``near`` and
     ``stamp`` are padded by k: voxels with no candidate around them are skipped, and so are
-    voxels another link of the same configuration already did."""
+    voxels another link of the same configuration already did. Configurations run in parallel
+    (rows of ``cover`` are independent; a voxel's stamp only ever skips work its own
+    configuration did, so a race costs a repeated, idempotent write, never a missed one)."""
     nx, ny, nz = cand_id.shape
     lo_limit = np.full(3, -k, np.int64)
     hi_limit = np.array([nx - 1 + k, ny - 1 + k, nz - 1 + k], np.int64)
     inv = 1.0 / lut_pitch
-    for s in range(R.shape[0]):
+    for s in numba.prange(R.shape[0]):
         for li in range(R.shape[1]):
             r, tl = R[s, li], t[s, li]
+            shape_l, origin_l, offset_l = lut_shape[li], lut_origin[li], lut_offset[li]
             lo, hi = link_voxel_box(r, tl, box_lo[li], box_hi[li], win_origin, voxel,
                                     lo_limit, hi_limit)
             for i in range(lo[0], hi[0] + 1):
@@ -53,8 +56,8 @@ def _cover(cover, cand_id, near, stamp, win_origin, voxel, k, R, t, lut_data, lu
                         if not near[i + k, j + k, kk + k] or stamp[i + k, j + k, kk + k] == s:
                             continue
                         pz = win_origin[2] + (kk + 0.5) * voxel - tl[2]
-                        if not in_link(r, px, py, pz, lut_data, lut_offset[li], lut_shape[li],
-                                       lut_origin[li], inv):
+                        if not in_link(r, px, py, pz, lut_data, offset_l, shape_l, origin_l,
+                                       inv):
                             continue
                         stamp[i + k, j + k, kk + k] = s
                         for a0 in range(max(i - k, 0), min(i + k, nx - 1) + 1):

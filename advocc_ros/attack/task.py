@@ -69,6 +69,10 @@ class TaskOptions:
             raise ValueError('task options: detour_rad >= 0 and sampling_time_s > 0')
 
 
+THREADS = 2
+"""Threads of the batched collision passes (C++; the machines here have 2 cores)."""
+
+
 def approach_samples(world: CollisionWorld, q_init: np.ndarray, Q_goal: np.ndarray,
                      points: int, detours: int, detour_rad: float, rng: np.random.Generator
                      ) -> np.ndarray:
@@ -85,7 +89,7 @@ def approach_samples(world: CollisionWorld, q_init: np.ndarray, Q_goal: np.ndarr
     Q = np.concatenate([(q0[:, None] + t * (Q_goal - q0)[:, None]).reshape(-1, nq)
                         for q0 in starts])
     Q = Q[np.all((Q >= world.robot.lower) & (Q <= world.robot.upper), axis=1)]
-    return Q[~world.collisions_batch(Q)] if len(Q) else Q
+    return Q[~world.collisions_batch(Q, THREADS)] if len(Q) else Q
 
 
 def _goal_filter(guard: GoalGuard, sample_cover: sparse.csr_matrix):
@@ -112,7 +116,7 @@ def _select_task(region: SearchRegion, budget: int, seed: int, cfg: AttackConfig
                              opts.detour_rad, np.random.default_rng(seed))
     Q = np.concatenate([Q_goal, Q_app])
     n_goal = len(Q_goal)
-    w = sample_weights(robot, world, Q, HeatmapConfig()) if len(Q) else np.zeros(0)
+    w = sample_weights(robot, world, Q, HeatmapConfig(), THREADS) if len(Q) else np.zeros(0)
     t_sample = time.perf_counter()
     cover = cover_matrix(robot, world, Q, region)
     feasible = None

@@ -193,8 +193,9 @@ def placement_arrays(world: CollisionWorld, Q: np.ndarray) -> tuple[np.ndarray, 
 
 
 def sample_weights(robot: RobotModel, world: CollisionWorld, Q: np.ndarray,
-                   cfg: HeatmapConfig) -> np.ndarray:
-    """w(q) for each valid q; clearance distances only where a link is within d_safe."""
+                   cfg: HeatmapConfig, threads: int = 1) -> np.ndarray:
+    """w(q) for each valid q; clearance distances only where a link is within d_safe (found by
+    one batched collision pass on ``threads`` threads)."""
     data = robot.create_data()
     s_man = np.empty(len(Q))
     for i, q in enumerate(Q):
@@ -202,7 +203,7 @@ def sample_weights(robot: RobotModel, world: CollisionWorld, Q: np.ndarray,
         s_man[i] = m / (m + cfg.kappa)
     s_clr = np.ones(len(Q))
     if world.shapes:
-        near = world.near_scene_batch(Q, cfg.d_safe_m)
+        near = world.near_scene_batch(Q, cfg.d_safe_m, threads)
         for i in np.flatnonzero(near):
             d = world.scene_distance(Q[i], upto_m=cfg.d_safe_m)
             s_clr[i] = min(max(d, 0.0) / cfg.d_safe_m, 1.0)
