@@ -19,8 +19,8 @@ from advocc_ros.heatmap import Heatmap
 from advocc_ros.model.collision import CollisionWorld, coal_geometry
 from advocc_ros.model.ik import goal_configuration
 from advocc_ros.model.robot import RobotModel
-from advocc_ros.model.scene import GoalRegion, SceneObject, Shape
-from advocc_ros.model.voxels import SolidLUT, VoxelGrid, occupied_mask, points_in_shape
+from advocc_ros.model.scene import GoalRegion, SceneObject
+from advocc_ros.model.voxels import SolidLUT, VoxelGrid, occupied_mask
 
 log = logging.getLogger(__name__)
 
@@ -153,7 +153,7 @@ def search_region(heatmap: Heatmap, robot: RobotModel, objects: tuple[SceneObjec
     win = tuple(slice(lo[a], hi[a]) for a in range(3))
     sub = VoxelGrid(tuple(grid.centers(lo) - grid.voxel_m / 2), grid.voxel_m, tuple(hi - lo))
 
-    free = heatmap.free[win] & ~_occupied(sub, shapes)
+    free = heatmap.free[win] & ~occupied_mask(sub, shapes)
     weights = np.where(free, heatmap.values[win], 0.0)
     in_window = np.zeros(free.shape, dtype=bool)
     crop = tuple(slice(max(c_lo[a] - lo[a], 0), max(c_hi[a] - lo[a], 0)) for a in range(3))
@@ -209,25 +209,6 @@ def search_region(heatmap: Heatmap, robot: RobotModel, objects: tuple[SceneObjec
                 f'scene object {o.id}') for o in objects for sh in o.shapes]
     stats['candidates'] = int(cand.sum())
     return SearchRegion(grid, lo, hi, weights, cand, k, s, cfg.d_min_m, checks, stats)
-
-
-def _occupied(grid: VoxelGrid, shapes: list[Shape]) -> np.ndarray:
-    """Voxels whose centre is inside any shape (``voxels.occupied_mask`` with cheap bounds)."""
-    mask = np.zeros(grid.shape, dtype=bool)
-    for shape in shapes:
-        b_lo, b_hi = shape.bounds_m()
-        i0 = np.clip(grid.index_of(b_lo), 0, grid.shape)
-        i1 = np.clip(grid.index_of(b_hi) + 1, 0, grid.shape)
-        if np.any(i1 <= i0):
-            continue
-        if shape.kind == 'mesh':
-            sub = occupied_mask(grid, [shape])
-            mask |= sub
-            continue
-        idx = np.stack(np.meshgrid(*[np.arange(i0[a], i1[a]) for a in range(3)],
-                                   indexing='ij'), axis=-1)
-        mask[i0[0]:i1[0], i0[1]:i1[1], i0[2]:i1[2]] |= points_in_shape(shape, grid.centers(idx))
-    return mask
 
 
 def _near_box(grid: VoxelGrid, T_c: pin.SE3, half_m: np.ndarray, within_m: float
