@@ -21,6 +21,21 @@ _PLANES = (('XY', 2, (0, 1)), ('XZ', 1, (0, 2)), ('YZ', 0, (1, 2)))
 _AXES = 'xyz'
 
 
+def _percent_axes(ax) -> None:
+    """A PSR-style axis: 0-100 % with a little room, integer budgets, light grid, legend."""
+    ax.set_ylim(-3, 103)
+    ax.xaxis.set_major_locator(MaxNLocator(integer=True))
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=8)
+
+
+def _save(fig, out: str | pathlib.Path) -> None:
+    """Write the figure as PNG atomically and free it."""
+    with atomic_open(out, 'wb') as handle:
+        fig.savefig(handle, format='png', dpi=90)
+    plt.close(fig)
+
+
 def plot_heatmap_slices(heatmap: Heatmap, out: str | pathlib.Path, scene: Scene | None = None,
                         obstacles: tuple[SceneObject, ...] | None = None,
                         at_m: list[float] | None = None, numbered: bool = False) -> None:
@@ -78,9 +93,7 @@ def plot_heatmap_slices(heatmap: Heatmap, out: str | pathlib.Path, scene: Scene 
     if heatmap.meta.get('scene_name'):
         title += f', scene {heatmap.meta["scene_name"]}'
     fig.suptitle(title)
-    with atomic_open(out, 'wb') as handle:
-        fig.savefig(handle, format='png', dpi=90)
-    plt.close(fig)
+    _save(fig, out)
 
 
 _METHOD_STYLE = {'ours': ('tab:red', 'o'), 'random': ('tab:gray', 's'),
@@ -108,15 +121,10 @@ def plot_psr_vs_budget(curves: dict[tuple[str, str], dict[int, float]],
         ax.set_title(_PLANNER_TITLES.get(planner, planner))
         ax.set_xlabel('obstacle budget M')
         ax.set_ylabel('PSR [%]')
-        ax.set_ylim(-3, 103)
-        ax.xaxis.set_major_locator(MaxNLocator(integer=True))
-        ax.grid(alpha=0.3)
-        ax.legend(fontsize=8)
+        _percent_axes(ax)
     if title:
         fig.suptitle(title)
-    with atomic_open(out, 'wb') as handle:
-        fig.savefig(handle, format='png', dpi=90)
-    plt.close(fig)
+    _save(fig, out)
 
 
 def plot_audit_psr(psr: dict[str, list[float]], goal_valid: list[float | None],
@@ -133,12 +141,7 @@ def plot_audit_psr(psr: dict[str, list[float]], goal_valid: list[float | None],
         ax.axhline(level, color='black', lw=0.5, alpha=0.25)
     ax.set_xlabel('boxes m (prefix of the attack, pick order)')
     ax.set_ylabel('PSR, goal poses valid [%]')
-    ax.set_ylim(-3, 103)
-    ax.xaxis.set_major_locator(MaxNLocator(integer=True))
-    ax.grid(alpha=0.3)
-    ax.legend(fontsize=8)
+    _percent_axes(ax)
     if title:
         ax.set_title(title)
-    with atomic_open(out, 'wb') as handle:
-        fig.savefig(handle, format='png', dpi=90)
-    plt.close(fig)
+    _save(fig, out)
