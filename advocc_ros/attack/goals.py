@@ -26,12 +26,12 @@ import math
 import coal
 import numpy as np
 
+from advocc_ros.attack.types import POLICIES  # noqa: F401 (re-exported)
 from advocc_ros.model.collision import CollisionWorld
 from advocc_ros.model.ik import goal_set
 from advocc_ros.model.robot import RobotModel
 from advocc_ros.model.scene import GoalRegion, SceneObject
 
-POLICIES = ('paper', 'reachable')
 VALIDATION_SEED = 7_345_001
 """Seed of the goal samples behind ``goal_valid_fraction`` (fixed: comparable attacks)."""
 VALIDATION_SAMPLES = 32

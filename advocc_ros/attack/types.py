@@ -9,6 +9,10 @@ import numpy as np
 from advocc_ros.model.scene import SceneObject, objects_to_data
 
 
+POLICIES = ('paper', 'reachable')
+"""Goal policies (``advocc_ros.attack.goals``): the one list of their names."""
+
+
 @dataclasses.dataclass(frozen=True)
 class AttackConfig:
     """Online parameters; defaults from the paper (§V-A) and SPEC §3."""
@@ -42,9 +46,9 @@ class AttackConfig:
                   'max_budget': self.max_budget >= 1, 'max_box_m': self.max_box_m > 0,
                   'max_rejections': self.max_rejections >= 0,
                   'reachable_fraction': 0 <= self.reachable_fraction <= 1}
-        if self.goal_policy not in ('paper', 'reachable'):
-            raise ValueError(f'attack parameter goal_policy={self.goal_policy!r}: expected '
-                             "'paper' or 'reachable'")
+        if self.goal_policy not in POLICIES:
+            raise ValueError(f'attack parameter goal_policy={self.goal_policy!r}: expected one '
+                             f'of {list(POLICIES)}')
         for name, ok in checks.items():
             value = getattr(self, name)
             if not ok or not np.isfinite(float(value)):

@@ -21,6 +21,7 @@ from typing import Iterable
 import yaml
 
 from advocc_ros.attack.methods import REGISTRY
+from advocc_ros.attack.types import POLICIES
 from advocc_ros.limits import MAX_TRIALS
 
 log = logging.getLogger(__name__)
@@ -139,8 +140,8 @@ class BenchConfig:
                 isinstance(v, int) and not isinstance(v, bool) and v >= 1
                 for v in self.variants.values()):
             fail(f'variants: expected method: count >= 1, got {self.variants!r}')
-        if self.goal_policy not in ('paper', 'reachable'):
-            fail(f"goal_policy={self.goal_policy!r}: expected 'paper' or 'reachable'")
+        if self.goal_policy not in POLICIES:
+            fail(f'goal_policy={self.goal_policy!r}: expected one of {list(POLICIES)}')
         for pair in self.skip:
             if not isinstance(pair, str) or pair.count(':') != 1:
                 fail(f'skip: expected "method:planner" entries, got {pair!r}')

@@ -8,6 +8,7 @@ import sys
 
 from advocc_ros.attack import (KNOWN_METHODS, AttackConfig, AttackStatus, attack, load_method,
                                obstacles_data, save_obstacles)
+from advocc_ros.attack.types import POLICIES
 from advocc_ros.cli import UserError
 from advocc_ros.heatmap import HeatmapError, load_heatmap
 from advocc_ros.paths import scene_path
@@ -27,7 +28,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument('--method', default='ours', choices=KNOWN_METHODS,
                    help='task: coverage of the task\'s goal and approach configurations (makes '
                    'planners fail); ours: the paper\'s heatmap coverage (default)')
-    p.add_argument('--policy', default=defaults.goal_policy, choices=('paper', 'reachable'),
+    p.add_argument('--policy', default=defaults.goal_policy, choices=POLICIES,
                    help='goal policy: paper (boxes may block every goal pose) or reachable '
                    '(keep --reachable-fraction of fixed goal samples valid; default '
                    '%(default)s)')
