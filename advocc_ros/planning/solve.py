@@ -11,9 +11,11 @@ import time
 
 import numpy as np
 
+from advocc_ros.model.collision import CollisionWorld
 from advocc_ros.model.ik import GoalSampler
 from advocc_ros.model.robot import RobotModel
 from advocc_ros.model.scene import GoalRegion
+from advocc_ros.planning.motion import make_motion_validator
 from advocc_ros.planning.types import (PlanningConfig, PlanResult, PlanStatus, _fail,
                                        planner_class_name, validate_request)
 
@@ -74,13 +76,15 @@ def _make_goal_class(ob):
     return RegionGoal
 
 
-def solve(robot: RobotModel, in_collision, q_start: np.ndarray, goal: GoalRegion,
+def solve(robot: RobotModel, world: CollisionWorld, q_start: np.ndarray, goal: GoalRegion,
           planner_id: str, time_budget_s: float, seed: int,
           config: PlanningConfig = PlanningConfig()) -> PlanResult:
     """Plan in this process (no watchdog: use ``Planner`` unless you are the worker).
 
-    ``in_collision(q) -> bool`` is the scene's collision test (``CollisionWorld.in_collision``).
+    ``world`` is the scene's collision model: its ``in_collision`` checks single states and its
+    ``first_collision`` the states along a motion.
     """
+    in_collision = world.in_collision
     global _OMPL_SEEDED
     t0 = time.monotonic()
     deadline = t0 + time_budget_s
@@ -139,6 +143,8 @@ def solve(robot: RobotModel, in_collision, q_start: np.ndarray, goal: GoalRegion
     ss.setStateValidityChecker(ob.StateValidityCheckerFn(is_valid))
     si = ss.getSpaceInformation()
     si.setStateValidityCheckingResolution(config.motion_step_rad / space.getMaximumExtent())
+    motion_validator = make_motion_validator(ob, si, space, world, nq, checks)
+    si.setMotionValidator(motion_validator)
     start = ob.State(space)
     for i in range(nq):
         start[i] = float(q_start[i])

@@ -92,7 +92,7 @@ def _worker_main() -> None:
                 raise ValueError('worker has no scene for this request')
             config = PlanningConfig(**{k: tuple(v) if isinstance(v, list) else v
                                        for k, v in req['config'].items()})
-            result = solve(cache['robot'], cache['world'].in_collision,
+            result = solve(cache['robot'], cache['world'],
                            np.asarray(req['q_start'], float),
                            GoalRegion.from_data(req['goal'], 'goal'), req['planner_id'],
                            float(req['time_budget_s']), int(req['seed']), config)
