@@ -13,6 +13,7 @@ from advocc_msgs.srv import Attack, GetInfo, Plan
 
 SERVER = textwrap.dedent('''
     import rclpy
+    from rclpy.executors import ExternalShutdownException
     from rclpy.node import Node
     from advocc_msgs.srv import Plan
 
@@ -28,7 +29,7 @@ SERVER = textwrap.dedent('''
     node.create_service(Plan, 'echo_plan', handle)
     try:
         rclpy.spin(node)
-    except KeyboardInterrupt:
+    except (KeyboardInterrupt, ExternalShutdownException):  # SIGINT, raised either way
         pass
     finally:
         node.destroy_node()

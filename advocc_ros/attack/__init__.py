@@ -7,7 +7,7 @@ imported on first use (``load_method``), so PFA (``advocc_ros.attack.pfa``) is n
 from advocc_ros.attack.types import AttackConfig, AttackError, AttackResult, AttackStatus
 from advocc_ros.attack.coverage import (Accept, box_distance, box_half_voxels, box_sum,
                                         greedy_cover, random_cover)
-from advocc_ros.attack.region import SearchRegion, link_luts, robot_occupancy, search_region
+from advocc_ros.attack.region import SearchRegion, robot_occupancy, search_region
 from advocc_ros.attack.methods import (CONTEXT_METHODS, KNOWN_METHODS, METHODS, MethodContext,
                                        MethodSpec, REGISTRY, Selector, available_methods,
                                        load_method, register_method)
@@ -20,7 +20,7 @@ __all__ = [
     'Accept', 'AttackConfig', 'AttackError', 'AttackResult', 'AttackStatus', 'CONTEXT_METHODS',
     'KNOWN_METHODS', 'METHODS', 'MethodContext', 'MethodSpec', 'OBSTACLES_FORMAT',
     'OBSTACLES_VERSION', 'REGISTRY', 'SearchRegion', 'Selector', 'attack', 'available_methods',
-    'box_distance', 'box_half_voxels', 'box_sum', 'greedy_cover', 'link_luts', 'load_method',
+    'box_distance', 'box_half_voxels', 'box_sum', 'greedy_cover', 'load_method',
     'load_obstacles', 'obstacles_data', 'obstacles_file_data', 'obstacles_meta',
     'random_cover', 'register_method', 'robot_occupancy', 'save_obstacles', 'search_region',
     'validate_request']

@@ -38,10 +38,10 @@ import numpy as np
 
 from advocc_ros.attack.goals import POLICIES, GoalGuard, goal_samples
 from advocc_ros.attack.methods import CONTEXT_METHODS, METHODS, MethodContext, load_method
-from advocc_ros.attack.region import link_luts, search_region
+from advocc_ros.attack.region import search_region
 from advocc_ros.attack.types import AttackConfig, AttackError, AttackResult, AttackStatus
-from advocc_ros.heatmap import Heatmap
-from advocc_ros.model.collision import CollisionWorld
+from advocc_ros.heatmap import Heatmap, link_tables
+from advocc_ros.model.collision import shared_world
 from advocc_ros.model.robot import RobotError, RobotModel
 from advocc_ros.model.scene import GoalRegion, SceneError, SceneObject, make_box
 
@@ -83,7 +83,7 @@ def validate_request(heatmap: Heatmap, robot: RobotModel, objects: tuple[SceneOb
         raise AttackError(AttackStatus.INVALID_GOAL,
                           'goal region is empty: every tolerance is 0 (an unset message?); '
                           'give position half-extents and orientation tolerances')
-    world = CollisionWorld(robot, [sh for o in objects for sh in o.shapes])
+    world = shared_world(robot, [sh for o in objects for sh in o.shapes])
     if world.in_collision(q_init):
         raise AttackError(AttackStatus.START_IN_COLLISION,
                           'start state is in collision (self or with the scene)')
@@ -98,7 +98,7 @@ def attack(heatmap: Heatmap, robot: RobotModel, objects: tuple[SceneObject, ...]
     carries the status and message instead. ``method_options``: settings of a method
     (``advocc_ros.attack.pfa.PfaOptions``, ``advocc_ros.attack.task.TaskOptions``);
     ``goal_policy``: ``paper`` or ``reachable`` (None or '': ``cfg.goal_policy``)."""
-    link_luts(robot, heatmap.grid.voxel_m / 4)  # model loading (~1 s once), not attack time
+    link_tables(robot, heatmap.grid.voxel_m / 4)  # model loading (~1 s once), not attack time
     t0 = time.perf_counter()
     s = cfg.box_size_m if box_size_m is None or box_size_m == 0 else float(box_size_m)
     policy = goal_policy or cfg.goal_policy

@@ -14,19 +14,10 @@ from scipy import sparse
 
 from advocc_ros.attack.coverage import box_sum
 from advocc_ros.attack.region import SearchRegion
-from advocc_ros.heatmap import LinkTables, placement_arrays
+from advocc_ros.heatmap import link_tables, placement_arrays
 from advocc_ros.heatmap.build import in_link, link_voxel_box
 from advocc_ros.model.collision import CollisionWorld
 from advocc_ros.model.robot import RobotModel
-
-_TABLES: dict[tuple[str, float], LinkTables] = {}
-
-
-def _tables(robot: RobotModel, pitch_m: float) -> LinkTables:
-    key = (robot.hash, round(pitch_m, 9))
-    if key not in _TABLES:
-        _TABLES[key] = LinkTables(robot, pitch_m)
-    return _TABLES[key]
 
 
 @numba.njit(cache=True, nogil=True, parallel=True)
@@ -80,7 +71,7 @@ def cover_matrix(robot: RobotModel, world: CollisionWorld, Q: np.ndarray,
     cand_id[tuple(cand.T)] = np.arange(len(cand))
     dense = np.zeros((len(Q), len(cand)), dtype=np.bool_)
     grid = region.grid
-    tables = _tables(robot, grid.voxel_m / 4)
+    tables = link_tables(robot, grid.voxel_m / 4)
     R, t = placement_arrays(world, Q)
     origin = np.asarray(grid.origin_m) + np.asarray(region.lo) * grid.voxel_m
     k = max(region.k - shrink, 0)
@@ -89,8 +80,31 @@ def cover_matrix(robot: RobotModel, world: CollisionWorld, Q: np.ndarray,
     _cover(dense, cand_id, near, stamp, origin, grid.voxel_m, k, R, t, tables.data,
            tables.offset, tables.shape, tables.origin, tables.pitch, tables.box_lo,
            tables.box_hi)
-    rows, cols = np.nonzero(dense)
-    return sparse.csr_matrix((np.ones(len(rows)), (rows, cols)), shape=dense.shape)
+    indptr, indices = _dense_to_csr(dense)
+    return sparse.csr_matrix((np.ones(len(indices)), indices, indptr), shape=dense.shape)
+
+
+@numba.njit(cache=True, nogil=True, parallel=True)
+def _dense_to_csr(dense):
+    """CSR ``indptr`` and (sorted) ``indices`` of a bool matrix, rows in parallel: ~5x faster
+    than ``np.nonzero`` and scipy's COO -> CSR sort on a cover matrix of 10^7 entries."""
+    n, m = dense.shape
+    counts = np.zeros(n + 1, np.int64)
+    for i in numba.prange(n):
+        c = 0
+        for j in range(m):
+            if dense[i, j]:
+                c += 1
+        counts[i + 1] = c
+    indptr = np.cumsum(counts)
+    indices = np.empty(indptr[-1], np.int64)
+    for i in numba.prange(n):
+        p = indptr[i]
+        for j in range(m):
+            if dense[i, j]:
+                indices[p] = j
+                p += 1
+    return indptr, indices
 
 
 def greedy_configurations(cover: sparse.spmatrix | np.ndarray, weights: np.ndarray,

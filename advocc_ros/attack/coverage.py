@@ -3,7 +3,7 @@
 Greedy: box sums of the uncovered mass by separable shift-adds over a window around the
 corridor; after each pick only the sums within 2k voxels of it change and are recomputed
 locally. Random baseline: candidates in a seeded random order under the same constraints.
-Pure numpy, tested against brute force.
+Numpy, and one compiled kernel for box distances; tested against brute force.
 """
 
 from __future__ import annotations
@@ -13,6 +13,7 @@ import logging
 import math
 from typing import Callable
 
+import numba
 import numpy as np
 
 log = logging.getLogger(__name__)
@@ -26,34 +27,36 @@ def box_half_voxels(box_size_m: float, voxel_m: float) -> int:
     return int(math.floor(box_size_m / 2 / voxel_m + 1e-9))
 
 
-def _shift_add(a: np.ndarray, out: np.ndarray, offset: int, axis: int, op) -> None:
-    """``out[i] = op(out[i], a[i - offset])`` along ``axis`` where both indices are valid."""
-    n = a.shape[axis]
-    if abs(offset) >= n:
-        return
-    dst = [slice(None)] * 3
-    src = [slice(None)] * 3
-    if offset > 0:
-        dst[axis], src[axis] = slice(offset, None), slice(None, n - offset)
-    else:
-        dst[axis], src[axis] = slice(None, n + offset), slice(-offset, None)
-    op(out[tuple(dst)], a[tuple(src)], out=out[tuple(dst)])
+@numba.njit(cache=True, nogil=True)
+def _line_sums(src, k):
+    """``out[a, b, i] = src[a, b, i] + src[a, b, i - 1] + src[a, b, i + 1] + ... (+- k)``,
+    terms outside the line skipped, always added in this order."""
+    n0, n1, n = src.shape
+    out = np.empty((n0, n1, n))
+    for a in range(n0):
+        for b in range(n1):
+            for i in range(n):
+                acc = src[a, b, i]
+                for o in range(1, k + 1):
+                    if i - o >= 0:
+                        acc += src[a, b, i - o]
+                    if i + o < n:
+                        acc += src[a, b, i + o]
+                out[a, b, i] = acc
+    return out
 
 
 def box_sum(values: np.ndarray, k: int) -> np.ndarray:
     """Sum of ``values`` over the (2k+1)^3 cube around each voxel (zero outside the array).
 
-    Separable shift-adds, not an integral volume: no cancellation, and a sub-block gives
-    bit-identical sums to the full array, so local updates match a full recomputation.
+    Separable line sums, not an integral volume: no cancellation, and each sum adds the same
+    terms in the same order wherever it is computed, so a sub-block gives bit-identical sums
+    to the full array and local updates match a full recomputation.
     """
     out = np.asarray(values, dtype=np.float64)
     for axis in range(3):
-        acc = out.copy()
-        for o in range(1, k + 1):
-            _shift_add(out, acc, o, axis, np.add)
-            _shift_add(out, acc, -o, axis, np.add)
-        out = acc
-    return out
+        out = np.moveaxis(_line_sums(np.moveaxis(out, axis, -1), k), -1, axis)
+    return np.ascontiguousarray(out)
 
 
 def box_distance(mask: np.ndarray, voxel_m: float, half_m: float, max_m: float,
@@ -64,29 +67,76 @@ def box_distance(mask: np.ndarray, voxel_m: float, half_m: float, max_m: float,
 
     Exact on the lattice (float32): the squared distance is a sum of per-axis costs
     ``max(|dx| - half, 0)^2``, so three 1-D min-convolutions (generalized distance transform)
-    give it, each over the few offsets that can stay within ``max_m``; each pass then drops
-    the rows of its axis outside ``crop``.
+    give it, each over the few offsets that can stay within ``max_m``; each pass computes only
+    the rows of its axis inside ``crop`` and near the mask, in a compiled kernel.
     """
     reach = int(math.ceil((max_m + half_m) / voxel_m))
-    out = np.where(mask, np.float32(0), np.float32(np.inf))
+    costs = [0.0]
+    for o in range(1, reach + 1):
+        cost = max(o * voxel_m - half_m, 0.0) ** 2
+        if cost > max_m ** 2:
+            break
+        costs.append(cost)
+    costs = np.array(costs, dtype=np.float32)
+    rows = [(crop[a] if crop is not None else slice(None)).indices(mask.shape[a])[:2]
+            for a in range(3)]
+    rows = [(start, max(stop, start)) for start, stop in rows]
+    result = np.full([stop - start for start, stop in rows], np.inf)
+    # Only voxels within ``len(costs) - 1`` rows of the mask's bounding box can be finite:
+    # transform that block alone (the masks are mostly small: the robot, the goal box).
+    block, out_rows, dst = [], [], []
+    for a in range(3):
+        hit = np.flatnonzero(mask.any(axis=tuple(b for b in range(3) if b != a)))
+        if not len(hit):
+            return result
+        lo = max(int(hit[0]) - len(costs) + 1, 0)
+        hi = min(int(hit[-1]) + len(costs), mask.shape[a])
+        start, stop = max(rows[a][0], lo), min(rows[a][1], hi)
+        if stop <= start:
+            return result
+        block.append(slice(lo, hi))
+        out_rows.append((start - lo, stop - lo))
+        dst.append(slice(start - rows[a][0], stop - rows[a][0]))
+    out = np.where(mask[tuple(block)], np.float32(0), np.float32(np.inf))
     for axis in range(3):
-        acc = out.copy()
-        tmp = np.empty_like(out)
-        for o in range(1, min(reach, out.shape[axis] - 1) + 1):
-            cost = max(o * voxel_m - half_m, 0.0) ** 2
-            if cost > max_m ** 2:
-                break
-            n = out.shape[axis]
-            for dst, src in ((slice(o, None), slice(None, n - o)),
-                             (slice(None, n - o), slice(o, None))):
-                d = tuple(dst if a == axis else slice(None) for a in range(3))
-                s = tuple(src if a == axis else slice(None) for a in range(3))
-                np.add(out[s], np.float32(cost), out=tmp[d])
-                np.minimum(acc[d], tmp[d], out=acc[d])
-        out = acc
-        if crop is not None:
-            out = out[tuple(crop[a] if a == axis else slice(None) for a in range(3))]
-    return np.sqrt(out, dtype=np.float64)
+        line = _min_plus(np.moveaxis(out, axis, -1), costs, *out_rows[axis])
+        out = np.moveaxis(line, -1, axis)
+    result[tuple(dst)] = np.sqrt(out, dtype=np.float64)
+    return result
+
+
+@numba.njit(cache=True, nogil=True)
+def _min_plus(src, costs, start, stop):
+    """``out[a, b, i - start] = min_o src[a, b, i + o] + costs[|o|]`` for i in [start, stop),
+    over the offsets o with |o| < len(costs) that stay inside the line (``costs`` must not
+    decrease). Lines with no finite value (most of them: the masks are sparse) are skipped."""
+    n0, n1, n = src.shape
+    out = np.full((n0, n1, stop - start), np.inf, dtype=np.float32)
+    m = len(costs)
+    for a in range(n0):
+        for b in range(n1):
+            empty = True
+            for i in range(n):
+                if src[a, b, i] < np.inf:
+                    empty = False
+                    break
+            if empty:
+                continue
+            for i in range(start, stop):
+                best = src[a, b, i]
+                for o in range(1, m):
+                    if costs[o] >= best:
+                        break  # costs grow with |o|: no farther voxel can do better
+                    if i - o >= 0:
+                        v = src[a, b, i - o] + costs[o]
+                        if v < best:
+                            best = v
+                    if i + o < n:
+                        v = src[a, b, i + o] + costs[o]
+                        if v < best:
+                            best = v
+                out[a, b, i - start] = best
+    return out
 
 
 def _ball_offsets(radius_vox: float) -> np.ndarray:
@@ -143,6 +193,18 @@ Accept = Callable[[np.ndarray], bool]
 """Exact check of a candidate (window index (3,)); False discards it."""
 
 
+def _candidate_block(candidates: np.ndarray, k: int) -> tuple[slice, ...]:
+    """The candidates' bounding box padded by 3k: every sum a pick reads or updates (within 2k
+    of a candidate) depends only on mass inside it, so selection on this block gives the same
+    picks and masses as on the whole window, with less to sum and to search."""
+    block = []
+    for a in range(3):
+        hit = np.flatnonzero(candidates.any(axis=tuple(b for b in range(3) if b != a)))
+        block.append(slice(max(int(hit[0]) - 3 * k, 0),
+                           min(int(hit[-1]) + 3 * k + 1, candidates.shape[a])))
+    return tuple(block)
+
+
 def greedy_cover(weights: np.ndarray, candidates: np.ndarray, k: int, budget: int,
                  d_min_vox: float, accept: Accept | None = None, max_rejections: int = 500
                  ) -> tuple[list[tuple[np.ndarray, float]], int]:
@@ -153,7 +215,9 @@ def greedy_cover(weights: np.ndarray, candidates: np.ndarray, k: int, budget: in
     """
     if not np.any(candidates):
         return [], 0
-    cov = _Coverage(weights, candidates, k, d_min_vox)
+    block = _candidate_block(candidates, k)
+    shift = np.array([b.start for b in block])
+    cov = _Coverage(weights[block], candidates[block], k, d_min_vox)
     picks, rejected = [], 0
     score = np.where(cov.candidates, cov.sums, -np.inf)
     while len(picks) < budget:
@@ -161,7 +225,7 @@ def greedy_cover(weights: np.ndarray, candidates: np.ndarray, k: int, budget: in
         if score.flat[flat] == -np.inf:
             break
         c = np.array(np.unravel_index(flat, score.shape))
-        if accept is not None and not accept(c):
+        if accept is not None and not accept(c + shift):
             cov.candidates[tuple(c)] = False
             score.flat[flat] = -np.inf
             rejected += 1
@@ -169,7 +233,7 @@ def greedy_cover(weights: np.ndarray, candidates: np.ndarray, k: int, budget: in
                 log.warning('greedy: %d picks failed the exact check; giving up', rejected)
                 break
             continue
-        picks.append((c, cov.cover(c)))
+        picks.append((c + shift, cov.cover(c)))
         region = cov._block(c, max(2 * k, int(math.ceil(d_min_vox))))
         score[region] = np.where(cov.candidates[region], cov.sums[region], -np.inf)
     return picks, rejected

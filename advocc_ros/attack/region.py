@@ -3,24 +3,27 @@ box checks."""
 
 from __future__ import annotations
 
+import collections
 import dataclasses
+import json
 import logging
 import math
 from typing import Any
 
 import coal
+import numba
 import numpy as np
 import pinocchio as pin
 
 from advocc_ros.attack.coverage import box_distance, box_half_voxels
 from advocc_ros.attack.goals import GoalGuard
 from advocc_ros.attack.types import AttackConfig
-from advocc_ros.heatmap import Heatmap
-from advocc_ros.model.collision import CollisionWorld, coal_geometry
+from advocc_ros.heatmap import Heatmap, link_tables
+from advocc_ros.model.collision import coal_geometry, shared_world
 from advocc_ros.model.ik import goal_configuration
 from advocc_ros.model.robot import RobotModel
 from advocc_ros.model.scene import GoalRegion, SceneObject
-from advocc_ros.model.voxels import SolidLUT, VoxelGrid, occupied_mask
+from advocc_ros.model.voxels import VoxelGrid, occupied_mask
 
 log = logging.getLogger(__name__)
 
@@ -30,37 +33,17 @@ _CONTACT_TOL_M = 1e-6
 # --------------------------------------------------------------------------------------------
 # The task-level search region
 
-_LUT_CACHE: dict[tuple[str, float], list[SolidLUT]] = {}
-
-
-def link_luts(robot: RobotModel, pitch_m: float) -> list[SolidLUT]:
-    """Solid look-up tables of the robot's collision geometries (cached; ~0.5 s the first time)."""
-    key = (robot.hash, round(pitch_m, 9))
-    if key not in _LUT_CACHE:
-        _LUT_CACHE[key] = [SolidLUT.from_mesh(m, pitch_m) for m in robot.link_meshes]
-    return _LUT_CACHE[key]
-
-
 def robot_occupancy(robot: RobotModel, placements: list[pin.SE3], grid: VoxelGrid,
                     lo: np.ndarray, hi: np.ndarray, links: list[int] | None = None
                     ) -> np.ndarray:
     """bool mask of the window ``[lo, hi)`` of ``grid``: voxel centres inside the robot's
-    link solids at ``placements`` (``T_base_geom`` per collision geometry)."""
-    luts = link_luts(robot, grid.voxel_m / 4)
-    mask = np.zeros(tuple(hi - lo), dtype=bool)
-    for li in (range(len(luts)) if links is None else links):
-        lut, T = luts[li], placements[li]
-        center = T.act(lut.center_m)
-        i0 = np.maximum(grid.index_of(center - lut.half_diagonal_m), lo)
-        i1 = np.minimum(grid.index_of(center + lut.half_diagonal_m) + 1, hi)
-        if np.any(i1 <= i0):
-            continue
-        idx = np.stack(np.meshgrid(*[np.arange(i0[a], i1[a]) for a in range(3)],
-                                   indexing='ij'), -1)
-        local = (grid.centers(idx) - T.translation) @ T.rotation
-        mask[i0[0] - lo[0]:i1[0] - lo[0], i0[1] - lo[1]:i1[1] - lo[1],
-             i0[2] - lo[2]:i1[2] - lo[2]] |= lut.contains(local)
-    return mask
+    link solids at ``placements`` (``T_base_geom`` per collision geometry), rasterized with
+    the heatmap's link tables."""
+    R = np.array([T.rotation for T in placements])
+    t = np.array([T.translation for T in placements])
+    origin = np.asarray(grid.origin_m) + np.asarray(lo) * grid.voxel_m
+    return link_tables(robot, grid.voxel_m / 4).rasterize(
+        np.zeros(tuple(hi - lo), dtype=bool), origin, grid.voxel_m, R, t, links)
 
 
 @dataclasses.dataclass
@@ -110,10 +93,42 @@ class SearchRegion:
         return what is None
 
 
-def _segment_distance(points: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+@numba.njit(cache=True, nogil=True)
+def _corridor_candidates(weights, lo, hi, origin, voxel, a, b, radius):
+    """Voxels of ``weights[lo:hi]`` with positive mass whose centre lies within ``radius`` of
+    the segment ``a``-``b``; and how many had positive mass. One pass, no index arrays."""
+    cand = np.zeros(weights.shape, dtype=np.bool_)
     ab = b - a
-    t = np.clip(((points - a) @ ab) / max(float(ab @ ab), 1e-12), 0.0, 1.0)
-    return np.linalg.norm(points - (a + t[..., None] * ab), axis=-1)
+    inv = 1.0 / max(ab[0] * ab[0] + ab[1] * ab[1] + ab[2] * ab[2], 1e-12)
+    positive = 0
+    for i in range(lo[0], hi[0]):
+        px = origin[0] + (i + 0.5) * voxel - a[0]
+        for j in range(lo[1], hi[1]):
+            py = origin[1] + (j + 0.5) * voxel - a[1]
+            for k in range(lo[2], hi[2]):
+                if weights[i, j, k] <= 0.0:
+                    continue
+                positive += 1
+                pz = origin[2] + (k + 0.5) * voxel - a[2]
+                t = min(max((px * ab[0] + py * ab[1] + pz * ab[2]) * inv, 0.0), 1.0)
+                dx, dy, dz = px - t * ab[0], py - t * ab[1], pz - t * ab[2]
+                cand[i, j, k] = dx * dx + dy * dy + dz * dz <= radius * radius
+    return cand, positive
+
+
+_SCENE_MASKS: collections.OrderedDict = collections.OrderedDict()
+
+
+def _scene_mask(grid: VoxelGrid, shapes: list) -> np.ndarray:
+    """Voxels of ``grid`` inside the scene's shapes, computed once per scene (last 4 kept):
+    requests on one scene share it."""
+    key = (grid, json.dumps([sh.fingerprint() for sh in shapes]))
+    if key not in _SCENE_MASKS:
+        _SCENE_MASKS[key] = occupied_mask(grid, shapes)
+        if len(_SCENE_MASKS) > 4:
+            _SCENE_MASKS.popitem(last=False)
+    _SCENE_MASKS.move_to_end(key)
+    return _SCENE_MASKS[key]
 
 
 def _tool_point(robot: RobotModel, q: np.ndarray, goal: GoalRegion) -> np.ndarray:
@@ -153,23 +168,21 @@ def search_region(heatmap: Heatmap, robot: RobotModel, objects: tuple[SceneObjec
     win = tuple(slice(lo[a], hi[a]) for a in range(3))
     sub = VoxelGrid(tuple(grid.centers(lo) - grid.voxel_m / 2), grid.voxel_m, tuple(hi - lo))
 
-    free = heatmap.free[win] & ~occupied_mask(sub, shapes)
+    free = heatmap.free[win] & ~_scene_mask(grid, shapes)[win]
     weights = np.where(free, heatmap.values[win], 0.0)
-    in_window = np.zeros(free.shape, dtype=bool)
-    crop = tuple(slice(max(c_lo[a] - lo[a], 0), max(c_hi[a] - lo[a], 0)) for a in range(3))
-    in_window[crop] = True
-    cand = in_window & free & (weights > 0)
-    stats['free_positive'] = int(cand.sum())
-    idx = np.argwhere(cand)
-    far = _segment_distance(sub.centers(idx), x_start, x_goal) > cfg.corridor_radius_m
-    cand[tuple(idx[far].T)] = False
+    crop_lo = np.maximum(c_lo - lo, 0)
+    crop_hi = np.maximum(c_hi - lo, 0)
+    crop = tuple(slice(crop_lo[a], crop_hi[a]) for a in range(3))
+    cand, stats['free_positive'] = _corridor_candidates(
+        weights, crop_lo, np.minimum(crop_hi, hi - lo), np.asarray(sub.origin_m), grid.voxel_m,
+        x_start, x_goal, cfg.corridor_radius_m)
     stats['corridor'] = int(cand.sum())
     # The box fits: no non-free voxel centre inside it (U(c) in V_free).
     cand[crop] &= box_distance(~free, grid.voxel_m, half, _CONTACT_TOL_M, crop) > 0
     stats['box_fits'] = int(cand.sum())
 
     # Clearance from the robot at q_init (+ the hand at a goal configuration).
-    world = CollisionWorld(robot)
+    world = shared_world(robot)
     placements = [pin.SE3(T) for T in world.link_placements(q_init)]
     protected = robot_occupancy(robot, placements, grid, lo, hi)
     checks = [(g.geometry, _tf(T), cfg.d_safe_m, f'robot link {g.name} at q_init')

@@ -34,8 +34,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     plan.add_argument('--json', action='store_true')
     plan.set_defaults(func=_planning)
     from advocc_ros.commands.perf_attack import register_attack
+    from advocc_ros.commands.perf_bench import register_bench
     from advocc_ros.commands.perf_load import register_load
     register_attack(psub)
+    register_bench(psub)
     register_load(psub)
 
 

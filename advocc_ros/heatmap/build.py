@@ -166,8 +166,32 @@ def _accumulate(H, stamp, free, grid_origin, voxel, grid_shape, R, t, weights, s
     return H
 
 
+@numba.njit(cache=True, nogil=True)
+def _rasterize(mask, origin, voxel, R, t, links, lut_data, lut_offset, lut_shape, lut_origin,
+               lut_pitch, box_lo, box_hi):
+    """Set every voxel of ``mask`` (its corner at ``origin``) whose centre is inside one of
+    ``links`` placed at (R (L, 3, 3), t (L, 3)): the same scan and table test as
+    ``_accumulate``, for one configuration."""
+    zero = np.zeros(3, np.int64)
+    top = np.asarray(mask.shape, np.int64) - 1
+    inv = 1.0 / lut_pitch
+    for li in links:
+        r, tl = R[li], t[li]
+        lo, hi = link_voxel_box(r, tl, box_lo[li], box_hi[li], origin, voxel, zero, top)
+        for i in range(lo[0], hi[0] + 1):
+            px = origin[0] + (i + 0.5) * voxel - tl[0]
+            for j in range(lo[1], hi[1] + 1):
+                py = origin[1] + (j + 0.5) * voxel - tl[1]
+                for k in range(lo[2], hi[2] + 1):
+                    pz = origin[2] + (k + 0.5) * voxel - tl[2]
+                    if not mask[i, j, k] and in_link(r, px, py, pz, lut_data, lut_offset[li],
+                                                     lut_shape[li], lut_origin[li], inv):
+                        mask[i, j, k] = True
+    return mask
+
+
 class LinkTables:
-    """All link look-up tables packed into flat arrays for the compiled kernel."""
+    """All link look-up tables packed into flat arrays for the compiled kernels."""
 
     def __init__(self, robot: RobotModel, lut_pitch_m: float):
         luts = [SolidLUT.from_mesh(m, lut_pitch_m) for m in robot.link_meshes]
@@ -179,6 +203,27 @@ class LinkTables:
         self.origin = np.array([lut.origin_m for lut in luts])
         self.box_lo = np.array([m.bounds[0] for m in robot.link_meshes])
         self.box_hi = np.array([m.bounds[1] for m in robot.link_meshes])
+
+    def rasterize(self, mask: np.ndarray, origin_m: np.ndarray, voxel_m: float,
+                  R: np.ndarray, t: np.ndarray, links=None) -> np.ndarray:
+        """``mask`` (a grid of pitch ``voxel_m`` with its corner at ``origin_m``) |= voxel
+        centres inside ``links`` (default all) placed at ``T_base_link`` = (R (L, 3, 3),
+        t (L, 3))."""
+        links = np.arange(len(self.shape)) if links is None else np.asarray(links, np.int64)
+        return _rasterize(mask, np.asarray(origin_m, float), float(voxel_m), R, t, links,
+                          self.data, self.offset, self.shape, self.origin, self.pitch,
+                          self.box_lo, self.box_hi)
+
+
+_TABLES: dict[tuple[str, float], LinkTables] = {}
+
+
+def link_tables(robot: RobotModel, pitch_m: float) -> LinkTables:
+    """The robot's tables at ``pitch_m``, built once per process (~0.5 s)."""
+    key = (robot.hash, round(pitch_m, 9))
+    if key not in _TABLES:
+        _TABLES[key] = LinkTables(robot, pitch_m)
+    return _TABLES[key]
 
 
 def placement_arrays(world: CollisionWorld, Q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -262,7 +307,7 @@ def build_heatmap(scene: Scene, cfg: HeatmapConfig = HeatmapConfig(), seed: int 
     seqs = np.random.SeedSequence(seed).spawn(len(sizes))  # chunk i always gets stream i
     _CONTEXT.update(robot=robot, world=CollisionWorld(robot, shapes), grid=grid,
                     free=free.ravel(), cfg=cfg,
-                    tables=LinkTables(robot, cfg.voxel_m * cfg.lut_pitch_fraction))
+                    tables=link_tables(robot, cfg.voxel_m * cfg.lut_pitch_fraction))
     tasks = [(i, s, n) for i, (s, n) in enumerate(zip(seqs, sizes))][index::count]
     if not tasks:
         raise ValueError(f'shard {index}/{count} is empty: {len(sizes)} chunks of '

@@ -18,6 +18,10 @@ It owns scratch data, so use one per thread (or per process).
 
 from __future__ import annotations
 
+import collections
+import functools
+import json
+import threading
 import warnings
 
 import coal
@@ -66,11 +70,21 @@ def convex_hull(mesh: coal.BVHModelBase) -> coal.Convex:
     return hull
 
 
+_HULLS: dict[str, dict[int, coal.Convex]] = {}
+
+
 def _convex_robot_model(robot: RobotModel) -> pin.GeometryModel:
+    """A copy of the robot's collision model with meshes replaced by their hulls (computed
+    once per robot: qhull takes ~1 ms a link, more than the rest of a world's set-up)."""
+    hulls = _HULLS.get(robot.hash)
+    if hulls is None:
+        hulls = _HULLS[robot.hash] = {
+            i: convex_hull(geom.geometry)
+            for i, geom in enumerate(robot.collision_model.geometryObjects)
+            if isinstance(geom.geometry, coal.BVHModelBase)}
     geom_model = robot.collision_model.copy()
-    for geom in geom_model.geometryObjects:
-        if isinstance(geom.geometry, coal.BVHModelBase):
-            geom.geometry = convex_hull(geom.geometry)
+    for i, hull in hulls.items():
+        geom_model.geometryObjects[i].geometry = hull
     return geom_model
 
 
@@ -88,19 +102,11 @@ class CollisionWorld:
             obj = pin.GeometryObject(f'scene/{i}', 0, 0, shape.pose.to_se3(), coal_geometry(shape))
             self.geom_model.addGeometryObject(obj)
         self.geom_model.removeAllCollisionPairs()
-        # Distances use a copy holding only (link, scene) pairs, so one C++ call suffices.
-        self.dist_model = self.geom_model.copy()
         for a, b in robot.self_pairs:
             self.geom_model.addCollisionPair(pin.CollisionPair(a, b))
-        for link in range(self.n_links):
-            for k in range(len(self.shapes)):
-                pair = pin.CollisionPair(link, self.n_links + k)
-                self.geom_model.addCollisionPair(pair)
-                self.dist_model.addCollisionPair(pair)
-        self.geom_data = self.geom_model.createData()
-        self.dist_data = self.dist_model.createData()
-        _no_warm_start(self.geom_data.collisionRequests)
-        _no_warm_start(self.dist_data.distanceRequests)
+        for pair in self._scene_pairs():
+            self.geom_model.addCollisionPair(pair)
+        self.geom_data = self.geom_model.createData()  # placements (no queries run on it)
         self._broad_data = self.geom_model.createData()
         _no_warm_start(self._broad_data.collisionRequests)
         self._broad = pin.BroadPhaseManager_DynamicAABBTreeCollisionManager(
@@ -108,6 +114,26 @@ class CollisionWorld:
         self._pool: pin.BroadPhaseManagerPool_DynamicAABBTreeCollisionManager | None = None
         self._margin_pool: tuple[float, pin.GeometryPool] | None = None
         self._near_data: tuple[float, pin.GeometryData] | None = None
+
+    def _scene_pairs(self) -> list[pin.CollisionPair]:
+        return [pin.CollisionPair(link, self.n_links + k)
+                for link in range(self.n_links) for k in range(len(self.shapes))]
+
+    @functools.cached_property
+    def dist_model(self) -> pin.GeometryModel:
+        """A copy holding only the (link, scene) pairs, so one C++ call gives the clearance
+        (built on first use: validity checks never need it)."""
+        dist_model = self.geom_model.copy()
+        dist_model.removeAllCollisionPairs()
+        for pair in self._scene_pairs():
+            dist_model.addCollisionPair(pair)
+        return dist_model
+
+    @functools.cached_property
+    def dist_data(self) -> pin.GeometryData:
+        dist_data = self.dist_model.createData()
+        _no_warm_start(dist_data.distanceRequests)
+        return dist_data
 
     def in_collision(self, q: np.ndarray) -> bool:
         """Self or scene collision at ``q`` (joint limits not checked)."""
@@ -120,12 +146,12 @@ class CollisionWorld:
                         ) -> list[tuple[str, str]]:
         """Every colliding pair at ``q``: robot geometry names, scene shapes as
         ``shape_names[k]`` (default ``scene/k``)."""
-        pin.computeCollisions(self.model, self.data, self.geom_model, self.geom_data, q, False)
+        pin.computeCollisions(self.model, self.data, self.geom_model, self._broad_data, q, False)
         names = [g.name for g in self.geom_model.geometryObjects]
         if shape_names is not None:
             names[self.n_links:] = list(shape_names)
         return [(names[p.first], names[p.second])
-                for p, r in zip(self.geom_model.collisionPairs, self.geom_data.collisionResults)
+                for p, r in zip(self.geom_model.collisionPairs, self._broad_data.collisionResults)
                 if r.isCollision()]
 
     def _broad_pool(self, threads: int):
@@ -222,6 +248,27 @@ class CollisionWorld:
             if coal.distance(geom, tf, other, _coal_tf(oMg), req, res) < margin_m:
                 return True
         return False
+
+
+_SHARED = threading.local()
+
+
+def shared_world(robot: RobotModel, shapes: list[Shape] = ()) -> CollisionWorld:
+    """The ``CollisionWorld`` of (robot, shapes), reused by later calls of this thread with the
+    same robot and geometry (the last 4 kept). An attack service answers many requests on one
+    scene; building its world (~1 ms for 10 shapes, the same every time) need not be paid per
+    request. Per thread, because a world holds scratch data."""
+    cache = getattr(_SHARED, 'worlds', None)
+    if cache is None:
+        cache = _SHARED.worlds = collections.OrderedDict()
+    key = (robot.hash, json.dumps([s.fingerprint() for s in shapes]))
+    world = cache.get(key)
+    if world is None:
+        world = cache[key] = CollisionWorld(robot, shapes)
+        if len(cache) > 4:
+            cache.popitem(last=False)
+    cache.move_to_end(key)
+    return world
 
 
 def _no_warm_start(requests) -> None:

@@ -35,11 +35,10 @@ from rcl_interfaces.msg import SetParametersResult
 from rclpy.node import Node
 from sensor_msgs.msg import PointCloud2
 
-from advocc_ros.attack import (AttackConfig, AttackStatus, attack, available_methods,
-                               link_luts)
+from advocc_ros.attack import AttackConfig, AttackStatus, attack, available_methods
 from advocc_ros.ros.conversions import (goal_region_from_msg, obstacle_to_msg, q_from_joint_state,
                                         scene_from_msgs)
-from advocc_ros.heatmap import HeatmapError, hottest_voxels, load_heatmap
+from advocc_ros.heatmap import HeatmapError, hottest_voxels, link_tables, load_heatmap
 from advocc_ros.heatmap.store import check_robot, locked_joints
 from advocc_ros.nodes import run
 from advocc_ros.paths import allowed_dirs, confine
@@ -148,7 +147,7 @@ class HeatmapServer(Node):
         self.robot = load_robot(self._spec)
         check_robot(self.heatmap, self.robot.hash, path)
         self.cfg = self._config()
-        link_luts(self.robot, self.heatmap.grid.voxel_m / 4)  # warm the cache: ~1 s once
+        link_tables(self.robot, self.heatmap.grid.voxel_m / 4)  # warm the cache: ~1 s once
         self._path = path
         self._served = 0
         summary = self.heatmap.summary()

@@ -94,6 +94,10 @@ class Orchestrator(AttackSources):
         self._holding_signals = False
         self._held_signal: int | None = None
         self._t0 = time.monotonic()
+        self.trials_run = 0
+        self.trial_phase_s = 0.0
+        """Trials planned by this run, and the wall time spent planning them (no node start,
+        heatmap build or attack): the bench's throughput is their ratio."""
 
     # -- entry point -------------------------------------------------------------------------
 
@@ -132,7 +136,11 @@ class Orchestrator(AttackSources):
                     status = 'incomplete'
                 summary = dict(summary, status=status,
                                restarts=dict(self.restarts), notes=self.notes,
-                               wall_s=round(time.monotonic() - self._t0, 1))
+                               wall_s=round(time.monotonic() - self._t0, 1),
+                               trials_run=self.trials_run,
+                               trial_phase_s=round(self.trial_phase_s, 2),
+                               trials_per_s=round(self.trials_run / self.trial_phase_s, 3)
+                               if self.trial_phase_s > 0 else None)
                 try:
                     write_report(self.run_dir, self.cfg, summary)
                 except Exception as exc:  # the records are safe; say why the tables are not
@@ -289,7 +297,8 @@ class Orchestrator(AttackSources):
         self.unit = unit
         self.crashes: collections.Counter = collections.Counter()
         self.pool.inject(objects)
-        last_discovery = time.monotonic()
+        last_discovery = t_start = time.monotonic()
+        todo = len(self.pending)
         while self.pending or self._busy():
             self._supervise()
             now = time.monotonic()
@@ -301,6 +310,8 @@ class Orchestrator(AttackSources):
                 last_discovery = now
                 self.pool.discover()
             self.pool.spin(0.02)
+        self.trial_phase_s += time.monotonic() - t_start
+        self.trials_run += todo
         label = 'unattacked' if unit.attack is None else unit.attack.tag
         self.bar.write(f'{self.scene.name}: {label}: {len(unit.trials)} trials done',
                        file=sys.stderr)
