@@ -102,3 +102,23 @@ def test_motion_validator_matches_ompl(panda, table_scene):
             assert ours_checks[0] == theirs_calls[0]  # the same states, in the same order
             verdicts.append(got)
     assert 0.1 < np.mean(verdicts) < 0.9
+
+
+@pytest.mark.parametrize('path', SCENES, ids=[p.stem for p in SCENES])
+def test_clearances_match_all_pair_distances(path):
+    """The bounding-box filter of ``scene_clearances`` skips only pairs that are capped."""
+    scene = load_scene(path)
+    robot = load_robot(scene.robot)
+    world = CollisionWorld(robot, scene.shapes)
+    Q = robot.sample_q(np.random.default_rng(5), 3000)
+    Q = Q[~world.collisions_batch(Q)][:400]
+    upto = 0.1
+    fast = world.scene_clearances(Q, upto)
+    exact = []
+    for q in Q:  # every (link, shape) pair, one distance query each
+        pin.updateGeometryPlacements(world.model, world.data, world.dist_model,
+                                     world.dist_data, q)
+        exact.append(min([pin.computeDistance(world.dist_model, world.dist_data, k).min_distance
+                          for k in range(len(world.dist_model.collisionPairs))] + [upto]))
+    assert np.array_equal(fast, np.array(exact))
+    assert (fast < upto).any()  # near configurations were checked, not only capped ones

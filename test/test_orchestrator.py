@@ -137,6 +137,11 @@ def test_tiny_benchmark_end_to_end(tmp_path, heatmap_file, ros_env):
     summary = json.loads((out / 'summary.json').read_text())
     assert summary['status'] == 'complete' and summary['missing'] == 0
     assert summary['restarts'] == {}
+    # Throughput: the trials this run planned over the time its trial loops took.
+    assert summary['trials_run'] == summary['done']
+    assert 0 < summary['trial_phase_s'] < summary['wall_s']
+    assert summary['trials_per_s'] == pytest.approx(
+        summary['trials_run'] / summary['trial_phase_s'], rel=0.01)
     for name, child in _children(out).items():
         assert _gone(child['pid']), f'{name} still running'
     # Re-running the finished command plans nothing and starts no node.

@@ -61,9 +61,11 @@ def _cover(cover, cand_id, near, stamp, win_origin, voxel, k, R, t, lut_data, lu
 
 
 def cover_matrix(robot: RobotModel, world: CollisionWorld, Q: np.ndarray,
-                 region: SearchRegion, shrink: int = 0) -> sparse.csr_matrix:
+                 region: SearchRegion, shrink: int = 0,
+                 placements: tuple[np.ndarray, np.ndarray] | None = None) -> sparse.csr_matrix:
     """(len(Q), n_candidates) sparse 0/1: box at candidate j covers configuration i;
-    ``shrink`` voxels off the box's half-width ask for a deeper contact."""
+    ``shrink`` voxels off the box's half-width ask for a deeper contact. ``placements``:
+    ``placement_arrays(world, Q)`` if the caller has them already."""
     cand = np.argwhere(region.candidates)
     if not len(Q) or not len(cand):
         return sparse.csr_matrix((len(Q), len(cand)))
@@ -72,7 +74,7 @@ def cover_matrix(robot: RobotModel, world: CollisionWorld, Q: np.ndarray,
     dense = np.zeros((len(Q), len(cand)), dtype=np.bool_)
     grid = region.grid
     tables = link_tables(robot, grid.voxel_m / 4)
-    R, t = placement_arrays(world, Q)
+    R, t = placement_arrays(world, Q) if placements is None else placements
     origin = np.asarray(grid.origin_m) + np.asarray(region.lo) * grid.voxel_m
     k = max(region.k - shrink, 0)
     near = np.pad(box_sum(region.candidates.astype(np.float64), k) > 0, k)

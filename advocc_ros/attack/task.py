@@ -41,8 +41,8 @@ from advocc_ros.attack.goals import GoalGuard
 from advocc_ros.attack.methods import MethodContext, register_method
 from advocc_ros.attack.region import SearchRegion
 from advocc_ros.attack.types import AttackConfig
-from advocc_ros.heatmap import HeatmapConfig, sample_weights
-from advocc_ros.model.collision import CollisionWorld
+from advocc_ros.heatmap import HeatmapConfig, placement_arrays, sample_weights
+from advocc_ros.model.collision import CollisionWorld, shared_world
 from advocc_ros.model.ik import goal_set
 
 
@@ -109,7 +109,7 @@ def _select_task(region: SearchRegion, budget: int, seed: int, cfg: AttackConfig
     opts = context.options if isinstance(context.options, TaskOptions) else TaskOptions()
     robot = context.robot
     t0 = time.perf_counter()
-    world = CollisionWorld(robot, [sh for o in context.objects for sh in o.shapes])
+    world = shared_world(robot, [sh for o in context.objects for sh in o.shapes])
     Q_goal = goal_set(robot, world.collisions_batch, world.in_collision, context.goal,
                       opts.goal_samples, seed, opts.sampling_time_s)
     Q_app = approach_samples(world, context.q_init, Q_goal, opts.approach_points, opts.detours,
@@ -118,12 +118,14 @@ def _select_task(region: SearchRegion, budget: int, seed: int, cfg: AttackConfig
     n_goal = len(Q_goal)
     w = sample_weights(robot, world, Q, HeatmapConfig(), THREADS) if len(Q) else np.zeros(0)
     t_sample = time.perf_counter()
-    cover = cover_matrix(robot, world, Q, region)
+    R, t = placement_arrays(world, Q)
+    cover = cover_matrix(robot, world, Q, region, placements=(R, t))
     feasible = None
     if region.guard is None:
         # paper policy, lexicographic weights: goal configurations, then goal configurations
         # reached deep inside the box, then approaches (see the module docstring).
-        deep = cover_matrix(robot, world, Q_goal, region, shrink=1)
+        deep = cover_matrix(robot, world, Q_goal, region, shrink=1,
+                            placements=(R[:n_goal], t[:n_goal]))
         w_app = w[n_goal:]
         unit = 1.0 / max(float(w[:n_goal].min(initial=1.0)), 1e-3)
         w_deep = w[:n_goal] * (1.0 + w_app.sum()) * unit

@@ -115,6 +115,10 @@ class CollisionWorld:
         self._margin_pool: tuple[float, pin.GeometryPool] | None = None
         self._near_data: tuple[float, pin.GeometryData] | None = None
 
+    @functools.cached_property
+    def _primitives_only(self) -> bool:
+        return all(shape.kind in ('box', 'sphere', 'cylinder') for shape in self.shapes)
+
     def _scene_pairs(self) -> list[pin.CollisionPair]:
         return [pin.CollisionPair(link, self.n_links + k)
                 for link in range(self.n_links) for k in range(len(self.shapes))]
@@ -194,18 +198,20 @@ class CollisionWorld:
     def scene_distance(self, q: np.ndarray, upto_m: float | None = None) -> float:
         """Minimum distance between robot links and scene shapes [m]; ``inf`` if no scene.
 
-        With ``upto_m``, only (link, shape) pairs closer than ``upto_m`` (found by one collision
-        pass with that security margin) get a distance query, and ``upto_m`` is returned if no
-        pair is: the same minimum wherever it is below ``upto_m`` (up to coal's tolerance at
-        the margin), and ~1.8x faster (sensed clouds: coal's octree distance costs ~0.7 ms per
-        link).
+        With ``upto_m``, the result is capped at ``upto_m``. Where the scene has meshes or
+        clouds, only (link, shape) pairs closer than ``upto_m`` (found by one collision pass
+        with that security margin) get a distance query: the same minimum wherever it is below
+        ``upto_m`` (up to coal's tolerance at the margin), and ~1.8x faster (coal's octree
+        distance costs ~0.7 ms per link). With primitives only, one C++ pass over every pair
+        is faster still (135 vs 174 us on table_pick, same values).
         """
         if not self.shapes:
             return float('inf')
-        if upto_m is None:
+        if upto_m is None or self._primitives_only:
             # pinocchio returns the index of the closest pair: no Python loop over the results.
             i = pin.computeDistances(self.model, self.data, self.dist_model, self.dist_data, q)
-            return float(self.dist_data.distanceResults[i].min_distance)
+            d = float(self.dist_data.distanceResults[i].min_distance)
+            return d if upto_m is None else min(d, float(upto_m))
         if self._near_data is None or self._near_data[0] != upto_m:
             near_data = self.dist_model.createData()
             _no_warm_start(near_data.collisionRequests)
@@ -221,6 +227,43 @@ class CollisionWorld:
         pin.updateGeometryPlacements(self.model, self.data, self.dist_model, self.dist_data, q)
         return float(min(pin.computeDistance(self.dist_model, self.dist_data, k).min_distance
                          for k in near))
+
+    def scene_clearances(self, Q: np.ndarray, upto_m: float) -> np.ndarray:
+        """``scene_distance(q, upto_m)`` for each q of ``Q`` (N, nq) [m].
+
+        Scenes of primitives: only the (link, shape) pairs whose axis-aligned bounds come
+        within ``upto_m`` get a distance query (a pair farther than that is capped anyway), the
+        bounds of all links and configurations computed at once: the same values, 1.6-2.2x
+        faster than one ``scene_distance`` per configuration on the Panda scenes (measured;
+        0.5-0.8x on the UR5 and xArm7 tables, whose few shapes leave little to skip). Other
+        scenes: one call each.
+        """
+        out = np.full(len(Q), float(upto_m))
+        if not self.shapes or not len(Q):
+            return out if self.shapes else np.full(len(Q), np.inf)
+        if not self._primitives_only:
+            return np.array([self.scene_distance(q, upto_m) for q in Q])
+        H = np.empty((len(Q), self.n_links, 4, 4))
+        for i, q in enumerate(Q):
+            for li, T in enumerate(self.link_placements(q)):
+                H[i, li] = T.homogeneous
+        lo, hi = (np.array([m.bounds[b] for m in self.robot.link_meshes[:self.n_links]])
+                  for b in (0, 1))
+        center = H[:, :, :3, 3] + np.einsum('nlij,lj->nli', H[:, :, :3, :3], (lo + hi) / 2)
+        half = np.einsum('nlij,lj->nli', np.abs(H[:, :, :3, :3]), (hi - lo) / 2)
+        s_lo, s_hi = (np.array([sh.bounds_m()[b] for sh in self.shapes]) for b in (0, 1))
+        gap = np.maximum(s_lo[None, None] - (center + half)[:, :, None],
+                         (center - half)[:, :, None] - s_hi[None, None])  # (N, L, S, 3)
+        near = np.linalg.norm(np.maximum(gap, 0.0), axis=-1) < upto_m + 1e-9  # (N, L, S)
+        n_shapes = len(self.shapes)
+        for i in np.flatnonzero(near.any(axis=(1, 2))):
+            pin.updateGeometryPlacements(self.model, self.data, self.dist_model,
+                                         self.dist_data, Q[i])
+            for li, k in zip(*np.nonzero(near[i])):
+                d = pin.computeDistance(self.dist_model, self.dist_data,
+                                        int(li) * n_shapes + int(k)).min_distance
+                out[i] = min(out[i], d)
+        return out
 
     def link_placements(self, q: np.ndarray) -> list[pin.SE3]:
         """``T_base_geom`` of each robot collision geometry at ``q``."""
