@@ -56,17 +56,13 @@ def test_motion_validator_matches_ompl(panda, table_scene):
     from ompl import base as ob
 
     from advocc_ros.planning.motion import make_motion_validator
+    from advocc_ros.planning.solve import joint_space
 
     world = CollisionWorld(panda, table_scene.shapes)
     nq = panda.nq
 
     def space_info(batch: bool):
-        space = ob.RealVectorStateSpace(nq)
-        bounds = ob.RealVectorBounds(nq)
-        for i in range(nq):
-            bounds.setLow(i, float(panda.lower[i]))
-            bounds.setHigh(i, float(panda.upper[i]))
-        space.setBounds(bounds)
+        space = joint_space(ob, panda)
         si = ob.SpaceInformation(space)
         calls = [0]
 

@@ -137,6 +137,9 @@ def test_tiny_benchmark_end_to_end(tmp_path, heatmap_file, ros_env):
     summary = json.loads((out / 'summary.json').read_text())
     assert summary['status'] == 'complete' and summary['missing'] == 0
     assert summary['restarts'] == {}
+    # The server may read the run folder's heatmap wherever --out is (not only under cwd/tmp).
+    server_log = (out / 'logs' / 'advocc_heatmap_table_pick.log').read_text()
+    assert f'"{out.resolve()}"' in server_log.split('allowed_dirs:=', 1)[1].splitlines()[0]
     # Throughput: the trials this run planned over the time its trial loops took.
     assert summary['trials_run'] == summary['done']
     assert 0 < summary['trial_phase_s'] < summary['wall_s']

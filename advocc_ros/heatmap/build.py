@@ -166,30 +166,6 @@ def _accumulate(H, stamp, free, grid_origin, voxel, grid_shape, R, t, weights, s
     return H
 
 
-@numba.njit(cache=True, nogil=True)
-def _rasterize(mask, origin, voxel, R, t, links, lut_data, lut_offset, lut_shape, lut_origin,
-               lut_pitch, box_lo, box_hi):
-    """Set every voxel of ``mask`` (its corner at ``origin``) whose centre is inside one of
-    ``links`` placed at (R (L, 3, 3), t (L, 3)): the same scan and table test as
-    ``_accumulate``, for one configuration."""
-    zero = np.zeros(3, np.int64)
-    top = np.asarray(mask.shape, np.int64) - 1
-    inv = 1.0 / lut_pitch
-    for li in links:
-        r, tl = R[li], t[li]
-        lo, hi = link_voxel_box(r, tl, box_lo[li], box_hi[li], origin, voxel, zero, top)
-        for i in range(lo[0], hi[0] + 1):
-            px = origin[0] + (i + 0.5) * voxel - tl[0]
-            for j in range(lo[1], hi[1] + 1):
-                py = origin[1] + (j + 0.5) * voxel - tl[1]
-                for k in range(lo[2], hi[2] + 1):
-                    pz = origin[2] + (k + 0.5) * voxel - tl[2]
-                    if not mask[i, j, k] and in_link(r, px, py, pz, lut_data, lut_offset[li],
-                                                     lut_shape[li], lut_origin[li], inv):
-                        mask[i, j, k] = True
-    return mask
-
-
 class LinkTables:
     """All link look-up tables packed into flat arrays for the compiled kernels."""
 
@@ -210,9 +186,15 @@ class LinkTables:
         centres inside ``links`` (default all) placed at ``T_base_link`` = (R (L, 3, 3),
         t (L, 3))."""
         links = np.arange(len(self.shape)) if links is None else np.asarray(links, np.int64)
-        return _rasterize(mask, np.asarray(origin_m, float), float(voxel_m), R, t, links,
-                          self.data, self.offset, self.shape, self.origin, self.pitch,
-                          self.box_lo, self.box_hi)
+        # The heatmap kernel: one sample (id 1, so zeroed stamps never match) of weight 1.
+        hits = np.zeros(mask.size)
+        _accumulate(hits, np.zeros(mask.size, np.int64), np.ones(mask.size, np.bool_),
+                    np.asarray(origin_m, float), float(voxel_m),
+                    np.asarray(mask.shape, np.int64), R[None, links], t[None, links],
+                    np.ones(1), 1, self.data, self.offset[links], self.shape[links],
+                    self.origin[links], self.pitch, self.box_lo[links], self.box_hi[links])
+        mask |= hits.reshape(mask.shape) > 0
+        return mask
 
 
 _TABLES: dict[tuple[str, float], LinkTables] = {}

@@ -15,6 +15,7 @@ from typing import Any
 
 from advocc_ros.bench.protocol import AttackSpec, BenchError
 from advocc_ros.orchestrator.shims import CallFailed, ShimQueries, ShimState
+from advocc_ros.paths import default_allowed_dirs
 from advocc_ros.ros.spawn import Child, node_name
 
 log = logging.getLogger(__name__)
@@ -27,8 +28,11 @@ class AttackSources:
 
     def _start_server(self, heatmap: pathlib.Path) -> None:
         stem = node_name(self.scene_file.stem)
+        # The heatmap lives in the run folder, wherever --out put it: allow that folder too.
+        dirs = [str(d) for d in default_allowed_dirs()] + [str(self.run_dir.resolve())]
         self.server = Child(f'advocc_heatmap_{stem}', 'heatmap_server',
-                            {'heatmap_file': str(heatmap)}, self.env, self.run_dir / 'logs')
+                            {'heatmap_file': str(heatmap), 'allowed_dirs': dirs}, self.env,
+                            self.run_dir / 'logs')
         self.server.start()
         self.children.append(self.server)
         self.server_clients = None

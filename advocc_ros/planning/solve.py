@@ -76,6 +76,17 @@ def _make_goal_class(ob):
     return RegionGoal
 
 
+def joint_space(ob, robot: RobotModel):
+    """OMPL's state space over the arm joints, bounded by the joint limits."""
+    space = ob.RealVectorStateSpace(robot.nq)
+    bounds = ob.RealVectorBounds(robot.nq)
+    for i in range(robot.nq):
+        bounds.setLow(i, float(robot.lower[i]))
+        bounds.setHigh(i, float(robot.upper[i]))
+    space.setBounds(bounds)
+    return space
+
+
 def solve(robot: RobotModel, world: CollisionWorld, q_start: np.ndarray, goal: GoalRegion,
           planner_id: str, time_budget_s: float, seed: int,
           config: PlanningConfig = PlanningConfig()) -> PlanResult:
@@ -120,12 +131,7 @@ def solve(robot: RobotModel, world: CollisionWorld, q_start: np.ndarray, goal: G
                      f'no IK solution inside the goal region in {sampler.attempts} attempts '
                      f'({ik_time:.2f} s)', nq, ik_time, **ik_stats)
 
-    space = ob.RealVectorStateSpace(nq)
-    bounds = ob.RealVectorBounds(nq)
-    for i in range(nq):
-        bounds.setLow(i, float(robot.lower[i]))
-        bounds.setHigh(i, float(robot.upper[i]))
-    space.setBounds(bounds)
+    space = joint_space(ob, robot)
     proj = [j for j in config.projection_joints if 0 <= j < nq] or [0]
     cells, components = ou.vectorDouble(), ou.vectorUint()
     for j in proj:

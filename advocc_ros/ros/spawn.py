@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import ctypes
+import json
 import logging
 import os
 import pathlib
@@ -23,7 +24,8 @@ def node_command(module: str, params: dict | None = None, remaps: dict | None = 
                  ) -> list[str]:
     """``python -m advocc_ros.nodes.<module> --ros-args -r k:=v ... -p k:=v ...``.
 
-    ``params`` values: booleans as ``true``/``false``, everything else as ``str(value)``.
+    ``params`` values: booleans as ``true``/``false``, lists as JSON arrays of strings (a YAML
+    flow sequence, as ROS parses it), everything else as ``str(value)``.
     """
     args = [sys.executable, '-m', f'advocc_ros.nodes.{module}', '--ros-args']
     for key, value in (remaps or {}).items():
@@ -31,6 +33,8 @@ def node_command(module: str, params: dict | None = None, remaps: dict | None = 
     for key, value in (params or {}).items():
         if isinstance(value, bool):
             value = 'true' if value else 'false'
+        elif isinstance(value, (list, tuple)):
+            value = json.dumps([str(v) for v in value])
         args += ['-p', f'{key}:={value}']
     return args
 
