@@ -22,6 +22,7 @@ from __future__ import annotations
 import dataclasses
 import logging
 import multiprocessing
+import signal
 import time
 from typing import Callable
 
@@ -234,6 +235,14 @@ def sample_weights(robot: RobotModel, world: CollisionWorld, Q: np.ndarray,
     return s_man ** cfg.gamma_man * s_clr ** cfg.gamma_clr
 
 
+def _worker_signals() -> None:
+    """Pool workers must not run the parent's signal handlers (the orchestrator's raise
+    ``Interrupted``: a traceback per worker when the pool ends it). SIGTERM (how the pool ends
+    its workers) kills; SIGINT is the parent's to handle."""
+    signal.signal(signal.SIGTERM, signal.SIG_DFL)
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+
 # Set by build_heatmap before forking workers, so they inherit the tables instead of rebuilding.
 _CONTEXT: dict = {}
 
@@ -293,7 +302,8 @@ def build_heatmap(scene: Scene, cfg: HeatmapConfig = HeatmapConfig(), seed: int 
                          f'{CHUNK_SAMPLES} samples')
     if workers > 1:
         # fork: workers inherit loaded modules (spawn would re-import pinocchio, ~1 s each).
-        with multiprocessing.get_context('fork').Pool(min(workers, len(tasks))) as pool:
+        with multiprocessing.get_context('fork').Pool(min(workers, len(tasks)),
+                                                      _worker_signals) as pool:
             results = []
             for res in pool.imap(_build_chunk, tasks):
                 results.append(res)
