@@ -8,8 +8,9 @@ the world. Its pairs are the SRDF-filtered self pairs and every (link, scene sha
 
 Validity checks go through a broad phase (coal's dynamic AABB tree, driven by pinocchio's
 ``BroadPhaseManager``): only pairs whose world AABBs overlap reach GJK. An AABB contains its
-geometry, so the verdict is the one the all-pairs loop gives (test_collision compares the two on
-100,000 configurations per shipped scene), at ~5x the speed (table_pick: 60 -> 12 us).
+geometry, so the verdict is the one the all-pairs loop gives (test/test_collision_exact.py
+compares the two on 100,000 configurations per shipped scene), at ~5x the speed (table_pick:
+60 -> 12 us).
 GJK starts cold on every query (see ``_no_warm_start``), so a verdict never depends on which
 configuration was checked before.
 
@@ -27,7 +28,6 @@ import warnings
 import coal
 import numpy as np
 import pinocchio as pin
-
 from scipy.spatial import ConvexHull
 
 from advocc_ros.model.cloud import cloud_octree
