@@ -59,6 +59,17 @@ def box_sum(values: np.ndarray, k: int) -> np.ndarray:
     return np.ascontiguousarray(out)
 
 
+def _padded_bounds(mask: np.ndarray, pad: int) -> tuple[slice, slice, slice] | None:
+    """The bounding box of ``mask``'s True voxels grown by ``pad`` (clipped); None if none."""
+    block = []
+    for a in range(3):
+        hit = np.flatnonzero(mask.any(axis=tuple(b for b in range(3) if b != a)))
+        if not len(hit):
+            return None
+        block.append(slice(max(int(hit[0]) - pad, 0), min(int(hit[-1]) + pad + 1, mask.shape[a])))
+    return tuple(block)
+
+
 def box_distance(mask: np.ndarray, voxel_m: float, half_m: float, max_m: float,
                  crop: tuple[slice, slice, slice] | None = None) -> np.ndarray:
     """Distance [m] from the closed box (half-edge ``half_m``) centred on each voxel centre to
@@ -84,20 +95,17 @@ def box_distance(mask: np.ndarray, voxel_m: float, half_m: float, max_m: float,
     result = np.full([stop - start for start, stop in rows], np.inf)
     # Only voxels within ``len(costs) - 1`` rows of the mask's bounding box can be finite:
     # transform that block alone (the masks are mostly small: the robot, the goal box).
-    block, out_rows, dst = [], [], []
-    for a in range(3):
-        hit = np.flatnonzero(mask.any(axis=tuple(b for b in range(3) if b != a)))
-        if not len(hit):
-            return result
-        lo = max(int(hit[0]) - len(costs) + 1, 0)
-        hi = min(int(hit[-1]) + len(costs), mask.shape[a])
-        start, stop = max(rows[a][0], lo), min(rows[a][1], hi)
+    block = _padded_bounds(mask, len(costs) - 1)
+    if block is None:
+        return result
+    out_rows, dst = [], []
+    for a, b in enumerate(block):
+        start, stop = max(rows[a][0], b.start), min(rows[a][1], b.stop)
         if stop <= start:
             return result
-        block.append(slice(lo, hi))
-        out_rows.append((start - lo, stop - lo))
+        out_rows.append((start - b.start, stop - b.start))
         dst.append(slice(start - rows[a][0], stop - rows[a][0]))
-    out = np.where(mask[tuple(block)], np.float32(0), np.float32(np.inf))
+    out = np.where(mask[block], np.float32(0), np.float32(np.inf))
     for axis in range(3):
         line = _min_plus(np.moveaxis(out, axis, -1), costs, *out_rows[axis])
         out = np.moveaxis(line, -1, axis)
@@ -193,18 +201,6 @@ Accept = Callable[[np.ndarray], bool]
 """Exact check of a candidate (window index (3,)); False discards it."""
 
 
-def _candidate_block(candidates: np.ndarray, k: int) -> tuple[slice, ...]:
-    """The candidates' bounding box padded by 3k: every sum a pick reads or updates (within 2k
-    of a candidate) depends only on mass inside it, so selection on this block gives the same
-    picks and masses as on the whole window, with less to sum and to search."""
-    block = []
-    for a in range(3):
-        hit = np.flatnonzero(candidates.any(axis=tuple(b for b in range(3) if b != a)))
-        block.append(slice(max(int(hit[0]) - 3 * k, 0),
-                           min(int(hit[-1]) + 3 * k + 1, candidates.shape[a])))
-    return tuple(block)
-
-
 def greedy_cover(weights: np.ndarray, candidates: np.ndarray, k: int, budget: int,
                  d_min_vox: float, accept: Accept | None = None, max_rejections: int = 500
                  ) -> tuple[list[tuple[np.ndarray, float]], int]:
@@ -215,7 +211,10 @@ def greedy_cover(weights: np.ndarray, candidates: np.ndarray, k: int, budget: in
     """
     if not np.any(candidates):
         return [], 0
-    block = _candidate_block(candidates, k)
+    # The candidates' bounding box padded by 3k: every sum a pick reads or updates (within 2k
+    # of a candidate) depends only on mass inside it, so selection on this block gives the same
+    # picks and masses as on the whole window, with less to sum and to search.
+    block = _padded_bounds(candidates, 3 * k)
     shift = np.array([b.start for b in block])
     cov = _Coverage(weights[block], candidates[block], k, d_min_vox)
     picks, rejected = [], 0

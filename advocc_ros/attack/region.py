@@ -3,9 +3,7 @@ box checks."""
 
 from __future__ import annotations
 
-import collections
 import dataclasses
-import json
 import logging
 import math
 from typing import Any
@@ -23,7 +21,7 @@ from advocc_ros.model.collision import coal_geometry, shared_world
 from advocc_ros.model.ik import goal_configuration
 from advocc_ros.model.robot import RobotModel
 from advocc_ros.model.scene import GoalRegion, SceneObject
-from advocc_ros.model.voxels import VoxelGrid, occupied_mask
+from advocc_ros.model.voxels import VoxelGrid
 
 log = logging.getLogger(__name__)
 
@@ -116,21 +114,6 @@ def _corridor_candidates(weights, lo, hi, origin, voxel, a, b, radius):
     return cand, positive
 
 
-_SCENE_MASKS: collections.OrderedDict = collections.OrderedDict()
-
-
-def _scene_mask(grid: VoxelGrid, shapes: list) -> np.ndarray:
-    """Voxels of ``grid`` inside the scene's shapes, computed once per scene (last 4 kept):
-    requests on one scene share it."""
-    key = (grid, json.dumps([sh.fingerprint() for sh in shapes]))
-    if key not in _SCENE_MASKS:
-        _SCENE_MASKS[key] = occupied_mask(grid, shapes)
-        if len(_SCENE_MASKS) > 4:
-            _SCENE_MASKS.popitem(last=False)
-    _SCENE_MASKS.move_to_end(key)
-    return _SCENE_MASKS[key]
-
-
 def _tool_point(robot: RobotModel, q: np.ndarray, goal: GoalRegion) -> np.ndarray:
     data = robot.create_data()
     pin.framesForwardKinematics(robot.model, data, q)
@@ -168,7 +151,7 @@ def search_region(heatmap: Heatmap, robot: RobotModel, objects: tuple[SceneObjec
     win = tuple(slice(lo[a], hi[a]) for a in range(3))
     sub = VoxelGrid(tuple(grid.centers(lo) - grid.voxel_m / 2), grid.voxel_m, tuple(hi - lo))
 
-    free = heatmap.free[win] & ~_scene_mask(grid, shapes)[win]
+    free = heatmap.free[win] & ~shared_world(robot, shapes).occupied(grid)[win]
     weights = np.where(free, heatmap.values[win], 0.0)
     crop_lo = np.maximum(c_lo - lo, 0)
     crop_hi = np.maximum(c_hi - lo, 0)

@@ -211,10 +211,7 @@ def link_tables(robot: RobotModel, pitch_m: float) -> LinkTables:
 
 def placement_arrays(world: CollisionWorld, Q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Rotations (n, L, 3, 3) and translations (n, L, 3) of every link for each q."""
-    H = np.empty((len(Q), world.n_links, 4, 4))
-    for s, q in enumerate(Q):
-        for li, T in enumerate(world.link_placements(q)):
-            H[s, li] = T.homogeneous  # one array per link: ~2x faster than rotation + translation
+    H = world.link_transforms(Q)
     return np.ascontiguousarray(H[:, :, :3, :3]), np.ascontiguousarray(H[:, :, :3, 3])
 
 

@@ -33,6 +33,7 @@ from scipy.spatial import ConvexHull
 from advocc_ros.model.cloud import cloud_octree
 from advocc_ros.model.robot import RobotModel
 from advocc_ros.model.scene import Shape
+from advocc_ros.model.voxels import VoxelGrid, occupied_mask
 
 
 def coal_geometry(shape: Shape) -> coal.CollisionGeometry:
@@ -114,6 +115,7 @@ class CollisionWorld:
         self._pool: pin.BroadPhaseManagerPool_DynamicAABBTreeCollisionManager | None = None
         self._margin_pool: tuple[float, pin.GeometryPool] | None = None
         self._near_data: tuple[float, pin.GeometryData] | None = None
+        self._occupied: dict[VoxelGrid, np.ndarray] = {}
 
     @functools.cached_property
     def _primitives_only(self) -> bool:
@@ -243,10 +245,7 @@ class CollisionWorld:
             return out if self.shapes else np.full(len(Q), np.inf)
         if not self._primitives_only:
             return np.array([self.scene_distance(q, upto_m) for q in Q])
-        H = np.empty((len(Q), self.n_links, 4, 4))
-        for i, q in enumerate(Q):
-            for li, T in enumerate(self.link_placements(q)):
-                H[i, li] = T.homogeneous
+        H = self.link_transforms(Q)
         lo, hi = (np.array([m.bounds[b] for m in self.robot.link_meshes[:self.n_links]])
                   for b in (0, 1))
         center = H[:, :, :3, 3] + np.einsum('nlij,lj->nli', H[:, :, :3, :3], (lo + hi) / 2)
@@ -264,6 +263,23 @@ class CollisionWorld:
                                         int(li) * n_shapes + int(k)).min_distance
                 out[i] = min(out[i], d)
         return out
+
+    def link_transforms(self, Q: np.ndarray) -> np.ndarray:
+        """``T_base_geom`` of each robot collision geometry for each q of ``Q``, as
+        (N, n_links, 4, 4) homogeneous matrices (one array per link: ~2x faster than reading
+        rotation and translation apart)."""
+        H = np.empty((len(Q), self.n_links, 4, 4))
+        for i, q in enumerate(Q):
+            for li, T in enumerate(self.link_placements(q)):
+                H[i, li] = T.homogeneous
+        return H
+
+    def occupied(self, grid: VoxelGrid) -> np.ndarray:
+        """Voxels of ``grid`` whose centre lies inside a scene shape, computed once per grid:
+        every attack request on this scene reuses it."""
+        if grid not in self._occupied:
+            self._occupied[grid] = occupied_mask(grid, self.shapes)
+        return self._occupied[grid]
 
     def link_placements(self, q: np.ndarray) -> list[pin.SE3]:
         """``T_base_geom`` of each robot collision geometry at ``q``."""
