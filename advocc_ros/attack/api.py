@@ -37,6 +37,7 @@ from typing import Any
 import numpy as np
 
 from advocc_ros.attack.goals import POLICIES, GoalGuard, goal_samples
+from advocc_ros.attack.solvable import WitnessGuard, assess, witness_bodies
 from advocc_ros.attack.methods import CONTEXT_METHODS, METHODS, MethodContext, load_method
 from advocc_ros.attack.region import search_region
 from advocc_ros.attack.types import AttackConfig, AttackError, AttackResult, AttackStatus
@@ -44,6 +45,7 @@ from advocc_ros.heatmap import Heatmap, link_tables
 from advocc_ros.model.collision import shared_world
 from advocc_ros.model.robot import RobotError, RobotModel
 from advocc_ros.model.scene import GoalRegion, SceneError, SceneObject, make_box
+from advocc_ros.planning.witness import find_witness
 
 log = logging.getLogger(__name__)
 
@@ -92,12 +94,14 @@ def validate_request(heatmap: Heatmap, robot: RobotModel, objects: tuple[SceneOb
 def attack(heatmap: Heatmap, robot: RobotModel, objects: tuple[SceneObject, ...] | list,
            q_init: np.ndarray, goal: GoalRegion, budget: int, method: str = 'ours',
            cfg: AttackConfig = AttackConfig(), box_size_m: float | None = None,
-           seed: int = 0, method_options: Any = None, goal_policy: str | None = None
-           ) -> AttackResult:
+           seed: int = 0, method_options: Any = None, goal_policy: str | None = None,
+           certify: bool = True) -> AttackResult:
     """Place at most ``budget`` boxes for one task. Never raises for a bad request: the result
     carries the status and message instead. ``method_options``: settings of a method
     (``advocc_ros.attack.pfa.PfaOptions``, ``advocc_ros.attack.task.TaskOptions``);
-    ``goal_policy``: ``paper`` or ``reachable`` (None or '': ``cfg.goal_policy``)."""
+    ``goal_policy``: ``paper``, ``reachable`` or ``solvable`` (None or '': ``cfg.goal_policy``);
+    ``certify``: also say whether the task keeps a solution (``result.solvable``; finds the
+    task's witness once, see ``attack.solvable``)."""
     link_tables(robot, heatmap.grid.voxel_m / 4)  # model loading (~1 s once), not attack time
     t0 = time.perf_counter()
     s = cfg.box_size_m if box_size_m is None or box_size_m == 0 else float(box_size_m)
@@ -105,20 +109,26 @@ def attack(heatmap: Heatmap, robot: RobotModel, objects: tuple[SceneObject, ...]
     base = dict(method=method, budget=int(budget) if isinstance(budget, (int, np.integer))
                 else 0, box_size_m=s, goal_policy=policy)
     objects = tuple(objects)
+    witness = None
     try:
         validate_request(heatmap, robot, objects, q_init, goal, budget, method, s, cfg)
         if policy not in POLICIES:
             raise AttackError(AttackStatus.INVALID_REQUEST,
                               f'unknown goal policy {policy!r}; known: {list(POLICIES)}')
-        if policy == 'reachable' and method in ('pfa', 'pfa++'):
+        if policy != 'paper' and method in ('pfa', 'pfa++'):
             raise AttackError(AttackStatus.INVALID_REQUEST,
-                              f'goal policy reachable applies to the coverage methods, not '
+                              f'goal policy {policy} applies to the coverage methods, not '
                               f'{method} (its planner queries already see a blocked goal)')
         q_init = np.asarray(q_init, dtype=float)
         region = search_region(heatmap, robot, objects, q_init, goal, cfg, s)
         if policy == 'reachable':  # the goal samples are part of the attack: timed
             region.guard = GoalGuard(goal_samples(robot, objects, goal), s,
                                      cfg.reachable_fraction)
+        elif policy == 'solvable':
+            witness = _witness(robot, objects, q_init, goal, region.stats)
+            t0 += region.stats['witness_search_ms'] / 1e3  # reported apart, not attack time
+            region.guard = WitnessGuard(witness_bodies(robot, shared_world(robot), witness), s)
+            region.guard.prune(region, heatmap.grid.voxel_m / 4)
         extra = {}
         if method in CONTEXT_METHODS:
             extra['context'] = MethodContext(robot, objects, q_init, goal, method_options)
@@ -140,16 +150,38 @@ def attack(heatmap: Heatmap, robot: RobotModel, objects: tuple[SceneObject, ...]
     else:
         status, message = AttackStatus.SUCCESS, f'placed {len(obstacles)} boxes'
     compute_s = time.perf_counter() - t0
-    # Diagnostic, not attack time: how many goal poses the boxes leave (samples cached per
-    # task, so a task's attacks are judged on the same samples).
+    # Diagnostics, not attack time: how many goal poses the boxes leave (samples cached per
+    # task, so a task's attacks are judged on the same samples), and whether a solution is left.
     t1 = time.perf_counter()
     samples = goal_samples(robot, objects, goal)
     fraction = samples.valid_fraction(
         np.array([o.shapes[0].pose.position_m for o in obstacles]), s)
     stats['goal_check_ms'] = round((time.perf_counter() - t1) * 1e3, 3)
     stats['goal_samples'] = len(samples.Q)
+    solvable = None
+    if certify:
+        if witness is None:
+            witness = _witness(robot, objects, q_init, goal, stats)
+        t1 = time.perf_counter()
+        solvable = assess(robot, objects, obstacles, goal, witness)
+        stats['solvable_ms'] = round((time.perf_counter() - t1) * 1e3, 3)
     result = AttackResult(status, message, obstacles, masses, float(sum(masses)), compute_s,
-                          stats=stats, goal_valid_fraction=fraction, **base)
-    log.info('attack %s M=%d: %s, mass %.3f, %.1f ms, goal valid %s', method, budget,
-             status.value, result.total_mass, result.compute_s * 1e3, fraction)
+                          stats=stats, goal_valid_fraction=fraction, solvable=solvable,
+                          witness=witness, **base)
+    log.info('attack %s M=%d: %s, mass %.3f, %.1f ms, goal valid %s, %s', method, budget,
+             status.value, result.total_mass, result.compute_s * 1e3, fraction,
+             solvable.verdict if solvable else 'solvability not assessed')
     return result
+
+
+def _witness(robot: RobotModel, objects: tuple[SceneObject, ...], q_init: np.ndarray,
+             goal: GoalRegion, stats: dict):
+    """The task's witness (cached per task); its search time goes to ``stats``."""
+    t0 = time.perf_counter()
+    witness = find_witness(robot, objects, np.asarray(q_init, dtype=float), goal)
+    stats['witness_search_ms'] = round((time.perf_counter() - t0) * 1e3, 3)
+    if witness is None:
+        raise AttackError(AttackStatus.INVALID_GOAL,
+                          'no witness: RRTConnect found no path into the goal region on the '
+                          'unattacked scene, so no attack can be certified to keep a solution')
+    return witness

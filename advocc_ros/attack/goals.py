@@ -60,19 +60,33 @@ class GoalSamples:
         self.radii_m = np.array(radii).reshape(len(Q), len(self.links))
         self._req = coal.CollisionRequest()
 
+    def _near_pairs(self, center_m: np.ndarray, box_size_m: float):
+        """(sample, link) pairs whose bounding spheres reach the box, nearest first."""
+        gap = np.linalg.norm(self.centres_m - center_m, axis=-1) - self.radii_m
+        near = np.flatnonzero(gap.ravel() <= box_size_m * math.sqrt(3) / 2)
+        near = near[np.argsort(gap.ravel()[near], kind='stable')]
+        return zip(*np.unravel_index(near, gap.shape))
+
     def blocked_by(self, center_m: np.ndarray, box_size_m: float) -> np.ndarray:
         """bool (n,): samples whose body the axis-aligned box at ``center_m`` touches."""
         center_m = np.asarray(center_m, dtype=float)
-        reach = self.radii_m + box_size_m * math.sqrt(3) / 2
-        near = np.linalg.norm(self.centres_m - center_m, axis=-1) <= reach
         out = np.zeros(len(self.Q), dtype=bool)
         box = coal.Box(box_size_m, box_size_m, box_size_m)
         tf = coal.Transform3s(np.eye(3), center_m)
-        for s, li in zip(*np.nonzero(near)):
+        for s, li in self._near_pairs(center_m, box_size_m):
             if not out[s]:
                 out[s] = coal.collide(box, tf, self.links[li], self.tfs[s][li], self._req,
                                       coal.CollisionResult())
         return out
+
+    def touched_by(self, center_m: np.ndarray, box_size_m: float) -> bool:
+        """Whether the box touches any sample's body (stops at the first contact)."""
+        center_m = np.asarray(center_m, dtype=float)
+        box = coal.Box(box_size_m, box_size_m, box_size_m)
+        tf = coal.Transform3s(np.eye(3), center_m)
+        return any(coal.collide(box, tf, self.links[li], self.tfs[s][li], self._req,
+                                coal.CollisionResult())
+                   for s, li in self._near_pairs(center_m, box_size_m))
 
     def valid_fraction(self, centers_m: np.ndarray, box_size_m: float) -> float | None:
         """Fraction of the samples no box touches; None without samples (no IK solution)."""
@@ -115,6 +129,8 @@ def clear_cache() -> None:
 
 class GoalGuard:
     """The ``reachable`` policy as a stateful check: ``admit`` commits the boxes it accepts."""
+
+    reason = 'the goal policy (too many goal samples blocked)'
 
     def __init__(self, samples: GoalSamples, box_size_m: float, min_fraction: float):
         self.samples, self.box_size_m, self.min_fraction = samples, box_size_m, min_fraction

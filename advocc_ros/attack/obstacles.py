@@ -2,7 +2,7 @@
 
 Keys, in this order: ``format``, ``version``, ``status``, ``message``, ``method``, ``budget``,
 ``box_size_m``, ``masses``, ``total_mass``, ``compute_ms``, ``goal_policy``,
-``goal_valid_fraction``, ``scene`` (``name``,
+``goal_valid_fraction``, ``solvable`` (verdict, message, goal probe counts), ``scene`` (``name``,
 ``objects_hash``, ...), optionally ``heatmap``, then the writer's own keys (``seed``,
 ``source``, ...), and last ``objects`` (the scene-file format). Unknown values are null.
 Older files wrote ``compute_s`` instead of ``compute_ms`` and could lack ``box_size_m``; the
@@ -35,7 +35,8 @@ def obstacles_file_data(objects: Sequence[SceneObject], method: str, budget: int
                         total_mass: float | None = None, compute_ms: float | None = None,
                         scene: dict | None = None, heatmap: Heatmap | None = None,
                         extra: dict | None = None, goal_policy: str | None = None,
-                        goal_valid_fraction: float | None = None) -> dict:
+                        goal_valid_fraction: float | None = None,
+                        solvable: dict | None = None) -> dict:
     """The YAML mapping of an obstacles file (every writer builds it here).
 
     ``box_size_m`` defaults to the first box's edge; ``scene``: ``{'name', 'objects_hash'}``
@@ -51,6 +52,7 @@ def obstacles_file_data(objects: Sequence[SceneObject], method: str, budget: int
         'goal_policy': goal_policy,
         'goal_valid_fraction': (None if goal_valid_fraction is None
                                 else round(float(goal_valid_fraction), 6)),
+        'solvable': solvable,
         'scene': dict(scene) if scene is not None else {'name': None, 'objects_hash': None},
     }
     if heatmap is not None:
@@ -72,7 +74,8 @@ def obstacles_data(result: AttackResult, heatmap: Heatmap | None = None,
         result.obstacles, result.method, result.budget, result.status.value, result.message,
         result.box_size_m, result.masses, result.total_mass, result.compute_s * 1e3,
         {'name': scene_name, 'objects_hash': scene_hash}, heatmap, extra,
-        result.goal_policy or None, result.goal_valid_fraction)
+        result.goal_policy or None, result.goal_valid_fraction,
+        result.solvable.to_json() if result.solvable is not None else None)
 
 
 def save_obstacles(path: str | pathlib.Path, data: dict) -> None:

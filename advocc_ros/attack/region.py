@@ -14,7 +14,6 @@ import numpy as np
 import pinocchio as pin
 
 from advocc_ros.attack.coverage import box_distance, box_half_voxels
-from advocc_ros.attack.goals import GoalGuard
 from advocc_ros.attack.types import AttackConfig
 from advocc_ros.heatmap import Heatmap, link_tables
 from advocc_ros.model.collision import coal_geometry, shared_world
@@ -62,8 +61,9 @@ class SearchRegion:
     checks: list[tuple[coal.CollisionGeometry, coal.Transform3s, float, str]]
     """Exact tests: (geometry, placement, minimum distance [m], what) a box must keep."""
     stats: dict
-    guard: GoalGuard | None = None
-    """The ``reachable`` goal policy (set by ``attack``): accepted boxes are committed to it."""
+    guard: Any = None
+    """The goal policy's guard (set by ``attack``): ``GoalGuard`` (``reachable``, commits the
+    boxes it accepts) or ``WitnessGuard`` (``solvable``); ``admit(center_m)`` and ``reason``."""
 
     def center_m(self, c: np.ndarray) -> np.ndarray:
         return self.grid.centers(np.asarray(c) + self.lo)
@@ -85,7 +85,7 @@ class SearchRegion:
         center = self.center_m(c)
         what = self.box_violation(center)
         if what is None and self.guard is not None and not self.guard.admit(center):
-            what = 'the goal policy (too many goal samples blocked)'
+            what = self.guard.reason
         if what is not None:
             log.debug('candidate %s rejected by the exact check: %s', c.tolist(), what)
         return what is None

@@ -121,9 +121,9 @@ def _select_task(region: SearchRegion, budget: int, seed: int, cfg: AttackConfig
     R, t = placement_arrays(world, Q)
     cover = cover_matrix(robot, world, Q, region, placements=(R, t))
     feasible = None
-    if region.guard is None:
-        # paper policy, lexicographic weights: goal configurations, then goal configurations
-        # reached deep inside the box, then approaches (see the module docstring).
+    if not isinstance(region.guard, GoalGuard):
+        # paper and solvable policies, lexicographic weights: goal configurations, then goal
+        # configurations reached deep inside the box, then approaches (module docstring).
         deep = cover_matrix(robot, world, Q_goal, region, shrink=1,
                             placements=(R[:n_goal], t[:n_goal]))
         w_app = w[n_goal:]
@@ -163,7 +163,7 @@ def _select_task(region: SearchRegion, budget: int, seed: int, cfg: AttackConfig
     if len(picks) < budget and len(picks) and not rejected > cfg.max_rejections:
         region.stats['stop_reason'] = (
             f'{len(picks)} of {budget} boxes: no further box covers a sampled task '
-            'configuration' + (' within the goal policy' if region.guard else ''))
+            'configuration' + (' within the goal policy' if region.guard is not None else ''))
     return [(cand[j], m) for j, m in zip(picks, masses)], rejected
 
 

@@ -4,12 +4,14 @@ from __future__ import annotations
 
 import dataclasses
 import enum
+from typing import Any
+
 import numpy as np
 
 from advocc_ros.model.scene import SceneObject, objects_to_data
 
 
-POLICIES = ('paper', 'reachable')
+POLICIES = ('paper', 'reachable', 'solvable')
 """Goal policies (``advocc_ros.attack.goals``): the one list of their names."""
 
 
@@ -33,7 +35,8 @@ class AttackConfig:
     """Also keep d_safe from the hand at one IK solution for the goal centre (off: the paper's
     C3; the goal policy ``reachable`` is the measured way to keep the goal reachable)."""
     goal_policy: str = 'paper'
-    """``paper`` (boxes may block every goal pose) or ``reachable`` (see ``attack.goals``)."""
+    """``paper`` (boxes may block every goal pose), ``reachable`` (see ``attack.goals``) or
+    ``solvable`` (the task's witness path stays valid: ``attack.solvable``)."""
     reachable_fraction: float = 0.5
     """Under ``reachable``: share of the fixed goal samples that must stay valid."""
     max_rejections: int = 500
@@ -95,6 +98,12 @@ class AttackResult:
     goal_valid_fraction: float | None = None
     """Of the task's fixed goal samples valid without the boxes, the fraction still valid with
     them (``attack.goals``); None when the goal region has no IK solution."""
+    solvable: Any = None
+    """``attack.solvable.Solvability``: certified / goal blocked / unknown (None: not
+    assessed)."""
+    witness: Any = None
+    """``planning.witness.Witness`` the verdict was judged with (None: none found or not
+    assessed)."""
 
     @property
     def centers_m(self) -> np.ndarray:
@@ -106,7 +115,9 @@ class AttackResult:
                 'obstacles': objects_to_data(self.obstacles),
                 'masses': [float(m) for m in self.masses], 'total_mass': float(self.total_mass),
                 'compute_ms': round(self.compute_s * 1e3, 3), 'goal_policy': self.goal_policy,
-                'goal_valid_fraction': self.goal_valid_fraction, 'stats': self.stats}
+                'goal_valid_fraction': self.goal_valid_fraction,
+                'solvable': self.solvable.to_json() if self.solvable is not None else None,
+                'stats': self.stats}
 
 
 class AttackError(ValueError):

@@ -294,14 +294,14 @@ def plan_units(cfg: BenchConfig, available: Iterable[str] | None = None,
     """
     available = set(cfg.methods if available is None else available)
     notes = []
-    if cfg.goal_policy == 'reachable':
+    if cfg.goal_policy != 'paper':
         for method in [m for m in cfg.methods if m in available
                        and REGISTRY.get(m) and REGISTRY[m].queries_planner]:
             available.discard(method)
-            notes.append(f'method {method!r} skipped: the goal policy reachable applies to the '
-                         'coverage methods')
+            notes.append(f'method {method!r} skipped: the goal policy {cfg.goal_policy} applies '
+                         'to the coverage methods')
     for method in cfg.methods:
-        if method not in available and not (cfg.goal_policy == 'reachable' and REGISTRY.get(
+        if method not in available and not (cfg.goal_policy != 'paper' and REGISTRY.get(
                 method) and REGISTRY[method].queries_planner):
             notes.append(f'method {method!r} skipped: not available in this installation')
     for pair in cfg.skip:

@@ -14,6 +14,7 @@ from advocc_ros.heatmap import HeatmapError, load_heatmap
 from advocc_ros.paths import scene_path
 from advocc_ros.model.robot import RobotError, load_robot
 from advocc_ros.model.scene import SceneError, load_scene
+from advocc_ros.planning.witness import save_witness, witness_file
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -29,9 +30,10 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help='task: coverage of the task\'s goal and approach configurations (makes '
                    'planners fail); ours: the paper\'s heatmap coverage (default)')
     p.add_argument('--policy', default=defaults.goal_policy, choices=POLICIES,
-                   help='goal policy: paper (boxes may block every goal pose) or reachable '
-                   '(keep --reachable-fraction of fixed goal samples valid; default '
-                   '%(default)s)')
+                   help='goal policy: paper (boxes may block every goal pose), reachable '
+                   '(keep --reachable-fraction of fixed goal samples valid) or solvable (keep '
+                   'the task\'s witness path valid: the task stays certified solvable); '
+                   'default %(default)s')
     p.add_argument('--reachable-fraction', type=float, default=defaults.reachable_fraction,
                    help='under --policy reachable (default %(default)s)')
     p.add_argument('--size', type=float, default=defaults.box_size_m,
@@ -96,8 +98,13 @@ def _attack(args: argparse.Namespace) -> int:
         raise UserError(f'{result.status.value}: {result.message}')
     data = obstacles_data(result, heatmap, scene.name, scene.objects_hash(), extra)
     save_obstacles(args.out, data)
+    witness_out = None
+    if result.solvable is not None and result.solvable.certified:
+        witness_out = witness_file(args.out)
+        save_witness(witness_out, result.witness)
     if args.json:
-        print(json.dumps(dict(result.to_json(), out=str(args.out)), indent=2))
+        print(json.dumps(dict(result.to_json(), out=str(args.out),
+                              witness_file=str(witness_out) if witness_out else None), indent=2))
     else:
         print(f'{result.status.value}: {result.message} ({args.method}, '
               f'{result.compute_s * 1e3:.1f} ms) -> {args.out}')
@@ -109,6 +116,9 @@ def _attack(args: argparse.Namespace) -> int:
             print(f'  goal poses still valid: {100 * result.goal_valid_fraction:.0f} % of '
                   f'{result.stats["goal_samples"]} fixed goal samples (policy '
                   f'{result.goal_policy})')
+        if result.solvable is not None:
+            print(f'  solvable: {result.solvable.verdict} ({result.solvable.message})'
+                  + (f'; witness -> {witness_out}' if witness_out else ''))
     if result.status == AttackStatus.PARTIAL:
         print(f'advocc attack: warning: {result.message}', file=sys.stderr)
     return 0

@@ -185,15 +185,17 @@ class LinkTables:
                   R: np.ndarray, t: np.ndarray, links=None) -> np.ndarray:
         """``mask`` (a grid of pitch ``voxel_m`` with its corner at ``origin_m``) |= voxel
         centres inside ``links`` (default all) placed at ``T_base_link`` = (R (L, 3, 3),
-        t (L, 3))."""
+        t (L, 3)), or at each of several configurations (R (n, L, 3, 3), t (n, L, 3))."""
         links = np.arange(len(self.shape)) if links is None else np.asarray(links, np.int64)
-        # The heatmap kernel: one sample (id 1, so zeroed stamps never match) of weight 1.
+        R, t = (R[None], t[None]) if np.ndim(R) == 3 else (R, t)
+        # The heatmap kernel: samples 1..n (so zeroed stamps never match) of weight 1.
         hits = np.zeros(mask.size)
         _accumulate(hits, np.zeros(mask.size, np.int64), np.ones(mask.size, np.bool_),
                     np.asarray(origin_m, float), float(voxel_m),
-                    np.asarray(mask.shape, np.int64), R[None, links], t[None, links],
-                    np.ones(1), 1, self.data, self.offset[links], self.shape[links],
-                    self.origin[links], self.pitch, self.box_lo[links], self.box_hi[links])
+                    np.asarray(mask.shape, np.int64), np.ascontiguousarray(R[:, links]),
+                    np.ascontiguousarray(t[:, links]), np.ones(len(R)), 1, self.data,
+                    self.offset[links], self.shape[links], self.origin[links], self.pitch,
+                    self.box_lo[links], self.box_hi[links])
         mask |= hits.reshape(mask.shape) > 0
         return mask
 

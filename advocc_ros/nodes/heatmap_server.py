@@ -269,6 +269,9 @@ class HeatmapServer(Node):
         response.compute_time_s = float(result.compute_s)
         response.goal_valid_fraction = (-1.0 if result.goal_valid_fraction is None
                                         else float(result.goal_valid_fraction))
+        if result.solvable is not None:
+            response.solvable = result.solvable.verdict
+            response.solvable_message = result.solvable.message
         return response
 
     def info(self) -> dict:

@@ -143,6 +143,7 @@ class AttackSources:
             masses=data['masses'], total_mass=data['total_mass'],
             compute_ms=res.compute_time_s * 1e3, scene=self._scene_meta(),
             goal_policy=self.cfg.goal_policy, goal_valid_fraction=data['goal_valid_fraction'],
+            solvable=data['solvable'],
             extra=dict(self._spec_meta(spec), round_trip_s=round(round_trip, 4),
                        source=f'/{self.server.name}/attack',
                        heatmap_file=self.server.params['heatmap_file']))

@@ -287,7 +287,9 @@ def attack_response_data(res: Attack.Response, round_trip_s: float | None = None
             'masses': [float(o.covered_mass) for o in res.obstacles],
             'total_mass': float(res.total_mass), 'compute_ms': round(res.compute_time_s * 1e3, 3),
             'goal_valid_fraction': (None if res.goal_valid_fraction < 0
-                                    else float(res.goal_valid_fraction))}
+                                    else float(res.goal_valid_fraction)),
+            'solvable': ({'verdict': res.solvable, 'message': res.solvable_message}
+                         if res.solvable else None)}
     if round_trip_s is not None:
         data['round_trip_ms'] = round(round_trip_s * 1e3, 3)
     return data

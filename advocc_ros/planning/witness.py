@@ -1,0 +1,185 @@
+"""Witnesses: a collision-free joint path that proves a task has a solution.
+
+A failure on a task with no solution says nothing about the planner, so an attack counts only
+while the task keeps one. The proof is a *witness*: a joint path from ``q_init`` into the goal
+region, found once on the unattacked scene by a long RRTConnect run (simplified, seeded) and then
+checked against every set of boxes (``advocc_ros.attack.solvable.certify``).
+
+Why a fresh worker process per search: OMPL's RNG can be seeded only once per process, so a
+search is deterministic for its seed only in a process of its own (``Planner`` gives one, with
+its watchdog). The search checks motions at ``WITNESS_STEP_RAD``, half the planners' step, so
+the witness also passes the finer re-check that certificates use.
+
+File (``<obstacles>.witness.yaml`` beside an obstacles file): ``joint_names`` (the planned
+joints), ``waypoints`` (rad; the path is the linear interpolation in joint space between them),
+``locked`` (every joint of the model that is not planned, at its held value) and ``source``
+(how it was found).
+"""
+
+from __future__ import annotations
+
+import collections
+import dataclasses
+import hashlib
+import json
+import logging
+import math
+import pathlib
+import threading
+
+import numpy as np
+
+from advocc_ros.model.robot import RobotModel
+from advocc_ros.model.scene import (GoalRegion, Scene, SceneError, SceneObject, read_yaml,
+                                    save_yaml_atomic)
+from advocc_ros.planning.types import PlanningConfig, PlanStatus
+
+log = logging.getLogger(__name__)
+
+WITNESS_FORMAT = 'advocc_witness'
+WITNESS_STEP_RAD = 0.005
+"""Joint-space step of the certificate's checks [rad]: half the planners' default 0.01, so a
+witness valid here is valid at the planners' resolution's finer re-checks too."""
+WITNESS_PLANNER = 'rrtconnect'
+WITNESS_SEED = 0
+"""Seed of the witness search: the witness belongs to the task, not to one attack's seed."""
+WITNESS_TIME_S = 30.0
+"""Budget of one witness search [s] (RRTConnect solves the shipped scenes in < 1 s)."""
+
+
+@dataclasses.dataclass(frozen=True)
+class Witness:
+    """A joint path from the start into the goal region (see the module docstring)."""
+
+    joint_names: tuple[str, ...]
+    waypoints: np.ndarray
+    """(N, nq) joint values [rad], N >= 2, in ``joint_names`` order."""
+    locked: dict
+    """Joint name -> value [rad or m] of every model joint that is not planned."""
+    source: dict = dataclasses.field(default_factory=dict)
+    """How it was found: planner, seed, time budget, path length."""
+
+    def to_data(self) -> dict:
+        return {'format': WITNESS_FORMAT, 'joint_names': list(self.joint_names),
+                'waypoints': np.round(np.asarray(self.waypoints, float), 12).tolist(),
+                'locked': {k: float(v) for k, v in self.locked.items()},
+                'source': dict(self.source)}
+
+    @classmethod
+    def from_data(cls, data, where: str = 'witness') -> 'Witness':
+        """A witness from a mapping; ``SceneError`` naming the field when it is malformed."""
+        if not isinstance(data, dict):
+            raise SceneError(f'{where}: expected a mapping with joint_names and waypoints')
+        names = data.get('joint_names')
+        if not isinstance(names, list) or not names or \
+                not all(isinstance(n, str) for n in names):
+            raise SceneError(f'{where}.joint_names: expected a list of joint names')
+        try:
+            waypoints = np.asarray(data.get('waypoints'), dtype=float)
+        except (TypeError, ValueError):
+            raise SceneError(f'{where}.waypoints: expected a list of joint vectors') from None
+        if waypoints.ndim != 2 or waypoints.shape[1] != len(names) or len(waypoints) < 2:
+            raise SceneError(f'{where}.waypoints: expected >= 2 rows of {len(names)} values, '
+                             f'got shape {waypoints.shape}')
+        if not np.all(np.isfinite(waypoints)):
+            raise SceneError(f'{where}.waypoints: non-finite values')
+        locked = data.get('locked') or {}
+        if not isinstance(locked, dict) or not all(
+                isinstance(v, (int, float)) and math.isfinite(v) for v in locked.values()):
+            raise SceneError(f'{where}.locked: expected a mapping joint: finite value')
+        source = data.get('source') or {}
+        return cls(tuple(names), waypoints, {str(k): float(v) for k, v in locked.items()},
+                   dict(source) if isinstance(source, dict) else {})
+
+    def configurations(self, robot: RobotModel) -> np.ndarray:
+        """The waypoints in ``robot``'s joint order; ``SceneError`` if the joints differ."""
+        if set(self.joint_names) != set(robot.joint_names):
+            raise SceneError(f'witness joints {list(self.joint_names)} are not the robot\'s '
+                             f'planned joints {list(robot.joint_names)}')
+        cols = [self.joint_names.index(j) for j in robot.joint_names]
+        return np.asarray(self.waypoints, float)[:, cols]
+
+
+def witness_states(waypoints: np.ndarray, step_rad: float = WITNESS_STEP_RAD) -> np.ndarray:
+    """Every state a certificate checks: each segment cut into ``ceil(length / step)`` equal
+    parts (OMPL's ``validSegmentCount`` rule), endpoints included once. (K, nq)."""
+    waypoints = np.asarray(waypoints, float)
+    parts = [waypoints[:1]]
+    for a, b in zip(waypoints[:-1], waypoints[1:]):
+        n = max(int(math.ceil(np.linalg.norm(b - a) / step_rad)), 1)
+        t = np.arange(1, n + 1, dtype=float) / n
+        parts.append(a + (b - a) * t[:, None])
+    return np.concatenate(parts)
+
+
+def witness_file(obstacles_path: str | pathlib.Path) -> pathlib.Path:
+    """``obs.yaml`` -> ``obs.witness.yaml`` (the witness written beside an obstacles file)."""
+    path = pathlib.Path(obstacles_path)
+    stem = path.name[:-len(path.suffix)] if path.suffix in ('.yaml', '.yml') else path.name
+    return path.with_name(f'{stem}.witness.yaml')
+
+
+def save_witness(path: str | pathlib.Path, witness: Witness) -> None:
+    """Write a witness file atomically."""
+    save_yaml_atomic(path, witness.to_data())
+
+
+def load_witness(path: str | pathlib.Path) -> Witness:
+    """A witness file; errors name the file and the field."""
+    return Witness.from_data(read_yaml(pathlib.Path(path)), str(path))
+
+
+_CACHE: collections.OrderedDict[str, Witness | None] = collections.OrderedDict()
+_CACHE_SIZE = 32
+_LOCK = threading.Lock()
+
+
+def task_key(robot: RobotModel, objects: tuple[SceneObject, ...], q_init: np.ndarray,
+             goal: GoalRegion, *extra) -> str:
+    """A hash of everything a task's solutions depend on (robot, scene shapes, start, goal)."""
+    shapes = [[o.id, [s.fingerprint() for s in o.shapes]] for o in objects]
+    text = json.dumps([robot.hash, shapes, np.round(np.asarray(q_init, float), 12).tolist(),
+                       goal.to_data(), list(extra)], sort_keys=True, default=float)
+    return hashlib.sha256(text.encode()).hexdigest()
+
+
+def find_witness(robot: RobotModel, objects: tuple[SceneObject, ...] | list,
+                 q_init: np.ndarray, goal: GoalRegion, seed: int = WITNESS_SEED,
+                 time_s: float = WITNESS_TIME_S) -> Witness | None:
+    """A witness for the task on the scene ``objects`` (None when the search fails), cached
+    per task and seed in this process. Deterministic for a seed when the search ends before
+    its budget (see the module docstring)."""
+    from advocc_ros.planning.worker import Planner
+
+    objects = tuple(objects)
+    key = task_key(robot, objects, q_init, goal, seed, time_s)
+    with _LOCK:
+        if key in _CACHE:
+            _CACHE.move_to_end(key)
+            return _CACHE[key]
+    config = PlanningConfig(time_budget_s=time_s, motion_step_rad=WITNESS_STEP_RAD,
+                            stop_at_first_solution=True, simplify=True, interpolate=False)
+    scene = Scene(name='witness', robot=robot.spec, objects=objects)
+    with Planner(scene, config) as planner:
+        result = planner.plan(q_init, goal, WITNESS_PLANNER, time_s, seed)
+    witness = None
+    if result.status == PlanStatus.CRASH:  # not an answer about the task: not cached
+        log.error('witness search crashed: %s', result.message)
+        return None
+    if result.success:
+        witness = Witness(robot.joint_names, result.path, dict(robot.locked_values), {
+            'planner': WITNESS_PLANNER, 'seed': int(seed), 'time_budget_s': float(time_s),
+            'planning_time_s': round(result.planning_time_s, 4),
+            'path_length_rad': round(float(result.stats.get('path_length_rad', 0.0)), 6),
+            'step_rad': WITNESS_STEP_RAD})
+    else:
+        log.warning('no witness for the task (seed %d): %s', seed, result.message)
+    with _LOCK:
+        _CACHE[key] = witness
+        while len(_CACHE) > _CACHE_SIZE:
+            _CACHE.popitem(last=False)
+    return witness
+
+
+__all__ = ['WITNESS_STEP_RAD', 'Witness', 'find_witness', 'load_witness', 'save_witness',
+           'task_key', 'witness_file', 'witness_states']

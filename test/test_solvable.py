@@ -1,0 +1,168 @@
+"""Witnesses, certificates and the ``solvable`` goal policy on the real Panda table task.
+
+The witness of every ``solvable`` attack is re-checked here independently of the code that
+certified it: pinocchio's all-pairs ``computeCollisions`` on the robot's original collision
+meshes (not the convex hulls the planners use), every SRDF self pair and every (link, object)
+pair, at 0.005 rad steps.
+"""
+
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pinocchio as pin
+import pytest
+
+from advocc_ros.attack import AttackConfig, AttackStatus, attack, load_obstacles
+from advocc_ros.attack.solvable import assess, certify, probe_goal
+from advocc_ros.heatmap import HeatmapConfig, build_heatmap, save_heatmap
+from advocc_ros.model import CollisionWorld
+from advocc_ros.model.collision import coal_geometry
+from advocc_ros.model.robot import load_robot
+from advocc_ros.model.scene import SceneError, make_box
+from advocc_ros.planning import witness as witness_mod
+from advocc_ros.planning.witness import (Witness, find_witness, load_witness, save_witness,
+                                         witness_file, witness_states)
+
+
+@pytest.fixture(scope='module')
+def task(table_scene):
+    robot = load_robot(table_scene.robot)
+    q0 = robot.q_from_names(list(table_scene.start), list(table_scene.start.values()), 'start')
+    heatmap = build_heatmap(table_scene, HeatmapConfig(samples=1500), seed=0)
+    return table_scene, robot, q0, heatmap
+
+
+def independent_collisions(robot, objects, Q) -> np.ndarray:
+    """All-pairs verdict per configuration on the original meshes (no broad phase, no hulls)."""
+    geom_model = robot.collision_model.copy()
+    n_links = geom_model.ngeoms
+    shapes = [sh for o in objects for sh in o.shapes]
+    for i, shape in enumerate(shapes):
+        geom_model.addGeometryObject(pin.GeometryObject(
+            f'object/{i}', 0, 0, shape.pose.to_se3(), coal_geometry(shape)))
+    geom_model.removeAllCollisionPairs()
+    for a, b in robot.self_pairs:
+        geom_model.addCollisionPair(pin.CollisionPair(a, b))
+    for link in range(n_links):
+        for k in range(len(shapes)):
+            geom_model.addCollisionPair(pin.CollisionPair(link, n_links + k))
+    data, geom_data = robot.model.createData(), geom_model.createData()
+    return np.array([pin.computeCollisions(robot.model, data, geom_model, geom_data, q, True)
+                     for q in Q])
+
+
+def test_witness_search_is_deterministic_for_a_seed(task, monkeypatch):
+    scene, robot, q0, _ = task
+    first = find_witness(robot, scene.objects, q0, scene.goal)
+    monkeypatch.setattr(witness_mod, '_CACHE', type(witness_mod._CACHE)())
+    again = find_witness(robot, scene.objects, q0, scene.goal)
+    assert first is not None and again is not first
+    assert np.array_equal(first.waypoints, again.waypoints)
+    assert first.locked == robot.locked_values and first.joint_names == robot.joint_names
+
+
+@pytest.mark.parametrize('method', ['task', 'random', 'ours'])
+def test_solvable_attacks_stay_certified_under_an_independent_check(task, method):
+    scene, robot, q0, heatmap = task
+    result = attack(heatmap, robot, scene.objects, q0, scene.goal, 10, method,
+                    goal_policy='solvable', seed=3)
+    assert result.status.ok and len(result.obstacles) >= 5, result.message
+    assert result.solvable.verdict == 'certified', result.solvable.message
+    states = witness_states(result.witness.configurations(robot), 0.005)
+    hits = independent_collisions(robot, scene.objects + result.obstacles, states)
+    assert not hits.any(), f'states {np.flatnonzero(hits)[:5]} collide'
+    data = robot.create_data()
+    pin.framesForwardKinematics(robot.model, data, states[-1])
+    assert scene.goal.contains(data.oMf[robot.model.getFrameId(scene.goal.link)]
+                               * scene.goal.tool_offset.to_se3())
+    # The clearance is real: every box keeps >= 1 cm from the robot at every witness state.
+    world = CollisionWorld(robot, [sh for o in result.obstacles for sh in o.shapes])
+    assert not world.near_scene_batch(states, 0.0099).any()
+
+
+def test_the_paper_policy_blocks_the_goal_and_says_so(task):
+    scene, robot, q0, heatmap = task
+    result = attack(heatmap, robot, scene.objects, q0, scene.goal, 5, 'task', seed=3)
+    verdict = result.solvable
+    assert verdict.verdict == 'goal blocked', verdict.message
+    assert verdict.goal_probe['converged'] >= 500 and verdict.goal_probe['free'] == 0
+    assert verdict.goal_probe['colliding'] == verdict.goal_probe['converged']
+    assert result.goal_valid_fraction == 0.0
+
+
+def test_certify_finds_a_box_on_the_witness(task):
+    scene, robot, q0, _ = task
+    witness = find_witness(robot, scene.objects, q0, scene.goal)
+    states = witness_states(witness.configurations(robot))
+    k = len(states) // 2
+    data = robot.create_data()
+    pin.framesForwardKinematics(robot.model, data, states[k])
+    hand = data.oMf[robot.model.getFrameId('panda_hand')].translation
+    box = make_box('on_path', hand, (0.05, 0.05, 0.05))
+    world = CollisionWorld(robot, [sh for o in scene.objects + (box,) for sh in o.shapes])
+    why, checked = certify(robot, world, scene.goal, witness)
+    assert why is not None and 'in collision' in why and 0 < checked <= k + 1
+    verdict = assess(robot, scene.objects, (box,), scene.goal, witness)
+    assert verdict.verdict == 'unknown'  # one box on the path leaves free goal poses
+    assert verdict.goal_probe['free'] == 1
+
+
+def test_goal_probe_is_reproducible(task):
+    scene, robot, _, _ = task
+    world = CollisionWorld(robot, scene.shapes)
+    assert probe_goal(robot, world, scene.goal, converged=20) == \
+        probe_goal(robot, world, scene.goal, converged=20)
+
+
+def test_witness_file_round_trip_and_errors(tmp_path, task):
+    scene, robot, q0, _ = task
+    witness = find_witness(robot, scene.objects, q0, scene.goal)
+    path = witness_file(tmp_path / 'obs.yaml')
+    assert path.name == 'obs.witness.yaml'
+    save_witness(path, witness)
+    back = load_witness(path)
+    assert np.allclose(back.waypoints, witness.waypoints, atol=1e-12)
+    assert back.locked == pytest.approx(witness.locked)
+    for bad, field in [({'joint_names': [], 'waypoints': []}, 'joint_names'),
+                       ({'joint_names': ['a'], 'waypoints': [[0.0]]}, 'waypoints'),
+                       ({'joint_names': ['a'], 'waypoints': [[0.0], ['x']]}, 'waypoints'),
+                       ({'joint_names': ['a'], 'waypoints': [[0.0], [float('nan')]]},
+                        'non-finite'),
+                       ({'joint_names': ['a'], 'waypoints': [[0.0], [1.0]], 'locked': [1]},
+                        'locked')]:
+        with pytest.raises(SceneError, match=field):
+            Witness.from_data(bad)
+    wrong = Witness(('a', 'b'), np.zeros((2, 2)), {})
+    assert 'not the robot' in certify(robot, CollisionWorld(robot), scene.goal, wrong)[0]
+
+
+def test_solvable_is_refused_for_planner_in_the_loop_methods(task):
+    scene, robot, q0, heatmap = task
+    result = attack(heatmap, robot, scene.objects, q0, scene.goal, 2, 'pfa',
+                    goal_policy='solvable')
+    assert result.status == AttackStatus.INVALID_REQUEST and 'solvable' in result.message
+
+
+def test_cli_writes_the_witness_beside_the_obstacles(tmp_path, task):
+    scene, robot, q0, heatmap = task
+    save_heatmap(heatmap, tmp_path / 'h.npz')
+    out = tmp_path / 'obs.yaml'
+    proc = subprocess.run(
+        [sys.executable, '-m', 'advocc_ros.cli', 'attack', '--heatmap', str(tmp_path / 'h.npz'),
+         '--scene', 'table_pick', '--budget', '4', '--method', 'task', '--policy', 'solvable',
+         '--out', str(out), '--json'], capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stderr
+    data = json.loads(proc.stdout)
+    assert data['solvable']['verdict'] == 'certified'
+    assert data['witness_file'] == str(tmp_path / 'obs.witness.yaml')
+    witness = load_witness(data['witness_file'])
+    boxes, meta = load_obstacles(out)
+    assert meta['solvable']['verdict'] == 'certified' and len(boxes) == 4
+    world = CollisionWorld(robot, [sh for o in scene.objects + boxes for sh in o.shapes])
+    assert certify(robot, world, scene.goal, witness)[0] is None
+
+
+def test_attack_config_accepts_the_policy():
+    assert AttackConfig(goal_policy='solvable').goal_policy == 'solvable'
