@@ -191,6 +191,7 @@ def test_server_answers_bad_requests_and_keeps_serving(ros, ros_env, heatmap_fil
     assert [o.id for o in good.obstacles] == ['adv_0', 'adv_1', 'adv_2']
     assert good.total_mass == pytest.approx(sum(o.covered_mass for o in good.obstacles))
     assert 0 < good.compute_time_s < 5
+    assert good.solvable == 'certified', good.solvable_message  # Ours at M = 3 keeps the witness
 
     def bad(**edit):
         req = _request(table_scene)
@@ -286,7 +287,7 @@ def test_config_files_match_the_core_defaults():
     from advocc_ros.ros.clouds import CLOUD_PARAMS
     assert attacker['/attacker']['ros__parameters'] == {
         'server': '/heatmap_server', 'budget': 3, 'method': 'ours', 'box_size_m': 0.0,
-        'seed': 0, 'timeout_s': 10.0, **CLOUD_PARAMS}
+        'seed': 0, 'goal_policy': '', 'timeout_s': 60.0, **CLOUD_PARAMS}
 
 
 def test_run_attack_nodes_for_the_demo(ros_env, monkeypatch, heatmap_file, table_scene,

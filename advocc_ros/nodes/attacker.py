@@ -17,7 +17,8 @@ octree of ``cloud_resolution``, as MoveIt's occupancy-map updater feeds its octo
 
 A failed attack (error code) or a timeout removes the previous boxes, which no longer match the
 task. Parameters: ``server``, ``budget``, ``method``, ``box_size_m`` (0: server default),
-``seed``, ``timeout_s`` (defaults in ``config/attacker.yaml``).
+``seed``, ``goal_policy`` ('': the server's), ``timeout_s`` (defaults in
+``config/attacker.yaml``).
 """
 
 from __future__ import annotations
@@ -55,7 +56,8 @@ class Attacker(Node):
         self.declare_parameter('method', 'ours')
         self.declare_parameter('box_size_m', 0.0)
         self.declare_parameter('seed', 0)
-        self.declare_parameter('timeout_s', 10.0)
+        self.declare_parameter('goal_policy', '')
+        self.declare_parameter('timeout_s', 60.0)
         declare_cloud_parameters(self)
         self.add_on_set_parameters_callback(self._check_parameters)
 
@@ -91,7 +93,8 @@ class Attacker(Node):
             if p.name == 'server' and hasattr(self, '_client'):
                 return SetParametersResult(successful=False,
                                            reason='server is read at start-up only')
-        if any(p.name in ('budget', 'method', 'box_size_m', 'seed') for p in params):
+        if any(p.name in ('budget', 'method', 'box_size_m', 'seed', 'goal_policy')
+               for p in params):
             self._dirty = self._scene is not None and self._goal is not None
         return SetParametersResult(successful=True)
 
@@ -147,7 +150,7 @@ class Attacker(Node):
             req = attack_request_from_msgs(
                 self._scene, self._goal, self.get_parameter('budget').value,
                 self.get_parameter('method').value, self.get_parameter('box_size_m').value,
-                self.get_parameter('seed').value)
+                self.get_parameter('seed').value, self.get_parameter('goal_policy').value)
             if self._cloud is not None:
                 shape = self._cloud.shapes[0]
                 req.cloud = cloud_msg(shape.vertices, self._frame)
@@ -170,7 +173,8 @@ class Attacker(Node):
                 self._publish(list(res.obstacles))
                 self.get_logger().info(
                     f'attack #{self._attacks}: {len(res.obstacles)} boxes, mass '
-                    f'{res.total_mass:.3f}, {res.compute_time_s * 1e3:.1f} ms ({res.message})')
+                    f'{res.total_mass:.3f}, {res.compute_time_s * 1e3:.1f} ms ({res.message}); '
+                    f'solvable: {res.solvable or "not assessed"}')
             else:
                 self._publish([])
                 self.get_logger().error(
