@@ -166,3 +166,19 @@ def test_cli_writes_the_witness_beside_the_obstacles(tmp_path, task):
 
 def test_attack_config_accepts_the_policy():
     assert AttackConfig(goal_policy='solvable').goal_policy == 'solvable'
+
+
+def test_tube_samples_surround_the_witness_and_are_valid(task):
+    from advocc_ros.attack.task import tube_samples
+
+    scene, robot, q0, _ = task
+    witness = find_witness(robot, scene.objects, q0, scene.goal)
+    states = witness_states(witness.configurations(robot))
+    world = CollisionWorld(robot, scene.shapes)
+    Q = tube_samples(world, states, 200, 0.2, np.random.default_rng(0))
+    assert 100 < len(Q) <= 200  # most perturbations of a free path are free too
+    assert not world.collisions_batch(Q).any()
+    assert np.all((Q >= robot.lower) & (Q <= robot.upper))
+    nearest = np.min(np.linalg.norm(Q[:, None] - states[None], axis=-1), axis=1)
+    assert np.median(nearest) < 0.2 * np.sqrt(robot.nq) * 1.5  # around the path, not anywhere
+    assert len(tube_samples(world, states, 0, 0.2, np.random.default_rng(0))) == 0

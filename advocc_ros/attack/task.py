@@ -40,6 +40,7 @@ from advocc_ros.attack.configurations import cover_matrix, greedy_configurations
 from advocc_ros.attack.goals import GoalGuard
 from advocc_ros.attack.methods import MethodContext, register_method
 from advocc_ros.attack.region import SearchRegion
+from advocc_ros.attack.solvable import WitnessGuard
 from advocc_ros.attack.types import AttackConfig
 from advocc_ros.heatmap import HeatmapConfig, placement_arrays, sample_weights
 from advocc_ros.model.collision import CollisionWorld, shared_world
@@ -60,13 +61,20 @@ class TaskOptions:
     """Standard deviation of the midpoint perturbation per joint [rad]."""
     sampling_time_s: float = 1.0
     """Cap on goal IK sampling time [s]."""
+    tube_samples: int = 256
+    """Under the ``solvable`` policy: configurations drawn around the witness path and covered
+    like approaches, so the boxes close the alternatives and leave a narrow passage."""
+    tube_rad: float = 0.2
+    """Standard deviation of the perturbation of witness states per joint [rad]."""
 
     def __post_init__(self):
         if self.goal_samples < 1 or self.approach_points < 0 or self.detours < 0:
             raise ValueError('task options: goal_samples >= 1, approach_points and detours '
                              '>= 0')
-        if not (self.detour_rad >= 0 and self.sampling_time_s > 0):
-            raise ValueError('task options: detour_rad >= 0 and sampling_time_s > 0')
+        if not (self.detour_rad >= 0 and self.sampling_time_s > 0 and self.tube_rad >= 0
+                and self.tube_samples >= 0):
+            raise ValueError('task options: detour_rad, tube_rad, tube_samples >= 0 and '
+                             'sampling_time_s > 0')
 
 
 THREADS = 2
@@ -92,6 +100,18 @@ def approach_samples(world: CollisionWorld, q_init: np.ndarray, Q_goal: np.ndarr
     return Q[~world.collisions_batch(Q, THREADS)] if len(Q) else Q
 
 
+def tube_samples(world: CollisionWorld, states: np.ndarray, n: int, sigma_rad: float,
+                 rng: np.random.Generator) -> np.ndarray:
+    """Collision-free configurations (k <= n, nq) within the joint limits drawn as witness
+    states (spread evenly along the path) plus N(0, ``sigma_rad``) per joint."""
+    if n < 1 or not len(states):
+        return np.zeros((0, world.robot.nq))
+    base = states[np.linspace(0, len(states) - 1, n).round().astype(int)]
+    Q = base + rng.normal(0.0, sigma_rad, base.shape)
+    Q = Q[np.all((Q >= world.robot.lower) & (Q <= world.robot.upper), axis=1)]
+    return Q[~world.collisions_batch(Q, THREADS)] if len(Q) else Q
+
+
 def _goal_filter(guard: GoalGuard, sample_cover: sparse.csr_matrix):
     """Candidates that keep enough goal samples valid by the lattice estimate (the guard's
     exact check still follows); called before every pick."""
@@ -112,8 +132,12 @@ def _select_task(region: SearchRegion, budget: int, seed: int, cfg: AttackConfig
     world = shared_world(robot, [sh for o in context.objects for sh in o.shapes])
     Q_goal = goal_set(robot, world.collisions_batch, world.in_collision, context.goal,
                       opts.goal_samples, seed, opts.sampling_time_s)
+    rng = np.random.default_rng(seed)
     Q_app = approach_samples(world, context.q_init, Q_goal, opts.approach_points, opts.detours,
-                             opts.detour_rad, np.random.default_rng(seed))
+                             opts.detour_rad, rng)
+    if isinstance(region.guard, WitnessGuard):
+        Q_app = np.concatenate([Q_app, tube_samples(world, region.guard.bodies.states,
+                                                    opts.tube_samples, opts.tube_rad, rng)])
     Q = np.concatenate([Q_goal, Q_app])
     n_goal = len(Q_goal)
     w = sample_weights(robot, world, Q, HeatmapConfig(), THREADS) if len(Q) else np.zeros(0)
