@@ -13,7 +13,7 @@ import logging
 import sys
 
 COMMANDS = ['heatmap', 'perf', 'demo', 'audit', 'evaluate', 'attack', 'call', 'scenes', 'bench',
-            'robot']
+            'robot', 'view']
 
 
 class UserError(Exception):
