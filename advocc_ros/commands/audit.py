@@ -2,7 +2,7 @@
 
 One attack at the largest budget K, then its prefixes m = 0, 1, 2, ... evaluated per planner
 (greedy picks are nested) until every planner is at PSR 0 %. Writes ``DIR/audit.md``,
-``DIR/audit.json`` and two figures; prints the answer and the per-budget table (``--json``:
+``DIR/audit.json``, two figures and ``DIR/audit.html`` (an offline 3D view); prints the answer and the per-budget table (``--json``:
 the audit as JSON). Progress goes to stderr.
 """
 
@@ -120,6 +120,8 @@ def run_audit_to(scene, heatmap, cfg, out: pathlib.Path, log=print) -> dict:
     paths = write_audit(audit, out, heatmap, scene)
     log(f'audit: {paths["audit.md"]}, {paths["audit.json"]}, figures '
         f'{paths["audit_slices.png"]}, {paths["audit_psr.png"]} ({audit["wall_s"]:.0f} s)')
+    from advocc_ros.evaluation.view import write_audit_view
+    log(f'3D view: {write_audit_view(out, scene, heatmap)} (open it in a browser)')
     return audit
 
 
