@@ -2,8 +2,8 @@
 
 One attack at the largest budget K, then its prefixes m = 0, 1, 2, ... evaluated per planner
 (greedy picks are nested) until every planner is at PSR 0 %. Writes ``DIR/audit.md``,
-``DIR/audit.json``, two figures and ``DIR/audit.html`` (an offline 3D view); prints the answer and the per-budget table (``--json``:
-the audit as JSON). Progress goes to stderr.
+``DIR/audit.json``, two figures and ``DIR/audit.html`` (an offline 3D view); prints the
+answer and the per-budget table (``--json``: the audit as JSON). Progress goes to stderr.
 """
 
 from __future__ import annotations

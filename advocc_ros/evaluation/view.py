@@ -21,7 +21,7 @@ from advocc_ros.evaluation.view_page import ViewBuilder, legend_html, page_html,
 from advocc_ros.model.scene import Scene, SceneError, SceneObject, make_box, read_yaml
 
 WITNESS_SUFFIX = '.witness.yaml'
-"""A witness path sits beside its obstacles file: ``obstacles.yaml`` -> ``obstacles.witness.yaml``."""
+"""A witness path sits beside its obstacles file: ``x.yaml`` -> ``x.witness.yaml``."""
 TOP_PERCENTILE = 90.0
 """Heatmap voxels drawn: those at or above this percentile of the non-zero H (the top 10 %)."""
 MAX_VOXELS = 4000

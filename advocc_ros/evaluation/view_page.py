@@ -189,7 +189,8 @@ def page_html(title: str, side_html: str, drawing: list[dict]) -> str:
         '<p id="view-status">loading the viewer...</p></div>',
         '<div id="meshcat-pane"></div>',
         f'<script id="view-commands" type="application/json">{json.dumps(blobs)}</script>',
-        f'<script>{VIEWER_JS.read_text()}</script>', '<script>' + PAGE_SCRIPT.replace('TARGET_M', json.dumps(TARGET_M)) + '</script>',
+        f'<script>{VIEWER_JS.read_text()}</script>',
+        '<script>' + PAGE_SCRIPT.replace('TARGET_M', json.dumps(TARGET_M)) + '</script>',
         '</body></html>', ''])
 
 
