@@ -22,6 +22,8 @@ RUNTIME = [
     'tqdm==4.70.1',
     'cmaes==0.13.1',
     'numba==0.68.1',
+    'meshcat==0.3.2',  # its bundled browser viewer makes the offline 3D pages
+    'mcap==1.6.0',  # ROS 2 bags in rosbag2's MCAP storage
     'pypcd4==1.5.1',  # PCD point-cloud files (cloud scene objects)
 ]
 # Wheels needed to build the interface package msg_defs/ (advocc_msgs) with cmake.
@@ -56,7 +58,8 @@ BUILD = [
         ('rosidl-typesupport-introspection-cpp', '4.6.6'),
     ]
 ] + ['catkin-pkg==1.1.1']
-TEST = ['pytest==9.2.0', 'hypothesis==6.170.15', 'flake8==7.3.0']
+TEST = ['pytest==9.2.0', 'hypothesis==6.170.15', 'flake8==7.3.0',
+        'mcap-ros2-support==0.6.0']
 
 setup(
     name=PACKAGE,

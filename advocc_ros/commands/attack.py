@@ -60,11 +60,15 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help='local planner processes queried in parallel (default %(default)s)')
     g.add_argument('--no-progress', action='store_true', help='no progress bar on stderr')
     p.add_argument('--out', required=True, help='obstacles YAML to write')
+    p.add_argument('--bag', metavar='FILE.mcap',
+                   help='also record the scene, goal region, boxes and heatmap as a ROS 2 bag')
     p.add_argument('--json', action='store_true', help='print the result as JSON')
     p.set_defaults(func=_attack)
 
 
 def _attack(args: argparse.Namespace) -> int:
+    if args.bag and not args.bag.endswith('.mcap'):
+        raise UserError(f'--bag: {args.bag} must end in .mcap (rosbag2\'s MCAP storage)')
     if not load_method(args.method):
         raise UserError(f'method {args.method!r} is not available in this installation')
     try:
@@ -102,6 +106,9 @@ def _attack(args: argparse.Namespace) -> int:
     if result.solvable is not None and result.solvable.certified:
         witness_out = witness_file(args.out)
         save_witness(witness_out, result.witness)
+    if args.bag:
+        from advocc_ros.ros.bag import write_attack_bag
+        write_attack_bag(args.bag, scene, result.obstacles, heatmap)
     if args.json:
         print(json.dumps(dict(result.to_json(), out=str(args.out),
                               witness_file=str(witness_out) if witness_out else None), indent=2))

@@ -49,6 +49,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument('--seed', type=int, default=0,
                    help='attack seed; trial k of every budget uses seed SEED + k')
     p.add_argument('--out', required=True, metavar='DIR', help='output folder')
+    p.add_argument('--bag', metavar='FILE.mcap',
+                   help='also record the scene, goal region, boxes and heatmap as a ROS 2 bag')
     p.add_argument('--json', action='store_true', help='print the audit as JSON')
     p.set_defaults(func=run)
 
@@ -129,6 +131,8 @@ def run(args: argparse.Namespace) -> int:
     from advocc_ros.evaluation.audit import audit_answer, budget_table
 
     cfg = audit_config(args)
+    if args.bag and not args.bag.endswith('.mcap'):
+        raise UserError(f'--bag: {args.bag} must end in .mcap (rosbag2\'s MCAP storage)')
     scene = scene_from_args(args)
     if scene.start is None or scene.goal is None:
         raise UserError(f'{args.scene}: the scene needs a start and a goal to be audited')
@@ -137,6 +141,10 @@ def run(args: argparse.Namespace) -> int:
     log = (lambda text: print(text, file=sys.stderr)) if args.json else print
     heatmap = audit_heatmap(scene, out, args.heatmap, args.workers, log=log)
     audit = run_audit_to(scene, heatmap, cfg, out, log=log)
+    if args.bag:
+        from advocc_ros.evaluation.view import audit_boxes
+        from advocc_ros.ros.bag import write_attack_bag
+        log(f'bag: {write_attack_bag(args.bag, scene, audit_boxes(audit), heatmap)}')
     if args.json:
         print(json.dumps(audit, indent=1))
     else:
