@@ -17,8 +17,9 @@ octree of ``cloud_resolution``, as MoveIt's occupancy-map updater feeds its octo
 
 A failed attack (error code) or a timeout removes the previous boxes, which no longer match the
 task. Parameters: ``server``, ``budget``, ``method``, ``box_size_m`` (0: server default),
-``seed``, ``goal_policy`` ('': the server's), ``timeout_s`` (defaults in
-``config/attacker.yaml``).
+``seed``, ``goal_policy`` ('': the server's), ``timeout_s``, ``bag`` (a ``.mcap`` file: each
+attack's scene, goal region, boxes, markers and the server's heatmap cloud are recorded there as
+a ROS 2 bag, replacing the last one; empty: none) (defaults in ``config/attacker.yaml``).
 """
 
 from __future__ import annotations
@@ -58,6 +59,7 @@ class Attacker(Node):
         self.declare_parameter('seed', 0)
         self.declare_parameter('goal_policy', '')
         self.declare_parameter('timeout_s', 60.0)
+        self.declare_parameter('bag', '')
         declare_cloud_parameters(self)
         self.add_on_set_parameters_callback(self._check_parameters)
 
@@ -69,6 +71,9 @@ class Attacker(Node):
         self.create_subscription(Scene, SCENE_TOPIC, self._on_scene, LATCHED_QOS)
         self.create_subscription(GoalRegion, GOAL_REGION_TOPIC, self._on_goal, LATCHED_QOS)
         self.create_subscription(PointCloud2, CLOUD_TOPIC, self._on_cloud, LATCHED_QOS)
+        self._heatmap_msg = None  # the server's hottest voxels, for the bag
+        self.create_subscription(PointCloud2, f'{server}/heatmap',
+                                 lambda msg: setattr(self, '_heatmap_msg', msg), LATCHED_QOS)
         self._cloud: SceneObject | None = None  # the sensed part of the scene
         self._scene: Scene | None = None
         self._goal: GoalRegion | None = None
@@ -197,9 +202,31 @@ class Attacker(Node):
             self._objects_pub.publish(msg)
         objects = scene_from_msgs(list(self._scene.objects)) if self._scene else ()
         objects += (self._cloud,) if self._cloud is not None else ()
-        self._markers_pub.publish(markers_with_scene(box_markers(boxes, self._frame, MARKER_NS),
-                                                     objects, self._frame, 'advocc_scene'))
+        markers = markers_with_scene(box_markers(boxes, self._frame, MARKER_NS), objects,
+                                     self._frame, 'advocc_scene')
+        self._markers_pub.publish(markers)
         self._placed = [box.id for box in boxes]
+        if self.get_parameter('bag').value and boxes:
+            self._record(msgs[len(msgs) - len(boxes):], markers)
+
+    def _record(self, adds: list, markers) -> None:
+        """Write this attack's bag (see the module docstring); a failure is logged only."""
+        from advocc_ros.ros.bag import HEATMAP_TOPIC, SCENE_MARKERS_TOPIC, write_bag
+
+        path = self.get_parameter('bag').value
+        messages = [(SCENE_TOPIC, self._scene), (GOAL_REGION_TOPIC, self._goal)]
+        if self._cloud is not None:
+            messages.append((CLOUD_TOPIC, cloud_msg(self._cloud.shapes[0].vertices,
+                                                    self._frame)))
+        messages += [(COLLISION_OBJECT_TOPIC, m) for m in adds]
+        messages.append((SCENE_MARKERS_TOPIC, markers))
+        if self._heatmap_msg is not None:
+            messages.append((HEATMAP_TOPIC, self._heatmap_msg))
+        try:
+            write_bag(path, messages)
+            self.get_logger().info(f'bag: {path} ({len(messages)} messages)')
+        except (OSError, ValueError) as exc:
+            self.get_logger().error(f'bag {path!r} not written: {exc}')
 
 
 def main(args=None) -> int:
