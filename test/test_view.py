@@ -110,7 +110,7 @@ def audit_dir(tmp_path_factory, table_scene):
     save_heatmap(heatmap, out / 'heatmap_table_pick.npz')
     assert advocc(['audit', '--scene', 'table_pick', '--planners', 'rrtconnect',
                    '--max-budget', '2', '--trials', '1', '--time', '1', '--workers', '1',
-                   '--out', str(out)]) == 0
+                   '--out', str(out), '--bag', str(out / 'audit.mcap')]) == 0
     return out
 
 
@@ -125,6 +125,23 @@ def test_audit_writes_a_self_contained_page(audit_dir):
     assert remote_references(page) == []
     for box in audit['boxes']:
         assert f'<td>{box["pick"]}</td><td>{box["id"]}</td>' in page
+
+
+def test_audit_bag_holds_the_audit_boxes(audit_dir):
+    from advocc_msgs.msg import CollisionObject
+    from mcap.reader import make_reader
+    from rclpy.serialization import deserialize_message
+
+    with open(audit_dir / 'audit.mcap', 'rb') as stream:
+        records = [(c.topic, m.data) for _, c, m in make_reader(stream).iter_messages()]
+    boxes = [deserialize_message(data, CollisionObject) for topic, data in records
+             if topic == '/advocc/collision_object']
+    audit = json.loads((audit_dir / 'audit.json').read_text())
+    assert [b.id for b in boxes] == [b['id'] for b in audit['boxes']]
+    for got, want in zip(boxes, audit['boxes']):
+        p = got.primitive_poses[0].position
+        assert [p.x, p.y, p.z] == want['center_m']
+    assert [t for t, _ in records][-1] == '/heatmap_server/heatmap'
 
 
 def test_audit_page_draws_offline_in_chromium(audit_dir, tmp_path):
