@@ -31,18 +31,23 @@ def needs_chromium():
         pytest.skip(reason)
 
 
-def chromium_screenshot(page: pathlib.Path, png: pathlib.Path, netlog: pathlib.Path,
-                        window=WINDOW, budget_ms: int = 10000) -> None:
-    """Open ``page`` in headless Chromium (WebGL through SwiftShader), screenshot it after
-    ``budget_ms`` of virtual time, and log every network request to ``netlog``. Host names
-    resolve to nothing, so a remote request fails fast instead of reaching the network."""
+def _chromium(page: pathlib.Path, *flags: str, window=WINDOW, budget_ms: int = 10000) -> str:
+    """Run headless Chromium (WebGL through SwiftShader) on ``page`` for ``budget_ms`` of
+    virtual time; returns its stdout. Host names resolve to nothing, so a remote request fails
+    fast instead of reaching the network."""
     cmd = [CHROMIUM, '--headless', '--no-sandbox', '--use-angle=swiftshader',
            '--enable-unsafe-swiftshader', '--disable-background-networking',
            '--disable-component-update', '--disable-sync', '--no-first-run',
            '--host-resolver-rules=MAP * ~NOTFOUND', f'--window-size={window[0]},{window[1]}',
-           f'--virtual-time-budget={budget_ms}', f'--screenshot={png}',
-           f'--log-net-log={netlog}', page.resolve().as_uri()]
-    subprocess.run(cmd, check=True, capture_output=True, timeout=120)
+           f'--virtual-time-budget={budget_ms}', *flags, page.resolve().as_uri()]
+    return subprocess.run(cmd, check=True, capture_output=True, text=True, timeout=120).stdout
+
+
+def chromium_screenshot(page: pathlib.Path, png: pathlib.Path, netlog: pathlib.Path,
+                        window=WINDOW, budget_ms: int = 10000) -> None:
+    """Screenshot ``page`` and log every network request to ``netlog``."""
+    _chromium(page, f'--screenshot={png}', f'--log-net-log={netlog}', window=window,
+              budget_ms=budget_ms)
     assert png.is_file(), f'chromium wrote no screenshot of {page}'
 
 
@@ -155,6 +160,13 @@ def test_audit_page_draws_offline_in_chromium(audit_dir, tmp_path):
               SIDE_PX + 3 * (width - SIDE_PX) // 4, 3 * height // 4)
     assert drawn_fraction(png, middle) > 0.15, f'the viewer looks blank: {png}'
     assert drawn_fraction(png, (width - 150, height - 100, width, height)) < 0.02
+    # The page script marks the body once every drawing command ran (an error is marked too).
+    dom = _chromium(audit_dir / 'audit.html', '--dump-dom')
+    commands = json.loads(re.search(r'<script id="view-commands" type="application/json">'
+                                    r'(.*?)</script>', (audit_dir / 'audit.html').read_text(),
+                                    re.S).group(1))
+    body = re.search(r'<body[^>]*>', dom).group(0)
+    assert body == f'<body data-drawn="{len(commands)}">', body
     target = os.environ.get('ADVOCC_VIEW_SCREENSHOT')
     if target:
         shutil.copyfile(png, target)
@@ -170,11 +182,11 @@ def test_view_command_with_obstacles_and_witness(tmp_path, table_scene, panda):
              make_box('adv_1', (0.3, 0.2, 0.6), (0.05,) * 3)]
     obstacles = tmp_path / 'obs.yaml'
     save_obstacles(obstacles, obstacles_file_data(boxes, 'task', 2))
-    q0 = [table_scene.start[j] for j in panda.joint_names]
-    witness = {'joint_names': list(panda.joint_names[:6]),
-               'waypoints': [q0[:6], (np.array(q0[:6]) + 0.3).tolist()],
-               'locked': {panda.joint_names[6]: q0[6], 'panda_finger_joint1': 0.001}}
-    (tmp_path / 'obs.witness.yaml').write_text(yaml.safe_dump(witness))
+    from advocc_ros.planning.witness import Witness, save_witness, witness_file
+
+    q0 = np.array([table_scene.start[j] for j in panda.joint_names])
+    save_witness(witness_file(obstacles), Witness(panda.joint_names, np.array([q0, q0 + 0.3]),
+                                                  dict(panda.locked_values)))
     out = tmp_path / 'view.html'
     assert advocc(['view', '--scene', 'table_pick', '--obstacles', str(obstacles),
                    '--planner', 'none', '--out', str(out)]) == 0
@@ -182,7 +194,8 @@ def test_view_command_with_obstacles_and_witness(tmp_path, table_scene, panda):
     assert 'witness path (animated): 2 waypoints' in page
     assert '<td>2</td><td>adv_1</td><td>+0.300, +0.200, +0.600</td>' in page
 
-    (tmp_path / 'obs.witness.yaml').write_text(yaml.safe_dump(dict(witness, waypoints=[[0.1]])))
+    (tmp_path / 'obs.witness.yaml').write_text(yaml.safe_dump({
+        'joint_names': list(panda.joint_names), 'waypoints': [[0.1]]}))
     assert advocc(['view', '--scene', 'table_pick', '--obstacles', str(obstacles),
                    '--out', str(out)]) == 2
     assert advocc(['view', '--scene', 'table_pick', '--heatmap', str(tmp_path / 'none.npz'),

@@ -10,6 +10,7 @@ from advocc_ros.attack import (KNOWN_METHODS, AttackConfig, AttackStatus, attack
                                obstacles_data, save_obstacles)
 from advocc_ros.attack.types import POLICIES
 from advocc_ros.cli import UserError
+from advocc_ros.commands.common import add_bag_arg, check_bag_arg
 from advocc_ros.heatmap import HeatmapError, load_heatmap
 from advocc_ros.paths import scene_path
 from advocc_ros.model.robot import RobotError, load_robot
@@ -60,15 +61,13 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help='local planner processes queried in parallel (default %(default)s)')
     g.add_argument('--no-progress', action='store_true', help='no progress bar on stderr')
     p.add_argument('--out', required=True, help='obstacles YAML to write')
-    p.add_argument('--bag', metavar='FILE.mcap',
-                   help='also record the scene, goal region, boxes and heatmap as a ROS 2 bag')
+    add_bag_arg(p)
     p.add_argument('--json', action='store_true', help='print the result as JSON')
     p.set_defaults(func=_attack)
 
 
 def _attack(args: argparse.Namespace) -> int:
-    if args.bag and not args.bag.endswith('.mcap'):
-        raise UserError(f'--bag: {args.bag} must end in .mcap (rosbag2\'s MCAP storage)')
+    check_bag_arg(args)
     if not load_method(args.method):
         raise UserError(f'method {args.method!r} is not available in this installation')
     try:

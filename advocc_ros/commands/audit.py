@@ -15,7 +15,8 @@ import sys
 import time
 
 from advocc_ros.cli import UserError
-from advocc_ros.commands.common import add_scene_args, scene_from_args
+from advocc_ros.commands.common import (add_bag_arg, add_scene_args, check_bag_arg,
+                                        scene_from_args)
 
 HEATMAP_SAMPLES = 15000
 """Samples of the heatmap the audit builds when none is given (~5-9 s on 2 cores)."""
@@ -49,8 +50,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument('--seed', type=int, default=0,
                    help='attack seed; trial k of every budget uses seed SEED + k')
     p.add_argument('--out', required=True, metavar='DIR', help='output folder')
-    p.add_argument('--bag', metavar='FILE.mcap',
-                   help='also record the scene, goal region, boxes and heatmap as a ROS 2 bag')
+    add_bag_arg(p)
     p.add_argument('--json', action='store_true', help='print the audit as JSON')
     p.set_defaults(func=run)
 
@@ -131,8 +131,7 @@ def run(args: argparse.Namespace) -> int:
     from advocc_ros.evaluation.audit import audit_answer, budget_table
 
     cfg = audit_config(args)
-    if args.bag and not args.bag.endswith('.mcap'):
-        raise UserError(f'--bag: {args.bag} must end in .mcap (rosbag2\'s MCAP storage)')
+    check_bag_arg(args)
     scene = scene_from_args(args)
     if scene.start is None or scene.goal is None:
         raise UserError(f'{args.scene}: the scene needs a start and a goal to be audited')

@@ -36,3 +36,16 @@ def scene_from_args(args: argparse.Namespace) -> Scene | None:
         return None
     return load_any_scene(args.scene, getattr(args, 'request', None),
                           getattr(args, 'goal_tol', None))
+
+
+def add_bag_arg(parser: argparse.ArgumentParser) -> None:
+    """Add ``--bag FILE.mcap`` (record the attack as a ROS 2 bag)."""
+    parser.add_argument('--bag', metavar='FILE.mcap',
+                        help='also record the scene, goal region, boxes and heatmap as a ROS 2 '
+                             'bag (rosbag2\'s MCAP storage)')
+
+
+def check_bag_arg(args: argparse.Namespace) -> None:
+    """Refuse a ``--bag`` name rosbag2 would not read as MCAP, before any work is done."""
+    if getattr(args, 'bag', None) and not args.bag.endswith('.mcap'):
+        raise ValueError(f'--bag: {args.bag} must end in .mcap (rosbag2\'s MCAP storage)')

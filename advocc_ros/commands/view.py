@@ -17,7 +17,8 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help='obstacles file of `advocc attack` (boxes numbered in pick order; its '
                         'witness path FILE.witness.yaml is shown when present)')
     p.add_argument('--witness', metavar='FILE',
-                   help='witness path YAML (joint_names, waypoints [rad], locked)')
+                   help='witness path file (advocc_witness: joint_names, waypoints [rad], '
+                        'locked)')
     p.add_argument('--heatmap', metavar='FILE', help='heatmap .npz: its hottest voxels')
     p.add_argument('--audit', metavar='DIR',
                    help='audit folder of `advocc audit`: its boxes, answer and PSR figure '
@@ -32,7 +33,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from advocc_ros.attack import load_obstacles
-    from advocc_ros.evaluation.view import (audit_view_html, load_witness, plan_path,
+    from advocc_ros.evaluation.view import (audit_view_html, load_witness_path, plan_path,
                                             scene_view_html, witness_beside)
     from advocc_ros.fileio import atomic_write_text
     from advocc_ros.heatmap import HeatmapError, load_heatmap
@@ -60,7 +61,7 @@ def run(args: argparse.Namespace) -> int:
         heatmap = load_heatmap(heatmap_file, robot_hash=robot.hash) if heatmap_file else None
     except HeatmapError as exc:
         raise UserError(str(exc)) from None
-    witness = load_witness(witness_file, robot) if witness_file else None
+    witness = load_witness_path(witness_file, robot) if witness_file else None
     planned = None
     if args.planner != 'none' and scene.start is not None and scene.goal is not None:
         planned = plan_path(scene, args.planner, args.plan_time)

@@ -18,16 +18,14 @@ import numpy as np
 import pinocchio as pin
 
 from advocc_ros.evaluation.view_page import ViewBuilder, legend_html, page_html, png_data_uri
-from advocc_ros.model.scene import Scene, SceneError, SceneObject, make_box, read_yaml
+from advocc_ros.model.scene import Scene, SceneError, SceneObject, make_box
 
-WITNESS_SUFFIX = '.witness.yaml'
-"""A witness path sits beside its obstacles file: ``x.yaml`` -> ``x.witness.yaml``."""
 TOP_PERCENTILE = 90.0
 """Heatmap voxels drawn: those at or above this percentile of the non-zero H (the top 10 %)."""
 MAX_VOXELS = 4000
 """At most this many (the hottest) voxels are drawn, to keep the page small."""
 STEP_RAD = 0.04
-"""Largest joint step between two animation frames [rad]."""
+"""Joint-space distance between two animation frames [rad]."""
 MAX_FRAMES = 300
 
 COLORS = {'start': (0.55, 0.55, 0.6), 'goal': (0.2, 0.75, 0.3), 'planned': (0.15, 0.4, 0.95),
@@ -50,42 +48,20 @@ class RobotPath:
 
 
 def witness_beside(obstacles_file: str | pathlib.Path) -> pathlib.Path | None:
-    """The witness file beside an obstacles file, when there is one."""
-    path = pathlib.Path(obstacles_file)
-    stem = path.name[:-len(path.suffix)] if path.suffix else path.name
-    candidate = path.with_name(stem + WITNESS_SUFFIX)
-    return candidate if candidate.is_file() else None
+    """The witness file ``advocc attack`` writes beside an obstacles file, when there is one."""
+    from advocc_ros.planning.witness import witness_file
+
+    path = witness_file(obstacles_file)
+    return path if path.is_file() else None
 
 
-def load_witness(path: str | pathlib.Path, robot) -> RobotPath:
-    """A witness file (``joint_names``, ``waypoints`` [rad], ``locked: {joint: value}``) as
-    configurations of ``robot``; joints of the arm not in ``joint_names`` come from
-    ``locked``. Errors name the file and the field."""
-    from advocc_ros.model.robot import RobotError
+def load_witness_path(path: str | pathlib.Path, robot) -> RobotPath:
+    """A witness file (``advocc_ros.planning.witness``) as configurations of ``robot``."""
+    from advocc_ros.planning.witness import load_witness
 
-    data = read_yaml(path)
-    if not isinstance(data, dict):
-        raise SceneError(f'{path}: expected a mapping with joint_names and waypoints')
-    names, waypoints = data.get('joint_names'), data.get('waypoints')
-    locked = data.get('locked') or {}
-    if not isinstance(names, list) or not names or not all(isinstance(n, str) for n in names):
-        raise SceneError(f'{path}.joint_names: expected a list of joint names')
-    if not isinstance(waypoints, list) or not waypoints:
-        raise SceneError(f'{path}.waypoints: expected a non-empty list of joint vectors')
-    if not isinstance(locked, dict):
-        raise SceneError(f'{path}.locked: expected a mapping joint: value')
-    fixed = {str(k): v for k, v in locked.items()}
-    Q = []
-    for k, wp in enumerate(waypoints):
-        if not isinstance(wp, list) or len(wp) != len(names):
-            raise SceneError(f'{path}.waypoints[{k}]: expected {len(names)} values')
-        lookup = dict(fixed, **dict(zip(names, wp)))
-        try:
-            Q.append(robot.q_from_names(list(lookup), [float(v) for v in lookup.values()],
-                                        f'{path}.waypoints[{k}]'))
-        except (RobotError, TypeError, ValueError) as exc:
-            raise SceneError(str(exc)) from None
-    return RobotPath('witness', np.array(Q), f'{len(Q)} waypoints from {path}')
+    witness = load_witness(path)
+    return RobotPath('witness', witness.configurations(robot),
+                     f'{len(witness.waypoints)} waypoints from {path}')
 
 
 def plan_path(scene: Scene, planner_id: str = 'rrtconnect', time_s: float = 2.0,
@@ -105,14 +81,11 @@ def plan_path(scene: Scene, planner_id: str = 'rrtconnect', time_s: float = 2.0,
 
 def dense_path(Q: np.ndarray, step_rad: float = STEP_RAD, max_frames: int = MAX_FRAMES
                ) -> np.ndarray:
-    """Waypoints interpolated so no joint moves more than ``step_rad`` per frame (at most
-    ``max_frames``, evenly thinned), then held still for a second at the end."""
-    Q = np.asarray(Q, float)
-    frames = [Q[0]]
-    for a, b in zip(Q[:-1], Q[1:]):
-        n = max(1, int(np.ceil(np.abs(b - a).max() / step_rad)))
-        frames += [a + (b - a) * t for t in np.arange(1, n + 1) / n]
-    frames = np.array(frames)
+    """Waypoints interpolated in joint space ``step_rad`` apart (at most ``max_frames``,
+    evenly thinned), then held still for a second at the end."""
+    from advocc_ros.planning.witness import witness_states
+
+    frames = witness_states(Q, step_rad)
     if len(frames) > max_frames:
         frames = frames[np.linspace(0, len(frames) - 1, max_frames).round().astype(int)]
     return np.vstack([frames, np.repeat(frames[-1:], 30, axis=0)])
@@ -284,9 +257,8 @@ def write_audit_view(audit_dir: str | pathlib.Path, scene: Scene, heatmap=None,
     from advocc_ros.model import load_robot
 
     folder = pathlib.Path(audit_dir)
-    witness_file = folder / f'audit{WITNESS_SUFFIX}'
-    witness = (load_witness(witness_file, load_robot(scene.robot))
-               if witness_file.is_file() else None)
+    witness_file = witness_beside(folder / 'audit.yaml')
+    witness = load_witness_path(witness_file, load_robot(scene.robot)) if witness_file else None
     page = audit_view_html(folder, scene, heatmap, plan_path(scene, planner_id, time_s),
                            witness)
     atomic_write_text(folder / 'audit.html', page)

@@ -28,7 +28,9 @@ default ``heatmap_percentile``)."""
 _BUILTIN = {'bool', 'byte', 'char', 'float32', 'float64', 'int8', 'uint8', 'int16', 'uint16',
             'int32', 'uint32', 'int64', 'uint64', 'string', 'wstring'}
 _SEPARATOR = '=' * 80
-# rosbag2's YAML of a latched (transient local, reliable, keep last 100) publisher.
+# rosbag2's YAML of a latched (transient local, reliable, keep last 100) publisher, with the
+# policies as integers: without a "rosbag2" metadata record (none is written) rosbag2 reads a
+# channel's offered_qos_profiles in that form (its metadata version 8).
 _LATCHED_QOS_YAML = ('- history: 1\n  depth: 100\n  reliability: 1\n  durability: 1\n'
                      '  deadline:\n    sec: 2147483647\n    nsec: 4294967295\n'
                      '  lifespan:\n    sec: 2147483647\n    nsec: 4294967295\n'
