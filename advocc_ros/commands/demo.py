@@ -3,7 +3,8 @@
 1. offline: build (or reuse) the kinematic occupancy heatmap and plot its slices;
 2. MAIN: the audit (``advocc audit``): how few boxes make RRTConnect, PRM* and BKPIECE1 fail
    the pick, and where do they go (one task attack, goal policy paper, its prefixes evaluated);
-3. online: the task attack through the ROS graph (heatmap_server + attacker processes);
+3. online: the task attack through the ROS graph (heatmap_server + attacker processes),
+   recorded as a ROS 2 bag;
 4. benchmark: the orchestrator runs a short version of the paper's protocol on the scene
    (heatmap_server + planner shims as processes; task, ours and random, budgets 1 and 3, the
    three OMPL planners, an unattacked baseline, 3 trials per cell) and prints Table I.
@@ -92,14 +93,16 @@ def run(args) -> int:
     from advocc_ros.attack import load_obstacles
     from advocc_ros.ros.feeder import run_attack_nodes
     obstacles_file = out / f'obstacles_{scene.name}_task_{args.budget}.yaml'
+    bag_file = obstacles_file.with_suffix('.mcap')
     reply = run_attack_nodes(heatmap_file, scene, obstacles_file, budget=args.budget,
-                             method='task')
+                             method='task', bag=bag_file)
     obstacles, _ = load_obstacles(obstacles_file)
     for obj in obstacles:
         center = [round(v, 3) for v in obj.shapes[0].pose.position_m]
         print(f'  {obj.id}: centre {center} m, edge {obj.shapes[0].dims[0]} m')
     print(f'obstacles file: {obstacles_file} (boxes arrived {reply["seconds_to_boxes"]} s '
           'after the scene was published, node start-up included)')
+    print(f'ROS 2 bag of the attack: {bag_file} (ros2 bag play, or Foxglove)')
     plot_heatmap_slices(heatmap, out / f'attack_{scene.name}.png', scene=scene,
                         obstacles=obstacles)
 

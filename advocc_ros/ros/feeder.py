@@ -20,8 +20,9 @@ from advocc_ros.ros.spawn import start_node, stop
 
 def run_attack_nodes(heatmap_file: str | pathlib.Path, scene: Scene, out: str | pathlib.Path,
                      budget: int = 3, method: str = 'ours', timeout_s: float = 90.0,
-                     domain: int | None = None) -> dict:
-    """Attack ``scene``'s task through the nodes; returns what the attacker published.
+                     domain: int | None = None, bag: str | pathlib.Path | None = None) -> dict:
+    """Attack ``scene``'s task through the nodes; returns what the attacker published
+    (``bag``: the attacker records the attack there as a ROS 2 bag, ``.mcap``).
 
     Raises ``RuntimeError`` (with the nodes' output) if no boxes arrive within ``timeout_s``.
     """
@@ -46,6 +47,8 @@ def run_attack_nodes(heatmap_file: str | pathlib.Path, scene: Scene, out: str | 
     attacker_params = {'budget': int(budget), 'method': method}
     if cloud is not None:
         attacker_params['cloud_resolution'] = float(cloud[1])
+    if bag is not None:
+        attacker_params['bag'] = str(pathlib.Path(bag).resolve())
     procs = [start_node('heatmap_server', {'heatmap_file': heatmap_file}, env=env, log=logs[0]),
              start_node('attacker', attacker_params, env=env, log=logs[1])]
     context = rclpy.Context()
@@ -73,6 +76,9 @@ def run_attack_nodes(heatmap_file: str | pathlib.Path, scene: Scene, out: str | 
         # A PARTIAL attack adds fewer boxes: give late ones a moment.
         settle = time.monotonic() + (0.5 if len(added) >= budget else 2.0)
         while time.monotonic() < settle and len(added) < budget:
+            executor.spin_once(timeout_sec=0.1)
+        written = time.monotonic() + 5.0  # the attacker writes its bag after publishing
+        while bag is not None and not pathlib.Path(bag).is_file() and time.monotonic() < written:
             executor.spin_once(timeout_sec=0.1)
         elapsed = time.monotonic() - t0
     finally:
