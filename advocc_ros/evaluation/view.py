@@ -16,6 +16,7 @@ import pathlib
 
 import numpy as np
 import pinocchio as pin
+import trimesh
 
 from advocc_ros.evaluation.view_page import ViewBuilder, legend_html, page_html, png_data_uri
 from advocc_ros.model.scene import Scene, SceneError, SceneObject, make_box
@@ -149,10 +150,7 @@ def _draw_heatmap(view: ViewBuilder, heatmap) -> str:
 def _draw_goal_region(view: ViewBuilder, goal) -> None:
     half = np.asarray(goal.position_tolerance_m, float)
     # The box is drawn at least 1 cm thick so a zero tolerance stays visible.
-    dims = np.maximum(2 * half, 0.01)
-    import trimesh
-
-    box = trimesh.creation.box(extents=dims)
+    box = trimesh.creation.box(extents=np.maximum(2 * half, 0.01))
     view.mesh('goal_region', box.vertices, box.faces, COLORS['region'], 0.35,
               goal.center.to_se3().homogeneous)
 
