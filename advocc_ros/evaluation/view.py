@@ -109,7 +109,7 @@ def _draw_robot(view: ViewBuilder, robot, prefix: str, q: np.ndarray, rgb, opaci
 
 def _animate_robot(view: ViewBuilder, robot, prefix: str, path: RobotPath, rgb) -> None:
     frames = [link_transforms(robot, q) for q in dense_path(path.q)]
-    _draw_robot(view, robot, prefix, path.q[0], rgb, 0.85)
+    _draw_robot(view, robot, prefix, path.q[0], rgb, 0.7)
     for k, name in enumerate(robot.link_names):
         view.keyframes(f'{prefix}/{name}', [f[k] for f in frames])
 
@@ -177,7 +177,7 @@ def scene_view_html(scene: Scene, boxes: tuple[SceneObject, ...] = (), heatmap=N
     legend = [(f'scene objects ({len(scene.objects)})', COLORS['scene'])]
     _draw_objects(view, scene.objects, 'scene', COLORS['scene'])
     if boxes:
-        _draw_objects(view, boxes, 'boxes', COLORS['box'], 0.8)
+        _draw_objects(view, boxes, 'boxes', COLORS['box'])
         for i, obj in enumerate(boxes, start=1):
             lo, hi = obj.shapes[0].bounds_m()
             view.label(f'box_labels/{i}', str(i), [(lo[0] + hi[0]) / 2, (lo[1] + hi[1]) / 2,
@@ -202,7 +202,7 @@ def scene_view_html(scene: Scene, boxes: tuple[SceneObject, ...] = (), heatmap=N
         q_goal = goal_configuration(robot, scene.goal, q_start)
         goal_note = 'inverse kinematics to the goal centre (collisions not checked)'
     if q_goal is not None:
-        _draw_robot(view, robot, 'robot_goal', q_goal, COLORS['goal'], 0.45)
+        _draw_robot(view, robot, 'robot_goal', q_goal, COLORS['goal'], 0.3)
         legend.append((f'robot at a goal configuration ({goal_note})', COLORS['goal']))
     for path in paths:
         _animate_robot(view, robot, f'{path.kind}_path', path, COLORS[path.kind])
