@@ -66,6 +66,15 @@ def test_colcon_builds_both_packages_and_installs_the_executables(workspace):
     msgs_share = ws / 'install' / 'advocc_msgs' / 'share' / 'advocc_msgs'
     assert (msgs_share / 'srv' / 'Attack.srv').is_file()
 
+    # The installed package finds its shipped config (scenes, bench.yaml) in the install space.
+    probe = subprocess.run(
+        ['bash', '-c', f'source {ws}/install/setup.bash && python -c "from advocc_ros.paths '
+         'import config_dir, scene_path; print(config_dir()); print(scene_path(\'table_pick\'))"'],
+        cwd=ws, env=_venv_env(os.environ), capture_output=True, text=True, timeout=120)
+    assert probe.returncode == 0, probe.stderr
+    config, scene = probe.stdout.split()
+    assert pathlib.Path(config) == share / 'config' and pathlib.Path(scene).is_file()
+
 
 def _loaded_files(verbose_log: str) -> list[str]:
     """Files of advocc_ros and advocc_msgs that ``PYTHONVERBOSE=1`` says were imported."""
