@@ -58,8 +58,9 @@ BUILD = [
         ('rosidl-typesupport-introspection-cpp', '4.6.6'),
     ]
 ] + ['catkin-pkg==1.1.1']
+# colcon: the workspace test builds this repository with colcon, as a ROS 2 user does.
 TEST = ['pytest==9.2.0', 'hypothesis==6.170.15', 'flake8==7.3.0',
-        'mcap-ros2-support==0.6.0']
+        'mcap-ros2-support==0.6.0', 'colcon-common-extensions==0.3.0']
 
 setup(
     name=PACKAGE,

@@ -1,14 +1,17 @@
 """Where shipped configuration lives, for a source checkout and for an installed package."""
 
 import pathlib
-import sys
 
 
 def config_dir() -> pathlib.Path:
-    source = pathlib.Path(__file__).resolve().parents[1] / 'config'
+    """The checkout's ``config/``, else ``share/advocc_ros/config`` of the prefix this module is
+    installed in (``<prefix>/lib/pythonX.Y/site-packages/advocc_ros``): a colcon install space,
+    a venv or a ``--user`` site, which need not be ``sys.prefix``."""
+    here = pathlib.Path(__file__).resolve()
+    source = here.parents[1] / 'config'
     if source.is_dir():
         return source
-    return pathlib.Path(sys.prefix) / 'share' / 'advocc_ros' / 'config'
+    return here.parents[4] / 'share' / 'advocc_ros' / 'config'
 
 
 def scene_path(name_or_path: str) -> pathlib.Path:
