@@ -10,6 +10,7 @@ from typing import Any
 from advocc_ros.attack.obstacles import obstacles_meta
 from advocc_ros.bench.protocol import BASELINE, BenchConfig, variation_scenes
 from advocc_ros.bench.records import RecordStore
+from advocc_ros.evaluation.outcomes import MAX_INTERNAL_ERROR_FRACTION, too_many_internal_errors
 from advocc_ros.bench.tables import (baseline_table, cell_rows, failure_table, table1, table2,
                                      table4)
 from advocc_ros.fileio import atomic_write_text
@@ -29,6 +30,21 @@ def _attack_metas(run_dir: pathlib.Path) -> list[dict]:
         if isinstance(data, dict):
             metas.append(obstacles_meta(data) | {'path': path})
     return metas
+
+
+def internal_error_summary(rows: dict[tuple, dict]) -> dict[str, Any]:
+    """The run summary's ``internal_errors`` (count) and ``reason`` (None, or why the run
+    failed: cells with more than ``MAX_INTERNAL_ERROR_FRACTION`` internal errors)."""
+    over = [f'{"/".join(map(str, cell))} ({row["internal_errors"]} of {row["trials"]})'
+            for cell, row in sorted(rows.items(), key=lambda item: tuple(map(str, item[0])))
+            if too_many_internal_errors(row)]
+    reason = None
+    if over:
+        reason = (f'more than {100 * MAX_INTERNAL_ERROR_FRACTION:g} % of the trials were '
+                  f'internal errors in {len(over)} cells (scene/planner/method/budget): '
+                  + ', '.join(over))
+    return {'internal_errors': sum(row['internal_errors'] for row in rows.values()),
+            'reason': reason}
 
 
 def write_report(run_dir: str | pathlib.Path, cfg: BenchConfig, summary: dict | None = None
@@ -71,7 +87,8 @@ def write_report(run_dir: str | pathlib.Path, cfg: BenchConfig, summary: dict | 
     md4, csv4 = table4(metas, heatmap_meta)
     notes = (summary or {}).get('notes', [])
     head = (f'Time budget {cfg.time_budget_s:g} s, {cfg.trials} trials per cell planned '
-            f'(`*`: fewer finished). PSR in %, SMR and CMR x10^-2, JDS in rad, PT in s.\n')
+            '(`*`: fewer finished; `!`: some were internal errors, left out of PSR and counted '
+            'in failures.md). PSR in %, SMR and CMR x10^-2, JDS in rad, PT in s.\n')
     base = baseline_table(rows, cfg)
     base = f'\n## Unattacked baseline (budget 0)\n\n{base}' if base.count('\n') > 2 else ''
     put('table1.md', f'# Table I: attack performance\n\n{head}\n{md1}{base}'
@@ -91,7 +108,9 @@ def write_report(run_dir: str | pathlib.Path, cfg: BenchConfig, summary: dict | 
     md_f, csv_f = failure_table(rows, metas, cfg, stems)
     put('failures.md', '# How the trials failed\n\n'
         'Per cell: trials that failed because every goal pose was blocked (GOAL_IN_COLLISION or '
-        'no IK solution), ran out of time, or failed otherwise; "Goal valid": of the task\'s '
+        'no IK solution), ran out of time, or failed otherwise, and the internal errors (the '
+        'planner raised or died, or returned a colliding path: not counted in PSR); "Goal '
+        'valid": of the task\'s '
         'fixed goal samples valid without the boxes, the mean fraction still valid with them '
         f'(goal policy {cfg.goal_policy}).\n\n' + md_f)
     put('failures.csv', csv_f)

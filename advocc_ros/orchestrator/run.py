@@ -42,12 +42,14 @@ import numpy as np
 from advocc_ros.bench.protocol import (BenchConfig, BenchError, Trial, Unit, plan_units,
                                        variation_scenes)
 from advocc_ros.bench.records import RecordStore, check_run_config, progress_summary, run_lock
-from advocc_ros.bench.report import write_report
+from advocc_ros.bench.report import internal_error_summary, write_report
+from advocc_ros.bench.tables import cell_rows
 from advocc_ros.fileio import atomic_write_text
 from advocc_ros.orchestrator.graph import Graph
 from advocc_ros.orchestrator.shims import (CallFailed, PlanAnswer, PlanJob, Shim, ShimPool,
                                            ShimState, PlanQuery)
 from advocc_ros.orchestrator.sources import AttackSources
+from advocc_ros.planning.types import PlanStatus
 from advocc_ros.ros.spawn import Child
 
 log = logging.getLogger(__name__)
@@ -55,7 +57,10 @@ log = logging.getLogger(__name__)
 # Plan outcomes that say the protocol itself is wrong (not the attack): stop the benchmark.
 _FATAL_CODES = {'INVALID_REQUEST', 'UNKNOWN_METHOD', 'INVALID_ROBOT_STATE',
                 'INVALID_GOAL_CONSTRAINTS', 'START_STATE_IN_COLLISION'}
-_CRASH_RETRIES = 2
+_INTERNAL_ERROR_RETRIES = 2
+"""A trial whose shim answers with an internal error (a crash, an exception) or whose plan call
+fails is planned again this many times before the internal error is recorded."""
+_INTERNAL_ERROR_CODE = int(PlanStatus.INTERNAL_ERROR)
 
 
 class Interrupted(KeyboardInterrupt):
@@ -134,7 +139,10 @@ class Orchestrator(AttackSources):
                 summary = progress_summary(self.store, units)
                 if status == 'complete' and summary['missing']:
                     status = 'incomplete'
-                summary = dict(summary, status=status,
+                errors = internal_error_summary(cell_rows(self.store.records.values(), self.cfg))
+                if errors['reason'] and status in ('complete', 'incomplete'):
+                    status = 'failed'
+                summary = dict(summary, **errors, status=status,
                                restarts=dict(self.restarts), notes=self.notes,
                                wall_s=round(time.monotonic() - self._t0, 1),
                                trials_run=self.trials_run,
@@ -295,7 +303,7 @@ class Orchestrator(AttackSources):
         self.world = CollisionWorld(self.robot, self.scene.shapes +
                                     [s for o in objects for s in o.shapes])
         self.unit = unit
-        self.crashes: collections.Counter = collections.Counter()
+        self.retries: collections.Counter = collections.Counter()
         self.pool.inject(objects)
         last_discovery = t_start = time.monotonic()
         todo = len(self.pending)
@@ -403,35 +411,53 @@ class Orchestrator(AttackSources):
         shim.deadline = now + plan.time_budget_s + self.cfg.plan_timeout_margin_s
 
     def _requeue(self, shim: Shim, exc: Exception) -> None:
-        trial, shim.trial, shim.state = shim.trial, None, ShimState.IDLE
+        """A plan call that failed (no answer): plan the trial again, up to the retry cap."""
+        job, shim.trial, shim.state = shim.trial, None, ShimState.IDLE
         shim.served += 1
-        log.warning('%s: plan call failed (%s); trial requeued', shim.name, exc)
-        self.pending.appendleft(trial)
+        answer = PlanAnswer('INTERNAL_ERROR', _INTERNAL_ERROR_CODE, f'plan call failed: {exc}',
+                            0.0, 0)
+        if isinstance(job, PlanQuery):
+            job.done(answer, self.robot.nq)
+        elif not self._retry(shim, job, answer):
+            self._record(shim, job, answer)
+
+    def _retry(self, shim: Shim, trial: Trial, answer: PlanAnswer) -> bool:
+        """Queue a trial that ended in an internal error again, unless it used its retries."""
+        if self.retries[trial.key] >= _INTERNAL_ERROR_RETRIES:
+            return False
+        self.retries[trial.key] += 1
+        log.warning('%s: internal error on %s (%s: %s); planned again (#%d)', shim.name,
+                    trial.key, answer.status, answer.message, self.retries[trial.key])
+        self.pending.append(trial)
+        return True
 
     def _finish(self, shim: Shim, answer: PlanAnswer) -> None:
-        from advocc_ros.evaluation.metrics import trial_metrics
+        from advocc_ros.evaluation.outcomes import INTERNAL_ERROR, outcome
 
         trial, shim.trial, shim.state = shim.trial, None, ShimState.IDLE
         shim.served += 1
-        status = answer.status
         if isinstance(trial, PlanQuery):
             trial.done(answer, self.robot.nq)
             return
-        if status in _FATAL_CODES:
-            raise BenchError(f'{shim.name} rejected trial {trial.key}: {status}: '
+        if answer.status in _FATAL_CODES:
+            raise BenchError(f'{shim.name} rejected trial {trial.key}: {answer.status}: '
                              f'{answer.message}')
-        if status == 'CRASH' and self.crashes[trial.key] < _CRASH_RETRIES:
-            self.crashes[trial.key] += 1
-            log.warning('%s: planner crashed on %s (%s); retrying', shim.name, trial.key,
-                        answer.message)
-            self.pending.append(trial)
+        if outcome(answer.status) == INTERNAL_ERROR and self._retry(shim, trial, answer):
             return
         if self.pending and shim.state == ShimState.IDLE:  # keep the shim busy while we compute
             self._dispatch(shim, self.pending.popleft(), time.monotonic())
-        success = status == 'SUCCESS'
+        self._record(shim, trial, answer)
+
+    def _record(self, shim: Shim, trial: Trial, answer: PlanAnswer) -> None:
+        """Score the answer's path and append the trial's record; a success whose path
+        collides is recorded as an internal error, and every internal error is announced."""
+        from advocc_ros.evaluation.metrics import PathInCollision, trial_metrics
+        from advocc_ros.evaluation.outcomes import INTERNAL_ERROR, record_outcome
+
+        success = answer.status == 'SUCCESS'
         record = {'key': trial.key, 'scene': trial.scene, 'planner': trial.planner,
                   'method': trial.method, 'budget': trial.budget, 'trial': trial.trial,
-                  'seed': trial.seed, 'success': success, 'status': status,
+                  'seed': trial.seed, 'success': success, 'status': answer.status,
                   'error_code': answer.error_code, 'message': answer.message,
                   'planning_time_s': float(answer.planning_time_s),
                   'time_budget_s': float(self.cfg.time_budget_s),
@@ -440,6 +466,14 @@ class Orchestrator(AttackSources):
                   'min_manipulability': None, 'min_clearance_rad': None, 'jds_rad': None,
                   'unix': round(time.time(), 3)}
         if success:
-            record.update(trial_metrics(self.robot, self.world, answer.path, self.q_init,
-                                        rng=np.random.default_rng(trial.seed)))
+            try:
+                record.update(trial_metrics(self.robot, self.world, answer.path, self.q_init,
+                                            rng=np.random.default_rng(trial.seed)))
+            except PathInCollision as exc:
+                record.update(success=False, status='INTERNAL_ERROR',
+                              error_code=_INTERNAL_ERROR_CODE,
+                              message=f'{exc} ({answer.message})')
+        if record_outcome(record) == INTERNAL_ERROR:
+            self.bar.write(f'warning: {trial.key}: internal error ({record["status"]}: '
+                           f'{record["message"]}): left out of PSR', file=sys.stderr)
         self._append(record)
