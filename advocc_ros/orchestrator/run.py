@@ -353,7 +353,7 @@ class Orchestrator(AttackSources):
     def _supervise(self) -> None:
         """Restart dead children; a dead shim's trial goes back to the queue."""
         if self.server is not None and not self.server.alive():
-            self._restart(self.server, f'exited with code {self.server.proc.returncode}')
+            self._restart(self.server, f'exited with code {self.server.exit_code()}')
             self._reset_server_clients()
         for shim in self.pool.shims:
             if shim.state == ShimState.DEAD:

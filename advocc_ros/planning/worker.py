@@ -207,8 +207,9 @@ class _Worker:
 class Planner:
     """Plans in a scene with one reusable, watched worker process (see the module docstring).
 
-    Thread-safe: concurrent ``plan`` calls are served one after the other. Use one ``Planner``
-    per parallel stream of requests (each owns a process).
+    Thread-safe: concurrent ``plan`` calls are served one after the other, and ``set_scene``
+    waits for the request in flight (a request never pairs one scene's key with another's
+    objects). Use one ``Planner`` per parallel stream of requests (each owns a process).
     """
 
     def __init__(self, scene: Scene, config: PlanningConfig = PlanningConfig()):
@@ -226,7 +227,8 @@ class Planner:
             raise RobotError('a Planner plans for one robot; create another for a new robot')
         data = scene.to_data()
         key = json.dumps([scene.objects_hash(), data['robot']], sort_keys=True)
-        self._scene, self._scene_data, self._scene_key = scene, data, key
+        with self._lock:
+            self._scene, self._scene_data, self._scene_key = scene, data, key
 
     @property
     def scene(self) -> Scene:
@@ -267,9 +269,10 @@ class Planner:
         request = {'op': 'plan', 'q_start': np.asarray(q_start, float).tolist(),
                    'goal': goal.to_data(), 'planner_id': planner_id,
                    'time_budget_s': float(budget), 'seed': int(seed),
-                   'config': dataclasses.asdict(self.config), 'scene_key': self._scene_key}
+                   'config': dataclasses.asdict(self.config)}
         with self._lock:
             self.requests += 1
+            request['scene_key'] = self._scene_key
             return self._call(request, budget)
 
     def _call(self, request: dict, budget: float) -> PlanResult:
