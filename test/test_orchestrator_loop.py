@@ -276,6 +276,25 @@ def test_a_success_whose_path_collides_is_an_internal_error(tmp_path):
     assert summary['internal_errors'] == len(bad) == 2 and summary['status'] == 'failed'
 
 
+def test_a_cell_of_internal_errors_only_has_no_psr_and_the_report_still_renders(tmp_path):
+    run = tmp_path / 'run'
+    _cache_attack(run)
+
+    def answer(pool, shim, job):
+        if job.planner_id == 'bkpiece1':
+            return PlanAnswer('INTERNAL_ERROR', -105, 'worker: RuntimeError()', 0.0, 0)
+        return _success(job)
+
+    summary, _ = _run(run, answer)
+    assert summary['status'] == 'failed' and summary['internal_errors'] == 2 * TRIALS
+    assert 'bkpiece1/none/0 (3 of 3)' in summary['reason']
+    rows = {(r['planner'], r['method']): r for r in _csv_rows(run / 'table1.csv')}
+    assert rows[('bkpiece1', 'random')]['psr_percent'] == 'N/A'
+    assert float(rows[('rrtconnect', 'random')]['psr_percent']) == 100.0
+    assert '| N/A! |' in (run / 'table1.md').read_text()
+    assert (run / 'figures' / 'psr_vs_budget_table_pick.png').stat().st_size > 0
+
+
 def test_a_hung_shim_is_restarted_at_its_deadline_and_its_trial_planned_again(tmp_path):
     run = tmp_path / 'run'
     _cache_attack(run)

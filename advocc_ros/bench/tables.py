@@ -38,9 +38,9 @@ def _fmt(value: float | None, digits: int) -> str:
 
 
 def _psr_cell(row: dict | None) -> str:
-    if row is None or row['psr'] is None:
+    if row is None:
         return '--'
-    text = f'{100 * row["psr"]:.2f}'
+    text = 'N/A' if row['psr'] is None else f'{100 * row["psr"]:.2f}'
     return text + ('' if row['complete'] else '*') + ('!' if row['internal_errors'] else '')
 
 
