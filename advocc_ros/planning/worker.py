@@ -62,6 +62,10 @@ log = logging.getLogger(__name__)
 FAULT_ENV = 'ADVOCC_PLANNING_FAULT'
 
 
+class InjectedFault(RuntimeError):
+    """The diagnostic exception of ``FAULT_ENV`` (logged without a traceback)."""
+
+
 def _inject_fault(seed: int) -> None:
     """Raise or die here if ``FAULT_ENV`` asks for it for this seed (see the module docstring)."""
     spec = os.environ.get(FAULT_ENV, '')
@@ -79,7 +83,7 @@ def _inject_fault(seed: int) -> None:
         return
     if kind == 'kill':
         os.kill(os.getpid(), signal.SIGKILL)
-    raise RuntimeError(f'fault injected by {FAULT_ENV}={spec}')
+    raise InjectedFault(f'fault injected by {FAULT_ENV}={spec}')
 
 
 # --------------------------------------------------------------------------------------------
@@ -127,7 +131,10 @@ def _worker_main() -> None:
                            float(req['time_budget_s']), int(req['seed']), config)
             reply(result.to_data())
         except Exception as exc:  # a bad request or a bug must not kill the worker
-            log.exception('request failed')
+            if isinstance(exc, InjectedFault):
+                log.error('request failed: %s', exc)
+            else:
+                log.exception('request failed')
             reply({'status': int(PlanStatus.INTERNAL_ERROR), 'message': f'worker: {exc!r}',
                    'path': [], 'planning_time_s': 0.0, 'stats': {}})
 
