@@ -195,6 +195,17 @@ def test_a_shim_dying_too_often_fails_the_run_and_the_summary_says_so(tmp_path):
     assert summary['missing'] == summary['planned'] - summary['done'] > 0
 
 
+def _fails_on(seed, fail):
+    """An answer script: ``fail(job)`` (returns an answer or raises) for trials of ``seed``,
+    success for the others; and the seeds of every plan call, in order."""
+    calls = []
+
+    def answer(pool, shim, job):
+        calls.append(job.seed)
+        return fail(job) if job.seed == seed else _success(job)
+    return answer, calls
+
+
 def _csv_rows(path):
     import csv
     return list(csv.DictReader(path.open()))
@@ -206,14 +217,7 @@ def test_internal_errors_are_retried_then_recorded_apart_and_fail_the_run(tmp_pa
     (> 5 %) internal errors the run fails and the summary says why."""
     run = tmp_path / 'run'
     _cache_attack(run)
-    calls = []
-
-    def answer(pool, shim, job):
-        calls.append(job.seed)
-        if job.seed == 0:
-            return PlanAnswer('CRASH', -29, 'worker died', 0.0, 0)
-        return _success(job)
-
+    answer, calls = _fails_on(0, lambda job: PlanAnswer('CRASH', -29, 'worker died', 0.0, 0))
     summary, _ = _run(run, answer, _cfg(planners=('rrtconnect',), baseline=False))
     assert calls.count(0) == 3  # first try + 2 retries
     crashed = [r for r in _records(run) if r['seed'] == 0]
@@ -318,16 +322,12 @@ def test_a_hung_shim_is_restarted_at_its_deadline_and_its_trial_planned_again(tm
 
 def test_failing_plan_calls_are_capped_and_recorded_as_internal_errors(tmp_path):
     """A plan call that always fails on one trial must not loop forever."""
+    def no_response(job):
+        raise CallFailed('service call returned no response')
+
     run = tmp_path / 'run'
     _cache_attack(run)
-    calls = []
-
-    def answer(pool, shim, job):
-        calls.append(job.seed)
-        if job.seed == 2:
-            raise CallFailed('service call returned no response')
-        return _success(job)
-
+    answer, calls = _fails_on(2, no_response)
     summary, _ = _run(run, answer, _cfg(planners=('rrtconnect',), baseline=False))
     assert calls.count(2) == 3
     (bad,) = [r for r in _records(run) if r['seed'] == 2]
