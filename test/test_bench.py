@@ -190,12 +190,13 @@ def test_table1_layout():
     assert 'Scene 1 (table_pick)' in lines[2]
     header, *rows = csv_text.splitlines()
     assert header.startswith('scene_index,scene,planner,method,budget,trials')
-    assert any(r.startswith('1,table_pick,rrtconnect,ours,3,4,4,0,0,N/A,N/A,N/A,1,')
+    assert any(r.startswith('1,table_pick,rrtconnect,ours,3,4,4,0,0,0,N/A,N/A,N/A,1,')
                for r in rows)
 
 
 def _cell(psr, trials=10):
-    return {'psr': psr, 'trials': trials, 'successes': round(psr * trials), 'complete': True}
+    return {'psr': psr, 'trials': trials, 'successes': round(psr * trials), 'complete': True,
+            'internal_errors': 0}
 
 
 def test_table2_minimal_budgets_and_variations():

@@ -124,7 +124,7 @@ def test_collision_world_uses_the_octree(panda, sensed_table):
 @pytest.mark.slow
 def test_sensed_table_pick_plans_builds_a_heatmap_and_takes_a_task_attack(panda, sensed_table):
     from advocc_ros.attack import attack
-    from advocc_ros.evaluation.metrics import evaluate_planner
+    from advocc_ros.evaluation.runner import evaluate_planner
     from advocc_ros.heatmap import HeatmapConfig, build_heatmap
     from advocc_ros.planning import start_configuration
 

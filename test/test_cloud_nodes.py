@@ -196,3 +196,35 @@ def test_point_cloud2_parsing_layouts_and_errors():
     assert cloud_shape_from_msg(_cloud(pts), 0.05, [10] * 3, [11] * 3) is None
     with pytest.raises(SceneError, match='resolution'):
         cloud_shape_from_msg(_cloud(pts), 5.0, [-9] * 3, [9] * 3)
+
+
+def test_a_cloud_before_the_scene_waits_for_the_scenes_base_frame(ros, ros_env):  # noqa: F811
+    """UR5 (base frame ``base_link``): the latched cloud reaches the attacker before the scene;
+    it is kept and checked against the scene's frame, not dropped against a default one."""
+    import threading
+
+    from advocc_msgs.msg import Scene
+    from sensor_msgs.msg import PointCloud2
+
+    from advocc_ros.ros.clouds import CLOUD_TOPIC, cloud_msg
+    from advocc_ros.ros.qos import LATCHED_QOS, SCENE_TOPIC
+
+    node, executor, children = ros
+    attacker = _start('attacker', ros_env)
+    children.append(attacker)
+    lines: list[str] = []
+    reader = threading.Thread(target=lambda: lines.extend(attacker.stdout), daemon=True)
+    reader.start()
+    points = np.array([[0.5, 0.0, 0.3], [0.5, 0.1, 0.3], [0.6, 0.0, 0.4]])
+    node.create_publisher(PointCloud2, CLOUD_TOPIC, LATCHED_QOS).publish(
+        cloud_msg(points, 'base_link'))
+    _spin_until(executor, lambda: any('cloud received before the scene' in line
+                                      for line in lines), [attacker], 60, 'early cloud')
+    msg = Scene(name='ur5_table')
+    msg.header.frame_id = 'base_link'
+    node.create_publisher(Scene, SCENE_TOPIC, LATCHED_QOS).publish(msg)
+    _spin_until(executor, lambda: any('cloud: 3 points' in line for line in lines),
+                [attacker], 30, 'the cloud taken with the scene')
+    assert _stop(attacker) == 0
+    reader.join(10)
+    assert not any('rejected' in line for line in lines), ''.join(lines)

@@ -4,9 +4,9 @@ import numpy as np
 import pytest
 
 from advocc_ros.model.collision import CollisionWorld
-from advocc_ros.evaluation.metrics import (MetricsConfig, TrialRecord, aggregate, densify,
-                                           format_value, joint_deviation, min_clearance,
-                                           min_manipulability, random_directions)
+from advocc_ros.evaluation.metrics import (MetricsConfig, PathInCollision, TrialRecord,
+                                           aggregate, densify, format_value, joint_deviation,
+                                           min_clearance, min_manipulability, random_directions)
 from advocc_ros.model.scene import make_box
 
 Q_READY = np.array([0.0, -0.785, 0.0, -2.356, 0.0, 1.571, 0.785])
@@ -65,13 +65,17 @@ def test_cmr_matches_brute_force_line_search(panda):
     assert abs(got - brute) <= cfg.cmr_resolution_rad + 2.5e-4, (got, brute)
 
 
-def test_cmr_caps_at_range_and_zero_in_collision(panda):
+def test_cmr_caps_at_range_and_refuses_a_colliding_path(panda):
     world = CollisionWorld(panda, [])
     cfg = MetricsConfig(cmr_range_rad=0.05, cmr_limits_as_collision=False)
     assert min_clearance(world, np.array([Q_READY]), cfg) == pytest.approx(0.05)
     hand = panda.ee_pose(Q_READY).translation
     blocked = CollisionWorld(panda, list(make_box('b', hand, (0.1, 0.1, 0.1)).shapes))
-    assert min_clearance(blocked, np.array([Q_READY]), cfg) == 0.0
+    free = Q_READY + np.array([1.0, 0, 0, 0, 0, 0, 0])
+    assert not blocked.collisions_batch(free[None], 1)[0]
+    with pytest.raises(PathInCollision, match='waypoint 1 is in collision') as err:
+        min_clearance(blocked, np.array([free, Q_READY]), cfg)
+    assert err.value.index == 1
 
 
 def test_cmr_joint_limits_count_as_collision(panda):
@@ -108,3 +112,20 @@ def test_aggregate_na_when_nothing_succeeds():
     assert row['smr'] is None and row['cmr'] is None and row['jds'] is None
     assert row['pt'] == 5.0
     assert format_value(row['smr']) == 'N/A'
+
+
+def test_internal_errors_stay_out_of_psr_and_pt_but_are_counted():
+    recs = [TrialRecord(0, 0, True, 'SUCCESS', 1.0, min_manipulability=0.05,
+                        min_clearance_rad=0.02, jds_rad=1.0),
+            TrialRecord(1, 1, False, 'PLANNING_FAILED', 2.0),
+            TrialRecord(2, 2, False, 'INTERNAL_ERROR', 0.0),   # the worker raised
+            TrialRecord(3, 3, False, 'CRASH', 0.0),            # an older shim's dead worker
+            TrialRecord(4, 4, False, '-999', 0.0),             # a code without a name
+            TrialRecord(5, 5, True, 'TIMED_OUT', 5.0)]         # contradicts itself
+    row = aggregate(recs, time_budget_s=5.0)
+    assert row['trials'] == 6 and row['internal_errors'] == 4
+    assert row['psr'] == 0.5  # 1 success of the 2 trials that measured the planner
+    assert row['pt'] == pytest.approx((1.0 + 5.0) / 2)
+    assert row['failures'] == {'goal blocked': 0, 'timed out': 0, 'planning failed': 1}
+    only_errors = aggregate(recs[2:5], time_budget_s=5.0)
+    assert only_errors['psr'] is None and only_errors['pt'] is None

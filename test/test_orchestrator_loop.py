@@ -1,8 +1,9 @@
 """The orchestrator's run loop without a ROS graph: a fake shim pool answers plan requests.
 
-The loop's bookkeeping is under test (records, resume, a dead shim restarted once with its trial
-requeued, crash retries, the summary of an incomplete run); test_orchestrator.py runs the same
-loop through real node processes.
+The loop's bookkeeping is under test (records, resume, a dead or hung shim restarted once with
+its trial requeued, internal errors retried, capped, recorded apart and failing the run, the
+summary of an incomplete run); test_orchestrator.py runs the same loop through real node
+processes.
 """
 
 import json
@@ -13,7 +14,7 @@ import pytest
 
 from advocc_ros.bench import BenchConfig, BenchError, RecordStore
 from advocc_ros.orchestrator.run import Orchestrator
-from advocc_ros.orchestrator.shims import PlanAnswer, Shim, ShimState
+from advocc_ros.orchestrator.shims import CallFailed, PlanAnswer, Shim, ShimState
 
 PLANNERS = ('rrtconnect', 'bkpiece1')
 TRIALS = 3
@@ -78,7 +79,11 @@ class FakePool:
 
     def poll(self, shim):
         job = self.inflight[shim.name]
-        out = self.answer(self, shim, job)
+        try:
+            out = self.answer(self, shim, job)
+        except CallFailed:  # like RosShimPool: a failed call is forgotten
+            del self.inflight[shim.name]
+            raise
         if out is not None:
             del self.inflight[shim.name]
         return out
@@ -190,22 +195,144 @@ def test_a_shim_dying_too_often_fails_the_run_and_the_summary_says_so(tmp_path):
     assert summary['missing'] == summary['planned'] - summary['done'] > 0
 
 
-def test_crashes_are_retried_then_recorded(tmp_path):
-    run = tmp_path / 'run'
-    _cache_attack(run)
+def _fails_on(seed, fail):
+    """An answer script: ``fail(job)`` (returns an answer or raises) for trials of ``seed``,
+    success for the others; and the seeds of every plan call, in order."""
     calls = []
 
     def answer(pool, shim, job):
         calls.append(job.seed)
-        if job.seed == 0:
-            return PlanAnswer('CRASH', -29, 'worker died', 0.0, 0)
-        return _success(job)
+        return fail(job) if job.seed == seed else _success(job)
+    return answer, calls
 
+
+def _csv_rows(path):
+    import csv
+    return list(csv.DictReader(path.open()))
+
+
+def test_internal_errors_are_retried_then_recorded_apart_and_fail_the_run(tmp_path):
+    """A shim that crashes on one trial of three: the trial is planned 3 times, recorded as an
+    internal error, left out of PSR (2/2 = 100 %), counted in the tables, and with 1 of 3
+    (> 5 %) internal errors the run fails and the summary says why."""
+    run = tmp_path / 'run'
+    _cache_attack(run)
+    answer, calls = _fails_on(0, lambda job: PlanAnswer('CRASH', -29, 'worker died', 0.0, 0))
     summary, _ = _run(run, answer, _cfg(planners=('rrtconnect',), baseline=False))
-    assert summary['status'] == 'complete'
     assert calls.count(0) == 3  # first try + 2 retries
     crashed = [r for r in _records(run) if r['seed'] == 0]
     assert [r['status'] for r in crashed] == ['CRASH']
+    assert summary['status'] == 'failed' and summary['internal_errors'] == 1
+    assert 'table_pick/rrtconnect/random/1 (1 of 3)' in summary['reason']
+    (row,) = _csv_rows(run / 'table1.csv')
+    assert (row['trials'], row['internal_errors'], row['successes']) == ('3', '1', '2')
+    assert float(row['psr_percent']) == 100.0
+    (row,) = _csv_rows(run / 'failures.csv')
+    assert row['internal_errors'] == '1' and row['planning_failed'] == '0'
+    assert '100.00!' in (run / 'table1.md').read_text()
+
+
+def test_internal_errors_up_to_five_percent_of_a_cell_pass(tmp_path):
+    run = tmp_path / 'run'
+    _cache_attack(run)
+
+    def answer(pool, shim, job):
+        if job.seed == 3:
+            return PlanAnswer('INTERNAL_ERROR', -105, 'worker: RuntimeError()', 0.0, 0)
+        return _success(job) if job.seed % 2 else _failure(job)
+
+    summary, _ = _run(run, answer, _cfg(planners=('rrtconnect',), baseline=False, trials=20))
+    assert summary['status'] == 'complete' and summary['reason'] is None
+    assert summary['internal_errors'] == 1
+    (row,) = _csv_rows(run / 'table1.csv')
+    assert (row['trials'], row['internal_errors'], row['successes']) == ('20', '1', '9')
+    assert float(row['psr_percent']) == pytest.approx(100 * 9 / 19)
+
+
+def test_a_success_whose_path_collides_is_an_internal_error(tmp_path):
+    """The shim's "successful" path passes through the attack's box: not CMR 0, an error."""
+    run = tmp_path / 'run'
+    _cache_attack(run)
+    from advocc_ros.model import load_robot
+    from advocc_ros.model.collision import CollisionWorld
+    from advocc_ros.model.scene import load_scene
+    from advocc_ros.paths import scene_path
+
+    scene = load_scene(scene_path('table_pick'))
+    world = CollisionWorld(load_robot(scene.robot), scene.shapes)
+    rng = np.random.default_rng(0)
+    robot = world.robot
+    q_bad = next(q for q in rng.uniform(robot.lower, robot.upper, (500, robot.nq))
+                 if world.collisions_batch(q[None], 1)[0])
+
+    def answer(pool, shim, job):
+        if job.seed == 1:
+            path = np.stack([job.q_start, q_bad])
+            return PlanAnswer('SUCCESS', 1, 'solved', 0.1, 2, path)
+        return _success(job)
+
+    summary, _ = _run(run, answer, _cfg(planners=('rrtconnect',), methods=('random',),
+                                        budgets=(1,), trials=3))
+    bad = [r for r in _records(run) if r['seed'] == 1]
+    assert {r['status'] for r in bad} == {'INTERNAL_ERROR'}
+    assert all(not r['success'] and r['min_clearance_rad'] is None for r in bad)
+    assert all('waypoint 1 is in collision' in r['message'] for r in bad)
+    assert summary['internal_errors'] == len(bad) == 2 and summary['status'] == 'failed'
+
+
+def test_a_cell_of_internal_errors_only_has_no_psr_and_the_report_still_renders(tmp_path):
+    run = tmp_path / 'run'
+    _cache_attack(run)
+
+    def answer(pool, shim, job):
+        if job.planner_id == 'bkpiece1':
+            return PlanAnswer('INTERNAL_ERROR', -105, 'worker: RuntimeError()', 0.0, 0)
+        return _success(job)
+
+    summary, _ = _run(run, answer)
+    assert summary['status'] == 'failed' and summary['internal_errors'] == 2 * TRIALS
+    assert 'bkpiece1/none/0 (3 of 3)' in summary['reason']
+    rows = {(r['planner'], r['method']): r for r in _csv_rows(run / 'table1.csv')}
+    assert rows[('bkpiece1', 'random')]['psr_percent'] == 'N/A'
+    assert float(rows[('rrtconnect', 'random')]['psr_percent']) == 100.0
+    assert '| N/A! |' in (run / 'table1.md').read_text()
+    assert (run / 'figures' / 'psr_vs_budget_table_pick.png').stat().st_size > 0
+
+
+def test_a_hung_shim_is_restarted_at_its_deadline_and_its_trial_planned_again(tmp_path):
+    run = tmp_path / 'run'
+    _cache_attack(run)
+    hung = []
+
+    def answer(pool, shim, job):
+        if shim.name == '/fake_0' and (not hung or hung[0] is job):
+            hung[:1] = [job]
+            return None  # never answers
+        return _success(job)
+
+    t0 = time.monotonic()
+    summary, (pool,) = _run(run, answer, _cfg(time_budget_s=0.2, plan_timeout_margin_s=0.5))
+    assert time.monotonic() - t0 >= 0.7  # not before budget + margin
+    assert summary['status'] == 'complete' and summary['restarts'] == {'fake_0': 1}
+    assert pool.restarted == ['/fake_0']
+    records = _records(run)
+    assert len({r['key'] for r in records}) == len(records) == summary['planned']
+    assert all(r['status'] == 'SUCCESS' for r in records)
+
+
+def test_failing_plan_calls_are_capped_and_recorded_as_internal_errors(tmp_path):
+    """A plan call that always fails on one trial must not loop forever."""
+    def no_response(job):
+        raise CallFailed('service call returned no response')
+
+    run = tmp_path / 'run'
+    _cache_attack(run)
+    answer, calls = _fails_on(2, no_response)
+    summary, _ = _run(run, answer, _cfg(planners=('rrtconnect',), baseline=False))
+    assert calls.count(2) == 3
+    (bad,) = [r for r in _records(run) if r['seed'] == 2]
+    assert bad['status'] == 'INTERNAL_ERROR' and 'plan call failed' in bad['message']
+    assert summary['internal_errors'] == 1 and summary['status'] == 'failed'
 
 
 def test_interrupted_run_reports_and_resumes(tmp_path):

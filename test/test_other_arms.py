@@ -8,7 +8,7 @@ import pathlib
 import pytest
 
 from advocc_ros.attack import attack
-from advocc_ros.evaluation.metrics import evaluate_planner
+from advocc_ros.evaluation.runner import evaluate_planner
 from advocc_ros.heatmap import HeatmapConfig, build_heatmap
 from advocc_ros.model.collision import CollisionWorld
 from advocc_ros.model.robot import load_robot

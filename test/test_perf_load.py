@@ -1,5 +1,6 @@
-"""``advocc perf load`` scaled down (2 clients x 20 attacks, 2 x 2 plans): no failed request,
-every latency measured, node memory sampled. The full run is a benchmark, not this test."""
+"""``advocc perf load`` scaled down (2 clients x 20 attacks, 2 x 2 plans): every request
+succeeds (a plan that times out or fails is not served), every latency measured, node memory
+sampled. The full run is a benchmark, not this test."""
 
 
 def test_load_scaled_down(ros_env, monkeypatch):
@@ -7,10 +8,12 @@ def test_load_scaled_down(ros_env, monkeypatch):
 
     monkeypatch.setenv('ROS_DOMAIN_ID', ros_env['ROS_DOMAIN_ID'])
     report = run_load(samples=300, clients=2, requests=20, plan_clients=2, plan_requests=2,
-                      plan_budget=0.5)
+                      plan_budget=2.0)
     attack, plan = report['attack'], report['plan']
     assert attack['requests'] == 40 and attack['failed'] == 0, attack
     assert plan['requests'] == 4 and plan['failed'] == 0, plan
+    assert plan['codes'] == {'1': 4}, plan  # every plan solved: no timeout passes as served
+    assert attack['codes'] == {'1': 40}, attack
     for r in (attack, plan):
         assert 0 < r['latency_ms']['p50'] <= r['latency_ms']['p99']
         assert r['throughput_per_s'] > 0 and r['rss_mb']['samples'] > 0

@@ -1,4 +1,5 @@
-"""planner_shim as a real process: plan, inject a wall on the topic, bad requests, clean exit."""
+"""planner_shim as a real process: plan, inject a wall on the topic, bad requests, an internal
+error, clean exit."""
 
 import json
 import math
@@ -12,6 +13,8 @@ import pytest
 from conftest import REPO
 
 SCENE = REPO / 'config' / 'scenes' / 'table_pick.yaml'
+FAULT_SEED = 77
+"""The shim's planning worker raises on this seed (``ADVOCC_PLANNING_FAULT``)."""
 
 
 @pytest.fixture
@@ -24,7 +27,8 @@ def ros(ros_env, monkeypatch):
     proc = subprocess.Popen(
         [sys.executable, '-m', 'advocc_ros.nodes.planner_shim', '--ros-args',
          '-p', f'scene_file:={SCENE}', '-p', 'watchdog_margin_s:=2.0'],
-        env=ros_env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+        env=dict(ros_env, ADVOCC_PLANNING_FAULT=f'raise:{FAULT_SEED}'), stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT, text=True)
     context = rclpy.Context()
     rclpy.init(context=context, domain_id=int(ros_env['ROS_DOMAIN_ID']))
     node = rclpy.create_node('shim_test_client', context=context)
@@ -157,6 +161,11 @@ def test_planner_shim_end_to_end(ros, table_scene):
         res = _call(node, executor, plan, req, 10)
         assert res.error_code.val == code, res.message
         assert words in res.message, res.message
+    # An exception in the worker is an internal error on the wire, not a planning failure.
+    from advocc_ros.planning import PlanStatus
+    res = _call(node, executor, plan, request(seed=FAULT_SEED), 10)
+    assert res.error_code.val == PlanStatus.INTERNAL_ERROR, res.message
+    assert 'fault injected' in res.message and len(res.trajectory.points) == 0
     # 3b. A bad parameter value at run time is refused with the core's (PlanningConfig) message.
     from rcl_interfaces.msg import Parameter, ParameterType, ParameterValue
     from rcl_interfaces.srv import SetParameters

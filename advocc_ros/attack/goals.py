@@ -22,6 +22,7 @@ import collections
 import hashlib
 import json
 import math
+import threading
 
 import coal
 import numpy as np
@@ -38,6 +39,8 @@ VALIDATION_SAMPLES = 32
 
 _CACHE: collections.OrderedDict[str, 'GoalSamples'] = collections.OrderedDict()
 _CACHE_SIZE = 16
+_CACHE_LOCK = threading.Lock()
+"""Nodes attack from several executor threads; the LRU's reorder and evict must not interleave."""
 
 
 class GoalSamples:
@@ -109,22 +112,28 @@ def _task_key(robot: RobotModel, objects: tuple[SceneObject, ...], goal: GoalReg
 def goal_samples(robot: RobotModel, objects: tuple[SceneObject, ...], goal: GoalRegion,
                  n: int = VALIDATION_SAMPLES, world: CollisionWorld | None = None
                  ) -> GoalSamples:
-    """The task's fixed-seed goal samples (cached per task; ~60 ms the first time)."""
+    """The task's fixed-seed goal samples (cached per task; ~60 ms the first time, computed
+    outside the lock: two threads may both compute a new task, and the first one is kept)."""
     key = _task_key(robot, tuple(objects), goal, n)
-    if key in _CACHE:
-        _CACHE.move_to_end(key)
-        return _CACHE[key]
+    with _CACHE_LOCK:
+        if key in _CACHE:
+            _CACHE.move_to_end(key)
+            return _CACHE[key]
     world = world or CollisionWorld(robot, [sh for o in objects for sh in o.shapes])
     Q = goal_set(robot, world.collisions_batch, world.in_collision, goal, n, VALIDATION_SEED)
-    _CACHE[key] = GoalSamples(world, Q)
-    while len(_CACHE) > _CACHE_SIZE:
-        _CACHE.popitem(last=False)
-    return _CACHE[key]
+    samples = GoalSamples(world, Q)
+    with _CACHE_LOCK:
+        samples = _CACHE.setdefault(key, samples)
+        _CACHE.move_to_end(key)
+        while len(_CACHE) > _CACHE_SIZE:
+            _CACHE.popitem(last=False)
+    return samples
 
 
 def clear_cache() -> None:
     """Forget cached goal samples (benchmarks of the cold path call this)."""
-    _CACHE.clear()
+    with _CACHE_LOCK:
+        _CACHE.clear()
 
 
 class GoalGuard:

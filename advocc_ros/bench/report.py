@@ -10,6 +10,7 @@ from typing import Any
 from advocc_ros.attack.obstacles import obstacles_meta
 from advocc_ros.bench.protocol import BASELINE, BenchConfig, variation_scenes
 from advocc_ros.bench.records import RecordStore
+from advocc_ros.evaluation.outcomes import MAX_INTERNAL_ERROR_FRACTION, too_many_internal_errors
 from advocc_ros.bench.tables import (baseline_table, cell_rows, failure_table, table1, table2,
                                      table4)
 from advocc_ros.fileio import atomic_write_text
@@ -31,32 +32,65 @@ def _attack_metas(run_dir: pathlib.Path) -> list[dict]:
     return metas
 
 
+def internal_error_summary(rows: dict[tuple, dict]) -> dict[str, Any]:
+    """The run summary's ``internal_errors`` (count) and ``reason`` (None, or why the run
+    failed: cells with more than ``MAX_INTERNAL_ERROR_FRACTION`` internal errors)."""
+    over = [f'{"/".join(map(str, cell))} ({row["internal_errors"]} of {row["trials"]})'
+            for cell, row in sorted(rows.items(), key=lambda item: tuple(map(str, item[0])))
+            if too_many_internal_errors(row)]
+    reason = None
+    if over:
+        reason = (f'more than {100 * MAX_INTERNAL_ERROR_FRACTION:g} % of the trials were '
+                  f'internal errors in {len(over)} cells (scene/planner/method/budget): '
+                  + ', '.join(over))
+    return {'internal_errors': sum(row['internal_errors'] for row in rows.values()),
+            'reason': reason}
+
+
+class _Files:
+    """The report's files, written atomically into the run folder; ``out`` maps name -> path."""
+
+    def __init__(self, run_dir: pathlib.Path):
+        self.run_dir = run_dir
+        self.out: dict[str, pathlib.Path] = {}
+
+    def put(self, name: str, text: str) -> None:
+        atomic_write_text(self.run_dir / name, text)
+        self.out[name] = self.run_dir / name
+
+    def path(self, name: str) -> pathlib.Path:
+        """Where a figure goes (it writes itself) and note it."""
+        self.out[name] = self.run_dir / name
+        return self.out[name]
+
+
 def write_report(run_dir: str | pathlib.Path, cfg: BenchConfig, summary: dict | None = None
                  ) -> dict[str, pathlib.Path]:
     """Tables I, II, IV (+ baseline) as Markdown and CSV, figures, summary; all atomic."""
-    import advocc_ros.bench.figures as figures
-    from advocc_ros.attack import load_obstacles
+    run_dir = pathlib.Path(run_dir)
+    rows = cell_rows(RecordStore(run_dir / 'records.jsonl').records.values(), cfg)
+    files = _Files(run_dir)
+    heatmaps = _load_heatmaps(run_dir, cfg)
+    metas = _attack_metas(run_dir)
+    _write_tables(files, rows, cfg, metas, {s: h.meta for s, h in heatmaps.items()},
+                  (summary or {}).get('notes', []))
+    for i, scene in enumerate(cfg.scenes):
+        _write_figures(files, rows, cfg, i, scene, heatmaps.get(scene), metas)
+    if summary is not None:
+        files.put('summary.json', json.dumps(summary, indent=2) + '\n')
+    return files.out
+
+
+def _load_heatmaps(run_dir: pathlib.Path, cfg: BenchConfig) -> dict[str, Any]:
+    """Each scene's heatmap: the one the run used (config.json) or built into the run folder."""
     from advocc_ros.heatmap import HeatmapError, load_heatmap
     from advocc_ros.paths import scene_path
-    from advocc_ros.model.scene import SceneError, load_scene
 
-    run_dir = pathlib.Path(run_dir)
-    store = RecordStore(run_dir / 'records.jsonl')
-    rows = cell_rows(store.records.values(), cfg)
-    out: dict[str, pathlib.Path] = {}
-
-    def put(name: str, text: str) -> None:
-        atomic_write_text(run_dir / name, text)
-        out[name] = run_dir / name
-
-    md1, csv1 = table1(rows, cfg)
-    md2, csv2 = table2(rows, cfg, variation_scenes(cfg, run_dir))
-    heatmap_meta: dict[str, dict] = {}
-    heatmaps: dict[str, Any] = {}
     try:
         sources = json.loads((run_dir / 'config.json').read_text()).get('heatmaps', {})
     except (OSError, ValueError):
         sources = {}
+    heatmaps: dict[str, Any] = {}
     for scene in cfg.scenes:
         built = run_dir / 'heatmaps' / f'{pathlib.Path(scene_path(scene)).stem}.npz'
         files = sources.get(scene) or ([str(built)] if built.exists() else None)
@@ -64,76 +98,105 @@ def write_report(run_dir: str | pathlib.Path, cfg: BenchConfig, summary: dict | 
             continue
         try:
             heatmaps[scene] = load_heatmap(files[0])
-            heatmap_meta[scene] = heatmaps[scene].meta
         except HeatmapError as exc:
             log.warning('heatmap of %s: %s', scene, exc)
-    metas = _attack_metas(run_dir)
-    md4, csv4 = table4(metas, heatmap_meta)
-    notes = (summary or {}).get('notes', [])
+    return heatmaps
+
+
+def _write_tables(files: _Files, rows: dict[tuple, dict], cfg: BenchConfig, metas: list[dict],
+                  heatmap_meta: dict[str, dict], notes: list[str]) -> None:
+    """Tables I (+ baseline), II, IV and the failure table, Markdown and CSV."""
+    from advocc_ros.paths import scene_path
+
+    md1, csv1 = table1(rows, cfg)
     head = (f'Time budget {cfg.time_budget_s:g} s, {cfg.trials} trials per cell planned '
-            f'(`*`: fewer finished). PSR in %, SMR and CMR x10^-2, JDS in rad, PT in s.\n')
+            '(`*`: fewer finished; `!`: some were internal errors, left out of PSR and counted '
+            'in failures.md). PSR in %, SMR and CMR x10^-2, JDS in rad, PT in s.\n')
     base = baseline_table(rows, cfg)
     base = f'\n## Unattacked baseline (budget 0)\n\n{base}' if base.count('\n') > 2 else ''
-    put('table1.md', f'# Table I: attack performance\n\n{head}\n{md1}{base}'
-        + ''.join(f'\n- {n}' for n in notes) + ('\n' if notes else ''))
-    put('table1.csv', csv1)
-    put('table2.md', '# Table II: minimum budget to reach PSR <= threshold\n\n'
-        'Smallest measured budget (0 = unattacked) whose PSR is at or below the threshold; '
-        '"> M" when the largest measured budget M does not reach it. With variations, the mean '
-        'over the scene and its variations ("Tasks") that reach it; "(k/n)": only k of n do.'
-        '\n\n' + md2)
-    put('table2.csv', csv2)
-    put('table4.md', '# Table IV: offline and online time per method (s)\n\n'
-        'Offline: heatmap build (Ours and Task search its H > 0 voxels). Online: core compute '
-        'time of one attack, mean over the attacks generated in this run.\n\n' + md4)
-    put('table4.csv', csv4)
+    files.put('table1.md', f'# Table I: attack performance\n\n{head}\n{md1}{base}'
+              + ''.join(f'\n- {n}' for n in notes) + ('\n' if notes else ''))
+    files.put('table1.csv', csv1)
+    md2, csv2 = table2(rows, cfg, variation_scenes(cfg, files.run_dir))
+    files.put('table2.md', '# Table II: minimum budget to reach PSR <= threshold\n\n'
+              'Smallest measured budget (0 = unattacked) whose PSR is at or below the threshold; '
+              '"> M" when the largest measured budget M does not reach it. With variations, the '
+              'mean over the scene and its variations ("Tasks") that reach it; "(k/n)": only k '
+              'of n do.\n\n' + md2)
+    files.put('table2.csv', csv2)
+    md4, csv4 = table4(metas, heatmap_meta)
+    files.put('table4.md', '# Table IV: offline and online time per method (s)\n\n'
+              'Offline: heatmap build (Ours and Task search its H > 0 voxels). Online: core '
+              'compute time of one attack, mean over the attacks generated in this run.\n\n'
+              + md4)
+    files.put('table4.csv', csv4)
     stems = {scene: pathlib.Path(scene_path(scene)).stem for scene in cfg.scenes}
     md_f, csv_f = failure_table(rows, metas, cfg, stems)
-    put('failures.md', '# How the trials failed\n\n'
-        'Per cell: trials that failed because every goal pose was blocked (GOAL_IN_COLLISION or '
-        'no IK solution), ran out of time, or failed otherwise; "Goal valid": of the task\'s '
-        'fixed goal samples valid without the boxes, the mean fraction still valid with them '
-        f'(goal policy {cfg.goal_policy}).\n\n' + md_f)
-    put('failures.csv', csv_f)
+    files.put('failures.md', '# How the trials failed\n\n'
+              'Per cell: trials that failed because every goal pose was blocked '
+              '(GOAL_IN_COLLISION or no IK solution), ran out of time, or failed otherwise, and '
+              'the internal errors (the planner raised or died, or returned a colliding path: '
+              'not counted in PSR); "Goal valid": of the task\'s fixed goal samples valid '
+              'without the boxes, the mean fraction still valid with them (goal policy '
+              f'{cfg.goal_policy}).\n\n' + md_f)
+    files.put('failures.csv', csv_f)
 
-    # Figures: PSR vs budget per scene (one panel per planner); heatmap slice + obstacles.
-    for i, scene in enumerate(cfg.scenes):
-        curves = {}
-        for planner in cfg.planners:
-            base = rows.get((scene, planner, BASELINE, 0))
-            for method in cfg.methods:
-                pts = {b: rows[(scene, planner, method, b)]['psr'] for b in cfg.all_budgets
-                       if (scene, planner, method, b) in rows}
-                if pts and base is not None:
-                    pts[0] = base['psr']
-                if pts:
-                    curves[(planner, method)] = pts
-        stem = pathlib.Path(scene_path(scene)).stem
-        if curves:
-            name = f'figures/psr_vs_budget_{stem}.png'
-            figures.plot_psr_vs_budget(curves, run_dir / name,
-                                       title=f'Scene {i + 1} ({stem}): PSR vs budget')
-            out[name] = run_dir / name
-        if scene in heatmaps:
-            attack_files = sorted((run_dir / 'attacks' / stem).glob('*.yaml'))
-            pick = None
-            for method in ['task', 'ours'] + list(cfg.methods):
-                cands = [(m['budget'], m['path']) for m in metas
-                         if m['path'] in attack_files and m.get('method') == method]
-                if cands:
-                    pick = max(cands, key=lambda c: c[0])[1]
-                    break
-            try:
-                scene_obj = load_scene(scene_path(scene))
-                obstacles = load_obstacles(pick)[0] if pick else ()
-            except SceneError as exc:
-                log.warning('figure of %s: %s', scene, exc)
-                continue
-            at = list(obstacles[0].shapes[0].pose.position_m) if obstacles else None
-            name = f'figures/heatmap_{stem}.png'
-            figures.plot_heatmap_slices(heatmaps[scene], run_dir / name, scene=scene_obj,
-                                        obstacles=obstacles, at_m=at)
-            out[name] = run_dir / name
-    if summary is not None:
-        put('summary.json', json.dumps(summary, indent=2) + '\n')
-    return out
+
+def _psr_curves(rows: dict[tuple, dict], cfg: BenchConfig, scene: str
+                ) -> dict[tuple[str, str], dict[int, float | None]]:
+    """PSR per budget (0 = unattacked) per (planner, method) of one scene; a cell whose PSR
+    is undefined (every trial an internal error) is no point."""
+    def psr(cell: tuple) -> float | None:
+        return rows[cell]['psr'] if cell in rows else None
+
+    curves = {}
+    for planner in cfg.planners:
+        base = psr((scene, planner, BASELINE, 0))
+        for method in cfg.methods:
+            pts = {b: psr((scene, planner, method, b)) for b in cfg.all_budgets}
+            pts = {b: value for b, value in pts.items() if value is not None}
+            if pts and base is not None:
+                pts[0] = base
+            if pts:
+                curves[(planner, method)] = pts
+    return curves
+
+
+def _figure_attack(run_dir: pathlib.Path, stem: str, metas: list[dict], cfg: BenchConfig
+                   ) -> pathlib.Path | None:
+    """The attack file the heatmap figure shows: the largest budget of the first method
+    (Task, Ours, then the run's) that has one."""
+    attack_files = sorted((run_dir / 'attacks' / stem).glob('*.yaml'))
+    for method in ['task', 'ours'] + list(cfg.methods):
+        cands = [(m['budget'], m['path']) for m in metas
+                 if m['path'] in attack_files and m.get('method') == method]
+        if cands:
+            return max(cands, key=lambda c: c[0])[1]
+    return None
+
+
+def _write_figures(files: _Files, rows: dict[tuple, dict], cfg: BenchConfig, index: int,
+                   scene: str, heatmap, metas: list[dict]) -> None:
+    """PSR vs budget of one scene (one panel per planner); its heatmap slice with the boxes."""
+    import advocc_ros.bench.figures as figures
+    from advocc_ros.attack import load_obstacles
+    from advocc_ros.paths import scene_path
+    from advocc_ros.model.scene import SceneError, load_scene
+
+    stem = pathlib.Path(scene_path(scene)).stem
+    curves = _psr_curves(rows, cfg, scene)
+    if curves:
+        figures.plot_psr_vs_budget(curves, files.path(f'figures/psr_vs_budget_{stem}.png'),
+                                   title=f'Scene {index + 1} ({stem}): PSR vs budget')
+    if heatmap is None:
+        return
+    pick = _figure_attack(files.run_dir, stem, metas, cfg)
+    try:
+        scene_obj = load_scene(scene_path(scene))
+        obstacles = load_obstacles(pick)[0] if pick else ()
+    except SceneError as exc:
+        log.warning('figure of %s: %s', scene, exc)
+        return
+    at = list(obstacles[0].shapes[0].pose.position_m) if obstacles else None
+    figures.plot_heatmap_slices(heatmap, files.path(f'figures/heatmap_{stem}.png'),
+                                scene=scene_obj, obstacles=obstacles, at_m=at)

@@ -10,7 +10,9 @@ from typing import Iterable
 from advocc_ros.attack.methods import KNOWN_METHODS
 from advocc_ros.bench.protocol import (BASELINE, METHOD_LABELS, PLANNER_LABELS, THRESHOLDS,
                                        BenchConfig, scene_label)
-from advocc_ros.evaluation.metrics import FAILURE_MODES, aggregate, minimal_budgets
+from advocc_ros.evaluation.budgets import minimal_budgets
+from advocc_ros.evaluation.metrics import aggregate
+from advocc_ros.evaluation.outcomes import FAILURE_MODES
 
 
 # --------------------------------------------------------------------------------------------
@@ -36,10 +38,10 @@ def _fmt(value: float | None, digits: int) -> str:
 
 
 def _psr_cell(row: dict | None) -> str:
-    if row is None or row['psr'] is None:
+    if row is None:
         return '--'
-    text = f'{100 * row["psr"]:.2f}'
-    return text if row['complete'] else f'{text}*'
+    text = 'N/A' if row['psr'] is None else f'{100 * row["psr"]:.2f}'
+    return text + ('' if row['complete'] else '*') + ('!' if row['internal_errors'] else '')
 
 
 # Table I metric: (row key, digits, better is lower)
@@ -52,7 +54,7 @@ def table1(rows: dict[tuple, dict], cfg: BenchConfig) -> tuple[str, str]:
 
     Bold marks the strongest attack per column like the paper (lowest PSR/SMR/CMR, highest
     JDS/PT); ``N/A``: undefined because PSR = 0; ``--``: not run; ``*``: fewer trials than
-    planned.
+    planned; ``!``: some trials were internal errors, left out of PSR.
     """
     budgets = list(cfg.budgets)
     head = ['Scene', 'Planner', 'Method'] + [f'{m.upper()}@{b}' for b in budgets
@@ -91,7 +93,8 @@ def table1(rows: dict[tuple, dict], cfg: BenchConfig) -> tuple[str, str]:
 
 def baseline_table(rows: dict[tuple, dict], cfg: BenchConfig) -> str:
     """The unattacked scenes (budget 0), Markdown."""
-    md = ['| Scene | Planner | Trials | PSR | SMR | CMR | JDS | PT |', '|' + '---|' * 8]
+    md = ['| Scene | Planner | Trials | Internal errors | PSR | SMR | CMR | JDS | PT |',
+          '|' + '---|' * 9]
     for scene in cfg.scenes:
         for planner in cfg.planners:
             row = rows.get((scene, planner, BASELINE, 0))
@@ -99,7 +102,8 @@ def baseline_table(rows: dict[tuple, dict], cfg: BenchConfig) -> str:
                 continue
             md.append('| ' + ' | '.join([
                 scene_label(cfg, scene), PLANNER_LABELS.get(planner, planner),
-                str(row['trials']), _psr_cell(row), _fmt(row['smr'], 3), _fmt(row['cmr'], 3),
+                str(row['trials']), str(row['internal_errors']), _psr_cell(row),
+                _fmt(row['smr'], 3), _fmt(row['cmr'], 3),
                 _fmt(row['jds'], 3), _fmt(row['pt'], 3)]) + ' |')
     return '\n'.join(md) + '\n'
 
@@ -108,14 +112,14 @@ def _rows_csv(rows: dict[tuple, dict], cfg: BenchConfig) -> str:
     out = io.StringIO()
     writer = csv.writer(out, lineterminator='\n')
     writer.writerow(['scene_index', 'scene', 'planner', 'method', 'budget', 'trials',
-                     'expected', 'successes', 'psr_percent', 'smr_x1e-2', 'cmr_x1e-2', 'jds_rad',
-                     'pt_s', 'time_budget_s'])
+                     'expected', 'successes', 'internal_errors', 'psr_percent', 'smr_x1e-2',
+                     'cmr_x1e-2', 'jds_rad', 'pt_s', 'time_budget_s'])
     order = {s: i for i, s in enumerate(cfg.scenes)}
     for cell in sorted(rows, key=lambda c: (order.get(c[0], 99), c[1], c[2], c[3])):
         row = rows[cell]
         writer.writerow([order.get(cell[0], -1) + 1, *cell, row['trials'], row['expected'],
-                         row['successes'], _csv_num(None if row['psr'] is None
-                                                    else 100 * row['psr']),
+                         row['successes'], row['internal_errors'],
+                         _csv_num(None if row['psr'] is None else 100 * row['psr']),
                          *(_csv_num(row[k]) for k in ('smr', 'cmr', 'jds', 'pt')),
                          row['time_budget_s']])
     return out.getvalue()
@@ -189,8 +193,9 @@ def table2(rows: dict[tuple, dict], cfg: BenchConfig,
 
 def failure_table(rows: dict[tuple, dict], attacks: list[dict], cfg: BenchConfig,
                   stems: dict[str, str]) -> tuple[str, str]:
-    """How the trials failed (Markdown, CSV): per cell, PSR, the failure-mode counts and the
-    attacks' mean ``goal_valid_fraction`` (goal samples still valid with the boxes).
+    """How the trials failed (Markdown, CSV): per cell, PSR, the failure-mode counts, the
+    internal errors (not failures: left out of PSR) and the attacks' mean
+    ``goal_valid_fraction`` (goal samples still valid with the boxes).
 
     ``attacks``: attack-file metadata with its ``path`` (``attacks/<scene stem>/...``);
     ``stems``: scene -> its file stem.
@@ -202,12 +207,14 @@ def failure_table(rows: dict[tuple, dict], attacks: list[dict], cfg: BenchConfig
             key = (pathlib.Path(meta['path']).parent.name, meta.get('method'),
                    int(meta.get('budget') or 0))
             gvf.setdefault(key, []).append(float(value))
-    head = ['Scene', 'Planner', 'Method', 'M', 'Trials', 'PSR', *FAILURE_MODES, 'Goal valid']
+    head = ['Scene', 'Planner', 'Method', 'M', 'Trials', 'PSR', *FAILURE_MODES,
+            'internal errors', 'Goal valid']
     md = ['| ' + ' | '.join(head) + ' |', '|' + '---|' * len(head)]
     out = io.StringIO()
     writer = csv.writer(out, lineterminator='\n')
     writer.writerow(['scene', 'planner', 'method', 'budget', 'trials', 'psr_percent',
-                     *[m.replace(' ', '_') for m in FAILURE_MODES], 'goal_valid_fraction'])
+                     *[m.replace(' ', '_') for m in FAILURE_MODES], 'internal_errors',
+                     'goal_valid_fraction'])
     for scene in cfg.scenes:
         for planner in cfg.planners:
             for method in [BASELINE, *cfg.methods]:
@@ -222,10 +229,12 @@ def failure_table(rows: dict[tuple, dict], attacks: list[dict], cfg: BenchConfig
                         scene_label(cfg, scene), PLANNER_LABELS.get(planner, planner),
                         METHOD_LABELS.get(method, method), str(budget), str(row['trials']),
                         _psr_cell(row), *[str(fails.get(m, 0)) for m in FAILURE_MODES],
+                        str(row['internal_errors']),
                         '1.00' if method == BASELINE else _fmt(mean, 2)]) + ' |')
                     writer.writerow([scene, planner, method, budget, row['trials'],
                                      _csv_num(None if row['psr'] is None else 100 * row['psr']),
                                      *[fails.get(m, 0) for m in FAILURE_MODES],
+                                     row['internal_errors'],
                                      _csv_num(1.0 if method == BASELINE else mean)])
     return '\n'.join(md) + '\n', out.getvalue()
 

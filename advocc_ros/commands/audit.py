@@ -112,11 +112,16 @@ def audit_heatmap(scene, out: pathlib.Path, heatmap_file: str | None, workers: i
 def run_audit_to(scene, heatmap, cfg, out: pathlib.Path, log=print) -> dict:
     """Run the audit with a progress line per evaluation on stderr and write its files."""
     from advocc_ros.evaluation.audit import planner_label, run_audit, write_audit
+    from advocc_ros.evaluation.outcomes import internal_error_warning
 
     def progress(m: int, planner: str, row: dict) -> None:
-        print(f'  m={m} {planner_label(planner):<11} PSR {100 * row["psr"]:3.0f} % '
-              f'({row["successes"]}/{row["trials"]}, PT {row["pt"]:.2f} s)', file=sys.stderr,
-              flush=True)
+        psr = 'N/A' if row['psr'] is None else f'{100 * row["psr"]:3.0f} %'
+        pt = 'N/A' if row['pt'] is None else f'{row["pt"]:.2f} s'
+        print(f'  m={m} {planner_label(planner):<11} PSR {psr} '
+              f'({row["successes"]}/{row["trials"]}, PT {pt})', file=sys.stderr, flush=True)
+        warning = internal_error_warning(row, f'm={m} {planner}')
+        if warning:
+            print(warning, file=sys.stderr, flush=True)
 
     audit = run_audit(scene, heatmap, cfg, progress=progress)
     paths = write_audit(audit, out, heatmap, scene)

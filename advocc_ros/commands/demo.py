@@ -16,6 +16,7 @@ import argparse
 import json
 import os
 import pathlib
+import sys
 import time
 
 from advocc_ros.heatmap import HeatmapConfig, build_heatmap, load_heatmap, save_heatmap
@@ -123,6 +124,9 @@ def run(args) -> int:
           f'{summary["wall_s"]:.0f} s); tables and figures in {run_dir}')
     for note in summary['notes']:
         print(f'note: {note}')
+    if summary['internal_errors']:
+        print(f'warning: {summary["internal_errors"]} trials were internal errors (left out of '
+              f'PSR){": " + summary["reason"] if summary["reason"] else ""}', file=sys.stderr)
     print()
     print((run_dir / 'table1.md').read_text())
     _stage(f'the answer (stage 2; report in {out / "audit" / "audit.md"})')

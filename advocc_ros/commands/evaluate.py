@@ -1,7 +1,8 @@
 """``advocc evaluate``: run a planner N times on a scene (optionally attacked) and report metrics.
 
-Prints the paper's row (PSR, SMR x10^-2, CMR x10^-2, JDS, PT) or, with ``--json``, a JSON object
-with the row and every trial's record. Progress goes to stderr.
+Prints the paper's row (PSR, SMR x10^-2, CMR x10^-2, JDS, PT) and the internal errors (left out
+of PSR, with a warning on stderr) or, with ``--json``, a JSON object with the row and every
+trial's record. Progress goes to stderr.
 """
 
 from __future__ import annotations
@@ -55,7 +56,9 @@ def load_task(args, obstacles: str | None):
 def run(args: argparse.Namespace) -> int:
     import dataclasses
 
-    from advocc_ros.evaluation.metrics import evaluate_planner, format_value
+    from advocc_ros.evaluation.metrics import format_value
+    from advocc_ros.evaluation.outcomes import INTERNAL_ERROR, internal_error_warning, outcome
+    from advocc_ros.evaluation.runner import evaluate_planner
     from advocc_ros.planning import PlanningConfig, planner_class_name
 
     from advocc_ros.limits import MAX_TRIALS
@@ -72,13 +75,14 @@ def run(args: argparse.Namespace) -> int:
 
     from advocc_ros.progress import progress_bar
     bar = progress_bar(args.trials, f'{scene.name} {args.planner}', 'plan', file=sys.stderr)
-    counts = [0, 0]  # successes, trials
+    counts = [0, 0]  # successes, trials that are not internal errors
 
     def progress(record) -> None:
         counts[0] += record.success
-        counts[1] += 1
+        counts[1] += outcome(record.status) != INTERNAL_ERROR
         bar.update(1)
-        bar.set_postfix(psr=f'{counts[0] / counts[1]:.2f}')
+        if counts[1]:
+            bar.set_postfix(psr=f'{counts[0] / counts[1]:.2f}')
 
     try:
         result = evaluate_planner(scene, args.planner, args.trials, args.time, args.seed,
@@ -87,12 +91,17 @@ def run(args: argparse.Namespace) -> int:
         bar.close()
     result['obstacles'] = args.obstacles
     result['objects'] = len(scene.objects)
+    warning = internal_error_warning(result)
+    if warning:
+        print(warning, file=sys.stderr)
     if args.json:
         print(json.dumps(result, indent=1))
         return 0
     w = max(14, len(scene.name) + 2)
-    print(f'{"scene":<{w}}{"planner":<12}{"PSR":>7}{"SMR":>8}{"CMR":>8}{"JDS":>8}{"PT":>8}')
+    print(f'{"scene":<{w}}{"planner":<12}{"PSR":>7}{"SMR":>8}{"CMR":>8}{"JDS":>8}{"PT":>8}'
+          f'{"errors":>8}')
     print(f'{scene.name:<{w}}{args.planner:<12}{format_value(result["psr"]):>7}'
           f'{format_value(result["smr"]):>8}{format_value(result["cmr"]):>8}'
-          f'{format_value(result["jds"]):>8}{format_value(result["pt"]):>8}')
+          f'{format_value(result["jds"]):>8}{format_value(result["pt"]):>8}'
+          f'{result["internal_errors"]:>8}')
     return 0

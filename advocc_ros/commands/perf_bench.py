@@ -52,7 +52,8 @@ def _perf_bench(args) -> int:
         cfg = BenchConfig.from_data(dict(base, shims=n), f'profile {args.profile}, {n} shims')
         summary = Orchestrator(cfg, run_dir).run()
         runs[str(n)] = {key: summary.get(key) for key in
-                        ('status', 'trials_run', 'trial_phase_s', 'trials_per_s', 'wall_s')}
+                        ('status', 'reason', 'internal_errors', 'trials_run', 'trial_phase_s',
+                         'trials_per_s', 'wall_s')}
     report = {'benchmark': 'bench throughput', 'profile': args.profile,
               'time_budget_s': base.get('time_budget_s'), 'runs': runs, 'out': str(out),
               'machine': machine()}

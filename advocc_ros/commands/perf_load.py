@@ -71,7 +71,7 @@ def _client_main(kind: str, service: str, scene_name: str, n: int, budget: float
         req.start_state = JointState(name=list(scene.start),
                                      position=[float(v) for v in scene.start.values()])
         req.goal_region = goal_region_to_msg(scene.goal, scene.frame)
-        ok = (ErrorCodes.SUCCESS, ErrorCodes.PLANNING_FAILED, ErrorCodes.TIMED_OUT)
+        ok = (ErrorCodes.SUCCESS,)  # the scene is easy: a timeout under load is a finding
     with ServiceClient(f'load_{kind}_{seed}') as client:
         client.client(srv, service, 120.0)
         print('ready', flush=True)

@@ -1,17 +1,20 @@
-"""Metrics of planned trajectories (PSR, SMR, CMR, JDS, PT), evaluation drivers, the audit (how
-few boxes make a planner fail one task), speed figures. No ROS.
+"""Metrics of planned trajectories (PSR, SMR, CMR, JDS, PT), how trials ended, evaluation
+drivers, the audit (how few boxes make a planner fail one task), speed figures. No ROS.
 """
 
-from advocc_ros.evaluation.metrics import (FAILURE_MODES, THRESHOLDS, MetricsConfig, TrialRecord,
-                                           aggregate, densify, evaluate_planner, failure_mode,
-                                           format_value, joint_deviation, min_clearance,
-                                           min_manipulability, minimal_budgets,
-                                           random_directions, trial_metrics)
+from advocc_ros.evaluation.budgets import THRESHOLDS, minimal_budgets
+from advocc_ros.evaluation.metrics import (MetricsConfig, PathInCollision, TrialRecord,
+                                           aggregate, densify, format_value, joint_deviation,
+                                           min_clearance, min_manipulability, random_directions,
+                                           trial_metrics)
+from advocc_ros.evaluation.outcomes import FAILURE_MODES, outcome, record_outcome
+from advocc_ros.evaluation.runner import evaluate_planner
 from advocc_ros.evaluation.perf import benchmark_planning, machine
 from advocc_ros.evaluation.audit import AuditConfig, run_audit, write_audit
 
 __all__ = [
-    'AuditConfig', 'FAILURE_MODES', 'MetricsConfig', 'THRESHOLDS', 'TrialRecord', 'aggregate',
-    'benchmark_planning', 'densify', 'evaluate_planner', 'failure_mode', 'format_value',
-    'joint_deviation', 'machine', 'min_clearance', 'min_manipulability', 'minimal_budgets',
-    'random_directions', 'run_audit', 'trial_metrics', 'write_audit']
+    'AuditConfig', 'FAILURE_MODES', 'MetricsConfig', 'PathInCollision', 'THRESHOLDS',
+    'TrialRecord', 'aggregate', 'benchmark_planning', 'densify', 'evaluate_planner',
+    'format_value', 'joint_deviation', 'machine', 'min_clearance', 'min_manipulability',
+    'minimal_budgets', 'outcome', 'random_directions', 'record_outcome', 'run_audit',
+    'trial_metrics', 'write_audit']

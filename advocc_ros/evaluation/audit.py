@@ -16,7 +16,7 @@ import pathlib
 import time
 from typing import Any, Callable
 
-from advocc_ros.evaluation.metrics import minimal_budgets
+from advocc_ros.evaluation.budgets import minimal_budgets
 
 log = logging.getLogger(__name__)
 
@@ -70,7 +70,8 @@ def planner_label(planner_id: str) -> str:
 
 
 def _row(result: dict) -> dict:
-    keys = ('psr', 'successes', 'trials', 'pt', 'smr', 'cmr', 'jds', 'failures')
+    keys = ('psr', 'successes', 'trials', 'internal_errors', 'pt', 'smr', 'cmr', 'jds',
+            'failures')
     return {k: result[k] for k in keys}
 
 
@@ -88,7 +89,7 @@ def run_audit(scene, heatmap, cfg: AuditConfig = AuditConfig(),
     from advocc_ros.attack import AttackConfig, attack
     from advocc_ros.attack.goals import goal_samples
     from advocc_ros.attack.methods import REGISTRY
-    from advocc_ros.evaluation.metrics import evaluate_planner
+    from advocc_ros.evaluation.runner import evaluate_planner
     from advocc_ros.evaluation.perf import machine
     from advocc_ros.model import load_robot, start_configuration
 
@@ -166,8 +167,9 @@ def _boxes(m: int | None) -> str:
     return f'{m} box' if m == 1 else f'{m} boxes'
 
 
-def _failures(failures: dict) -> str:
-    text = ', '.join(f'{n} {mode}' for mode, n in failures.items() if n)
+def _failures(row: dict) -> str:
+    counts = dict(row['failures'], **{'internal errors': row.get('internal_errors', 0)})
+    text = ', '.join(f'{n} {mode}' for mode, n in counts.items() if n)
     return text or '-'
 
 
@@ -183,14 +185,14 @@ def audit_answer(audit: dict) -> str:
         label = planner_label(planner)
         m = fail[planner]
         if m is None:
-            low = min(range(len(curve)), key=lambda i: curve[i])
+            low = min(range(len(curve)), key=lambda i: (curve[i] is None, curve[i]))
             lines.append(f'- {label} does not fail (PSR > 20 %) with up to '
                          f'{_boxes(evaluated)}: lowest PSR {_pct(curve[low])} at m = {low} '
                          f'(unattacked {_pct(curve[0])}).')
             continue
         row = audit['budgets'][m]['planners'][planner]
         text = (f'- {label} fails (PSR <= 20 %) with {_boxes(m)}: PSR {_pct(curve[0])} -> '
-                f'{_pct(curve[m])} ({_failures(row["failures"])})')
+                f'{_pct(curve[m])} ({_failures(row)})')
         if zero[planner] is not None and zero[planner] != m:
             text += f'; PSR 0 % with {_boxes(zero[planner])}'
         lines.append(text + '.')
@@ -213,7 +215,7 @@ def budget_table(audit: dict) -> str:
         cells = [str(b['m']), _pct(b['goal_valid_fraction'])]
         for p in planners:
             row = b['planners'][p]
-            cells += [_pct(row['psr']), _failures(row['failures'])]
+            cells += [_pct(row['psr']), _failures(row)]
         lines.append('| ' + ' | '.join(cells) + ' |')
     return '\n'.join(lines)
 

@@ -19,9 +19,13 @@ Per trial (``TrialRecord``), on a successful trajectory ``path`` (N, nq) from ``
 - JDS: mean over the waypoints of ``||q_i - q_init||`` (radians, Euclidean in joint space).
 - PT: planning time [s]; a failed trial counts the full budget.
 
-Table rows (``aggregate``): PSR = successes / trials; SMR and CMR are reported x10^-2 (i.e. the
-raw value times 100), SMR/CMR/JDS averaged over successful trials, PT over all trials; SMR, CMR
-and JDS are ``None`` ("N/A") when PSR = 0.
+A "successful" path with a waypoint in collision is not scored (``PathInCollision``): the
+planner and the metrics disagree about the scene, which is an internal error, not CMR 0.
+
+Table rows (``aggregate``): PSR = successes / (trials - internal errors), internal errors
+(``advocc_ros.evaluation.outcomes``) counted on their own; SMR and CMR are reported x10^-2
+(i.e. the raw value times 100), SMR/CMR/JDS averaged over successful trials, PT over the trials
+that are not internal errors; SMR, CMR and JDS are ``None`` ("N/A") when PSR = 0 or undefined.
 """
 
 from __future__ import annotations
@@ -34,6 +38,7 @@ from typing import Any, Iterable
 import numpy as np
 import pinocchio as pin
 
+from advocc_ros.evaluation.outcomes import FAILURE_MODES, INTERNAL_ERROR, SUCCESS, record_outcome
 from advocc_ros.model.collision import CollisionWorld
 from advocc_ros.model.robot import RobotModel
 
@@ -81,38 +86,12 @@ class TrialRecord:
         return dataclasses.asdict(self)
 
 
-FAILURE_MODES = ('goal blocked', 'timed out', 'planning failed')
-"""How a trial failed, from its status: every goal pose in collision or unreachable by IK
-(the attack blocked the goal), out of time (the paths were occluded), anything else."""
-_GOAL_BLOCKED = {'GOAL_IN_COLLISION', 'NO_IK_SOLUTION'}
+class PathInCollision(ValueError):
+    """A path returned as a success has a waypoint in collision."""
 
-
-def failure_mode(status: str) -> str | None:
-    """The failure mode of a trial status (a ``PlanStatus`` name); None for a success."""
-    if status == 'SUCCESS':
-        return None
-    if status in _GOAL_BLOCKED:
-        return 'goal blocked'
-    return 'timed out' if status == 'TIMED_OUT' else 'planning failed'
-
-
-THRESHOLDS = (0.8, 0.6, 0.4, 0.2, 0.0)
-"""PSR thresholds of the budget-to-failure question (the paper's Table II), as fractions."""
-
-
-def minimal_budgets(psr: dict[str, list[float]], thresholds=THRESHOLDS
-                    ) -> dict[str, dict[str, int | None]]:
-    """Per threshold (key ``str(threshold)``, e.g. ``'0.2'``) and planner: the smallest m whose
-    PSR (``psr[planner][m]``, a fraction; None = not measured) is <= the threshold, or None
-    when no measured m reaches it. The first crossing counts even if a later m is higher."""
-    out: dict[str, dict[str, int | None]] = {}
-    for threshold in thresholds:
-        row = {}
-        for planner, curve in psr.items():
-            row[planner] = next((m for m, value in enumerate(curve)
-                                 if value is not None and value <= threshold + 1e-9), None)
-        out[str(threshold)] = row
-    return out
+    def __init__(self, index: int):
+        super().__init__(f'the returned path\'s waypoint {index} is in collision')
+        self.index = index
 
 
 def densify(path: np.ndarray, step_rad: float) -> np.ndarray:
@@ -167,7 +146,7 @@ def min_clearance(world: CollisionWorld, path: np.ndarray, config: MetricsConfig
     """CMR (raw, rad): randomized bidirectional bisection estimate (see the module docstring).
 
     ``directions`` (n_waypoints, n_rays, nq) overrides the random rays (tests use it to compare
-    with a brute-force line search).
+    with a brute-force line search). Raises ``PathInCollision`` when a waypoint collides.
     """
     robot = world.robot
     path = np.asarray(path, dtype=float)
@@ -192,8 +171,9 @@ def min_clearance(world: CollisionWorld, path: np.ndarray, config: MetricsConfig
             bad[check] = world.collisions_batch(Q, config.threads)
         return bad
 
-    if world.collisions_batch(path, config.threads).any():
-        return 0.0
+    colliding = np.flatnonzero(world.collisions_batch(path, config.threads))
+    if len(colliding):
+        raise PathInCollision(int(colliding[0]))
     h = config.cmr_coarse_step_rad
     levels = np.append(np.arange(h, config.cmr_range_rad, h), config.cmr_range_rad)
     lo_t = 0.0
@@ -219,7 +199,8 @@ def min_clearance(world: CollisionWorld, path: np.ndarray, config: MetricsConfig
 def trial_metrics(robot: RobotModel, world: CollisionWorld, path: np.ndarray,
                   q_init: np.ndarray, config: MetricsConfig = MetricsConfig(),
                   rng: np.random.Generator | None = None) -> dict[str, float]:
-    """SMR, CMR, JDS (raw units) of one successful trajectory."""
+    """SMR, CMR, JDS (raw units) of one successful trajectory; ``PathInCollision`` if it is
+    not collision-free."""
     return {'min_manipulability': min_manipulability(robot, path, config.smr_step_rad),
             'min_clearance_rad': min_clearance(world, path, config, rng),
             'jds_rad': joint_deviation(path, q_init)}
@@ -232,90 +213,29 @@ def _mean(values: list[float]) -> float | None:
 def aggregate(records: Iterable[TrialRecord | dict], time_budget_s: float) -> dict[str, Any]:
     """Table row of one (scene, planner, attack, budget) from per-trial records.
 
-    ``smr`` and ``cmr`` are x10^-2 (raw x 100); ``None`` means N/A (PSR = 0).
+    ``trials`` counts every record, ``internal_errors`` those that measured nothing (left out of
+    PSR and PT); ``smr`` and ``cmr`` are x10^-2 (raw x 100); ``None`` means N/A.
     """
     rows = [r.to_data() if isinstance(r, TrialRecord) else dict(r) for r in records]
-    ok = [r for r in rows if r['success']]
-    n = len(rows)
+    kinds = [record_outcome(r) for r in rows]
+    valid = [r for r, kind in zip(rows, kinds) if kind != INTERNAL_ERROR]
+    ok = [r for r, kind in zip(rows, kinds) if kind == SUCCESS]
     smr = _mean([r['min_manipulability'] for r in ok])
     cmr = _mean([r['min_clearance_rad'] for r in ok])
     return {
-        'trials': n,
+        'trials': len(rows),
+        'internal_errors': len(rows) - len(valid),
         'successes': len(ok),
-        'psr': len(ok) / n if n else None,
+        'psr': len(ok) / len(valid) if valid else None,
         'smr': None if smr is None else 100.0 * smr,
         'cmr': None if cmr is None else 100.0 * cmr,
         'jds': _mean([r['jds_rad'] for r in ok]),
-        'pt': _mean([r['planning_time_s'] if r['success'] else time_budget_s for r in rows]),
+        'pt': _mean([r['planning_time_s'] if r['success'] else time_budget_s for r in valid]),
         'time_budget_s': time_budget_s,
-        'failures': {mode: sum(1 for r in rows if not r['success']
-                               and failure_mode(r.get('status', '')) == mode)
-                     for mode in FAILURE_MODES},
+        'failures': {mode: kinds.count(mode) for mode in FAILURE_MODES},
     }
 
 
 def format_value(value: float | None, digits: int = 3) -> str:
     """A table cell: ``N/A`` for undefined metrics."""
     return 'N/A' if value is None else f'{value:.{digits}f}'
-
-
-def evaluate_planner(scene, planner_id: str, trials: int, time_budget_s: float = 5.0,
-                     seed: int = 0, workers: int = 1, planning_config=None,
-                     metrics_config: MetricsConfig = MetricsConfig(), progress=None
-                     ) -> dict[str, Any]:
-    """Run ``trials`` plan requests in ``scene`` and return the table row plus the records.
-
-    ``workers`` planner processes serve the trials in parallel (one ``Planner`` and one
-    ``CollisionWorld`` per thread); trial ``k`` uses seed ``seed + k``. ``progress(record)`` is
-    called after each trial.
-    """
-    import concurrent.futures
-    import queue
-    import threading
-
-    from advocc_ros.planning import Planner, PlanningConfig, start_configuration
-    from advocc_ros.model.robot import load_robot
-
-    if scene.goal is None:
-        raise ValueError(f'scene {scene.name!r} has no goal region')
-    planning_config = planning_config or PlanningConfig()
-    robot = load_robot(scene.robot)
-    q_init = start_configuration(scene, robot)
-    workers = max(1, min(int(workers), trials))
-    planners: queue.Queue = queue.Queue()
-    local = threading.local()
-    started = []
-    try:
-        for _ in range(workers):
-            planner = Planner(scene, planning_config).start()
-            started.append(planner)
-            planners.put(planner)
-
-        def run(k: int) -> TrialRecord:
-            planner = planners.get()
-            try:
-                res = planner.plan(q_init, scene.goal, planner_id, time_budget_s, seed + k)
-            finally:
-                planners.put(planner)
-            rec = TrialRecord(k, seed + k, res.success, res.status.name,
-                              float(res.planning_time_s), res.message,
-                              waypoints=len(res.path))
-            if res.success:
-                if not hasattr(local, 'world'):
-                    local.world = CollisionWorld(robot, scene.shapes)
-                for key, value in trial_metrics(robot, local.world, res.path, q_init,
-                                                metrics_config,
-                                                np.random.default_rng(seed + k)).items():
-                    setattr(rec, key, value)
-            if progress:
-                progress(rec)
-            return rec
-
-        with concurrent.futures.ThreadPoolExecutor(workers) as pool:
-            records = list(pool.map(run, range(trials)))
-    finally:
-        for planner in started:
-            planner.close()
-    row = aggregate(records, time_budget_s)
-    return dict(row, scene=scene.name, planner=planner_id, seed=seed,
-                records=[r.to_data() for r in records])

@@ -9,6 +9,7 @@ from typing import Any
 
 import numpy as np
 
+from advocc_ros.evaluation.outcomes import INTERNAL_ERROR, outcome
 from advocc_ros.model.collision import CollisionWorld
 from advocc_ros.model.robot import load_robot
 from advocc_ros.model.scene import Scene
@@ -49,9 +50,12 @@ def benchmark_planning(scene: Scene, planner_ids=('rrtconnect', 'prmstar', 'bkpi
         planner.start()
         out['worker_start_s'] = time.perf_counter() - t
         for pid in planner_ids:
-            times, ok, rates = [], 0, []
+            times, ok, internal, rates = [], 0, 0, []
             for k in range(trials):
                 res = planner.plan(q0, scene.goal, pid, time_budget_s, seed + k)
+                if outcome(res.status.name) == INTERNAL_ERROR:  # measured nothing
+                    internal += 1
+                    continue
                 ok += res.success
                 times.append(res.planning_time_s if res.success else time_budget_s)
                 if 'overhead_s' in res.stats:
@@ -61,8 +65,9 @@ def benchmark_planning(scene: Scene, planner_ids=('rrtconnect', 'prmstar', 'bkpi
                 if progress:
                     progress(pid, k, res)
             out['planners'][pid] = {
-                'psr': ok / trials, 'median_pt_s': float(np.median(times)),
-                'mean_pt_s': float(np.mean(times)),
+                'psr': ok / len(times) if times else None, 'internal_errors': internal,
+                'median_pt_s': float(np.median(times)) if times else None,
+                'mean_pt_s': float(np.mean(times)) if times else None,
                 'validity_checks_per_s_in_ompl': float(np.median(rates)) if rates else None}
     out['worker_overhead_s_median'] = float(np.median(overheads)) if overheads else None
     return out

@@ -23,6 +23,7 @@ import dataclasses
 import logging
 import multiprocessing
 import signal
+import threading
 import time
 from typing import Callable
 
@@ -201,14 +202,17 @@ class LinkTables:
 
 
 _TABLES: dict[tuple[str, float], LinkTables] = {}
+_TABLES_LOCK = threading.Lock()
 
 
 def link_tables(robot: RobotModel, pitch_m: float) -> LinkTables:
-    """The robot's tables at ``pitch_m``, built once per process (~0.5 s)."""
+    """The robot's tables at ``pitch_m``, built once per process (~0.5 s; a node's threads may
+    ask at the same time, and only one builds)."""
     key = (robot.hash, round(pitch_m, 9))
-    if key not in _TABLES:
-        _TABLES[key] = LinkTables(robot, pitch_m)
-    return _TABLES[key]
+    with _TABLES_LOCK:
+        if key not in _TABLES:
+            _TABLES[key] = LinkTables(robot, pitch_m)
+        return _TABLES[key]
 
 
 def placement_arrays(world: CollisionWorld, Q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -242,8 +246,10 @@ def _worker_signals() -> None:
     signal.signal(signal.SIGINT, signal.SIG_IGN)
 
 
-# Set by build_heatmap before forking workers, so they inherit the tables instead of rebuilding.
+# Set by _run_chunks before forking workers, so they inherit the tables instead of rebuilding;
+# the lock keeps a second build in another thread from swapping it under the first.
 _CONTEXT: dict = {}
+_BUILD_LOCK = threading.Lock()
 
 
 def _build_chunk(args) -> tuple[np.ndarray, int, int]:
@@ -271,6 +277,32 @@ def _build_chunk(args) -> tuple[np.ndarray, int, int]:
     return H, done, drawn
 
 
+def _run_chunks(context: dict, tasks: list, workers: int,
+                progress: Callable[[int], None] | None) -> list[tuple[np.ndarray, int, int]]:
+    """``_build_chunk`` of every task with ``context`` as ``_CONTEXT``, in ``workers`` forked
+    processes (they inherit loaded modules; spawn would re-import pinocchio, ~1 s each)."""
+    results = []
+    with _BUILD_LOCK:
+        _CONTEXT.clear()
+        _CONTEXT.update(context)
+        try:
+            if workers > 1:
+                with multiprocessing.get_context('fork').Pool(min(workers, len(tasks)),
+                                                              _worker_signals) as pool:
+                    for res in pool.imap(_build_chunk, tasks):
+                        results.append(res)
+                        if progress:
+                            progress(res[1])
+            else:
+                for task in tasks:
+                    results.append(_build_chunk(task))
+                    if progress:
+                        progress(results[-1][1])
+        finally:
+            _CONTEXT.clear()
+    return results
+
+
 def build_heatmap(scene: Scene, cfg: HeatmapConfig = HeatmapConfig(), seed: int = 0,
                   workers: int = 1, progress: Callable[[int], None] | None = None,
                   shard: tuple[int, int] = (0, 1)) -> Heatmap:
@@ -292,28 +324,14 @@ def build_heatmap(scene: Scene, cfg: HeatmapConfig = HeatmapConfig(), seed: int 
     if cfg.samples % CHUNK_SAMPLES:
         sizes.append(cfg.samples % CHUNK_SAMPLES)
     seqs = np.random.SeedSequence(seed).spawn(len(sizes))  # chunk i always gets stream i
-    _CONTEXT.update(robot=robot, world=CollisionWorld(robot, shapes), grid=grid,
-                    free=free.ravel(), cfg=cfg,
-                    tables=link_tables(robot, cfg.voxel_m * cfg.lut_pitch_fraction))
+    context = dict(robot=robot, world=CollisionWorld(robot, shapes), grid=grid,
+                   free=free.ravel(), cfg=cfg,
+                   tables=link_tables(robot, cfg.voxel_m * cfg.lut_pitch_fraction))
     tasks = [(i, s, n) for i, (s, n) in enumerate(zip(seqs, sizes))][index::count]
     if not tasks:
         raise ValueError(f'shard {index}/{count} is empty: {len(sizes)} chunks of '
                          f'{CHUNK_SAMPLES} samples')
-    if workers > 1:
-        # fork: workers inherit loaded modules (spawn would re-import pinocchio, ~1 s each).
-        with multiprocessing.get_context('fork').Pool(min(workers, len(tasks)),
-                                                      _worker_signals) as pool:
-            results = []
-            for res in pool.imap(_build_chunk, tasks):
-                results.append(res)
-                if progress:
-                    progress(res[1])
-    else:
-        results = []
-        for task in tasks:
-            results.append(_build_chunk(task))
-            if progress:
-                progress(results[-1][1])
+    results = _run_chunks(context, tasks, workers, progress)
     H = np.zeros(grid.size)
     for chunk_H, _, _ in results:  # chunk order: identical sums for any worker count
         H += chunk_H

@@ -12,7 +12,8 @@ from __future__ import annotations
 import hashlib
 import logging
 import pathlib
-from typing import Any
+import threading
+from typing import Any, Callable
 
 import coal
 import numpy as np
@@ -30,6 +31,8 @@ CLOUD_SUFFIXES = ('.ply', '.pcd')
 _CACHE: dict[tuple[str, float], dict[str, Any]] = {}
 """(content hash, resolution) -> {'octree': coal.OcTree, 'keys': sorted leaf keys}."""
 _CACHE_SIZE = 16
+_CACHE_LOCK = threading.Lock()
+"""Clouds arrive on one node thread while another plans: evictions must not interleave."""
 
 
 def make_cloud_shape(points, resolution_m: float = DEFAULT_RESOLUTION_M, pose: Pose = Pose(),
@@ -106,32 +109,35 @@ def cloud_to_data(shape: Shape) -> dict[str, Any]:
             'points': np.asarray(shape.vertices).tolist()}
 
 
-def _cached(shape: Shape) -> dict[str, Any]:
+def _cached(shape: Shape, name: str, make: Callable[[], Any]) -> Any:
+    """``make()`` of this cloud's content, cached; built outside the lock (two threads may
+    both build one, and the first one is kept)."""
     key = (hashlib.sha256(np.ascontiguousarray(shape.vertices).tobytes()).hexdigest(),
            round(shape.dims[0], 9))
-    entry = _CACHE.get(key)
-    if entry is None:
-        if len(_CACHE) >= _CACHE_SIZE:
-            _CACHE.pop(next(iter(_CACHE)))
-        entry = _CACHE[key] = {}
-    return entry
+    with _CACHE_LOCK:
+        entry = _CACHE.get(key)
+        if entry is not None and name in entry:
+            return entry[name]
+    value = make()
+    with _CACHE_LOCK:
+        entry = _CACHE.get(key)
+        if entry is None:
+            while len(_CACHE) >= _CACHE_SIZE:
+                _CACHE.pop(next(iter(_CACHE)))
+            entry = _CACHE[key] = {}
+        return entry.setdefault(name, value)
 
 
 def cloud_octree(shape: Shape) -> coal.OcTree:
     """coal ``OcTree`` of a cloud shape in its own frame (cached by content)."""
-    entry = _cached(shape)
-    if 'octree' not in entry:
-        entry['octree'] = coal.makeOctree(np.ascontiguousarray(shape.vertices, dtype=float),
-                                          shape.dims[0])
-    return entry['octree']
+    return _cached(shape, 'octree', lambda: coal.makeOctree(
+        np.ascontiguousarray(shape.vertices, dtype=float), shape.dims[0]))
 
 
 def _leaf_keys(shape: Shape) -> np.ndarray:
     """Sorted int64 keys of the occupied leaves (cached by content)."""
-    entry = _cached(shape)
-    if 'keys' not in entry:
-        entry['keys'] = np.sort(_encode(cloud_cells(shape.vertices, shape.dims[0])))
-    return entry['keys']
+    return _cached(shape, 'keys',
+                   lambda: np.sort(_encode(cloud_cells(shape.vertices, shape.dims[0]))))
 
 
 def points_in_cloud(shape: Shape, points_m: np.ndarray) -> np.ndarray:

@@ -11,6 +11,9 @@ def run(node_class, name: str, args=None, startup_errors: tuple = (), threads: i
     shutdown give 0. ``threads > 1`` spins a ``MultiThreadedExecutor`` (callbacks in reentrant
     groups can then run while another one waits).
     """
+    from advocc_ros.ros.spawn import die_with_parent
+
+    die_with_parent()  # before rclpy starts its threads
     import rclpy
     from rclpy.executors import (ExternalShutdownException, MultiThreadedExecutor,
                                  SingleThreadedExecutor)

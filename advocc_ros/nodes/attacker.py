@@ -81,7 +81,8 @@ class Attacker(Node):
         self._future = None          # request in flight
         self._sent_at = 0.0
         self._placed: list[str] = []  # ids of our boxes in the planning scene
-        self._frame = 'panda_link0'
+        self._frame = ''              # the robot base frame, as the scene names it
+        self._early_cloud: PointCloud2 | None = None  # came before the scene: checked then
         self._attacks = 0
         self._waiting_logged = False
         self.create_timer(0.1, self._tick)
@@ -110,12 +111,19 @@ class Attacker(Node):
         self._frame = msg.header.frame_id or self._frame
         self._dirty = True
         self.get_logger().info(f'scene {msg.name!r}: {len(msg.objects)} objects')
+        if self._early_cloud is not None:
+            cloud, self._early_cloud = self._early_cloud, None
+            self._on_cloud(cloud)
         self._tick()
 
     def _on_cloud(self, msg: PointCloud2) -> None:
+        if self._scene is None:  # the cloud is latched: keep it until we know the base frame
+            self._early_cloud = msg
+            self.get_logger().info('cloud received before the scene: checked when it comes')
+            return
         try:
             frame = msg.header.frame_id
-            if frame and frame != self._frame:
+            if frame and self._frame and frame != self._frame:
                 raise SceneError(f'frame {frame!r} is not the robot base frame {self._frame!r}')
             shape = cloud_shape_from_node_params(self, msg)
             self._cloud = None if shape is None else SceneObject('sensed_cloud', (shape,))

@@ -169,8 +169,8 @@ class PlannerShim(Node):
             response = self._plan(request, response)
         except Exception as exc:  # never let a callback take the executor down
             self.get_logger().error(f'plan request failed: {exc!r}')
-            response.error_code.val = ErrorCodes.FAILURE
-            response.message = f'internal error: {exc}'
+            response.error_code.val = int(PlanStatus.INTERNAL_ERROR)
+            response.message = f'internal error: {exc!r}'
         self._served += 1
         text = f'plan #{self._served}: {response.error_code.val} {response.message}'
         # One call site per severity: rclpy refuses a call site whose severity changes.

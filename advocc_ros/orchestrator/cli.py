@@ -131,7 +131,12 @@ def run(args: argparse.Namespace) -> int:
         for note in summary['notes']:
             print(f'note: {note}')
         sys.stdout.write((out / 'table1.md').read_text())
-    return 0 if summary['missing'] == 0 else 1
+    if summary['internal_errors']:
+        print(f'warning: {summary["internal_errors"]} trials were internal errors (left out of '
+              f'PSR; failures.md counts them per cell)', file=sys.stderr)
+    if summary['reason']:
+        print(f'orchestrator: run failed: {summary["reason"]}', file=sys.stderr)
+    return 0 if summary['missing'] == 0 and summary['status'] != 'failed' else 1
 
 
 def main(argv: list[str] | None = None) -> int:

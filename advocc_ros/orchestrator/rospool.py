@@ -77,9 +77,7 @@ class RosShimPool:
 
     def exit_code(self, shim: Shim) -> int | None:
         child = shim.handles.child
-        if child is None or child.alive():
-            return None
-        return child.proc.returncode
+        return None if child is None else child.exit_code()
 
     def output(self, shim: Shim) -> str:
         child = shim.handles.child

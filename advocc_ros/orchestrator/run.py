@@ -32,6 +32,7 @@ import json
 import logging
 import os
 import pathlib
+import queue
 import signal
 import sys
 import time
@@ -42,12 +43,14 @@ import numpy as np
 from advocc_ros.bench.protocol import (BenchConfig, BenchError, Trial, Unit, plan_units,
                                        variation_scenes)
 from advocc_ros.bench.records import RecordStore, check_run_config, progress_summary, run_lock
-from advocc_ros.bench.report import write_report
+from advocc_ros.bench.report import internal_error_summary, write_report
+from advocc_ros.bench.tables import cell_rows
 from advocc_ros.fileio import atomic_write_text
 from advocc_ros.orchestrator.graph import Graph
-from advocc_ros.orchestrator.shims import (CallFailed, PlanAnswer, PlanJob, Shim, ShimPool,
-                                           ShimState, PlanQuery)
-from advocc_ros.orchestrator.sources import AttackSources
+from advocc_ros.orchestrator.shims import (CallFailed, PlanAnswer, PlanJob, PlanQuery, Shim,
+                                           ShimPool, ShimQueries, ShimState)
+from advocc_ros.orchestrator.sources import AttackSources, SceneTask, prepare_heatmaps
+from advocc_ros.planning.types import PlanStatus
 from advocc_ros.ros.spawn import Child
 
 log = logging.getLogger(__name__)
@@ -55,7 +58,10 @@ log = logging.getLogger(__name__)
 # Plan outcomes that say the protocol itself is wrong (not the attack): stop the benchmark.
 _FATAL_CODES = {'INVALID_REQUEST', 'UNKNOWN_METHOD', 'INVALID_ROBOT_STATE',
                 'INVALID_GOAL_CONSTRAINTS', 'START_STATE_IN_COLLISION'}
-_CRASH_RETRIES = 2
+_INTERNAL_ERROR_RETRIES = 2
+"""A trial whose shim answers with an internal error (a crash, an exception) or whose plan call
+fails is planned again this many times before the internal error is recorded."""
+_INTERNAL_ERROR_CODE = int(PlanStatus.INTERNAL_ERROR)
 
 
 class Interrupted(KeyboardInterrupt):
@@ -65,11 +71,12 @@ class Interrupted(KeyboardInterrupt):
 # --------------------------------------------------------------------------------------------
 # The benchmark
 
-class Orchestrator(AttackSources):
-    """Runs ``cfg`` into ``run_dir`` (see the module docstring).
+class Orchestrator:
+    """Runs ``cfg`` into ``run_dir`` (see the module docstring); the ``RunLoop`` of its
+    ``AttackSources``.
 
     ``pool_factory(orchestrator) -> ShimPool`` gives the planner shims of the current scene
-    (``orchestrator.scene``, ``.robot``, ...); None: ``RosShimPool`` (real nodes on a ROS graph).
+    (``orchestrator.task``); None: ``RosShimPool`` (real nodes on a ROS graph).
     """
 
     def __init__(self, cfg: BenchConfig, run_dir: str | pathlib.Path,
@@ -90,7 +97,16 @@ class Orchestrator(AttackSources):
         self.bar = None
         self.pool_factory = pool_factory
         self.pool: ShimPool | None = None
-        self.server: Child | None = None
+        self.task: SceneTask | None = None
+        """The scene being run."""
+        self.sources: AttackSources | None = None
+        """The current scene's attacks."""
+        self.pending: collections.deque = collections.deque()
+        """Trials (or in-the-loop queries) waiting for a shim."""
+        self.unit: Unit | None = None
+        self.world = None
+        """``CollisionWorld`` of the current unit (scene + attack) that scores the paths."""
+        self.retries: collections.Counter = collections.Counter()
         self._holding_signals = False
         self._held_signal: int | None = None
         self._t0 = time.monotonic()
@@ -134,7 +150,10 @@ class Orchestrator(AttackSources):
                 summary = progress_summary(self.store, units)
                 if status == 'complete' and summary['missing']:
                     status = 'incomplete'
-                summary = dict(summary, status=status,
+                errors = internal_error_summary(cell_rows(self.store.records.values(), self.cfg))
+                if errors['reason'] and status in ('complete', 'incomplete'):
+                    status = 'failed'
+                summary = dict(summary, **errors, status=status,
                                restarts=dict(self.restarts), notes=self.notes,
                                wall_s=round(time.monotonic() - self._t0, 1),
                                trials_run=self.trials_run,
@@ -198,39 +217,9 @@ class Orchestrator(AttackSources):
     # -- heatmaps (before rclpy: building forks worker processes) ----------------------------
 
     def _prepare_heatmaps(self, units: list[Unit]) -> dict[str, pathlib.Path]:
-        """Heatmap file per scene that still needs a generated attack."""
-        from advocc_ros.heatmap import (HeatmapConfig, build_heatmap, load_heatmap,
-                                        merge_heatmaps, save_heatmap)
-        from advocc_ros.paths import scene_path
-        from advocc_ros.model.scene import load_scene
-
-        need = []
-        for unit in units:
-            if unit.attack is not None and unit.scene not in need and \
-                    not self._attack_path(unit.attack).exists():
-                need.append(unit.scene)
-        out: dict[str, pathlib.Path] = {}
-        for scene_name in need:
-            stem = pathlib.Path(scene_path(scene_name)).stem
-            sources = self.heatmap_sources.get(scene_name) or \
-                self.heatmap_sources.get(stem) or self.heatmap_sources.get('*')
-            target = self.run_dir / 'heatmaps' / f'{stem}.npz'
-            if sources and len(sources) == 1:
-                out[scene_name] = pathlib.Path(sources[0]).resolve()
-                continue
-            if not target.exists():
-                if sources:
-                    print(f'merging {len(sources)} heatmap shards for {stem}', file=sys.stderr)
-                    save_heatmap(merge_heatmaps([load_heatmap(p) for p in sources]), target)
-                else:
-                    scene = load_scene(scene_path(scene_name))
-                    hcfg = HeatmapConfig(samples=self.cfg.heatmap_samples,
-                                         robot_only=self.cfg.heatmap_robot_only)
-                    print(f'building the heatmap of {stem} ({hcfg.samples} samples)',
-                          file=sys.stderr, flush=True)
-                    save_heatmap(build_heatmap(scene, hcfg, seed=self.cfg.seed,
-                                               workers=self.cfg.heatmap_workers), target)
-            out[scene_name] = target
+        """Heatmap file per scene that still needs a generated attack, recorded in the run
+        folder's config."""
+        out = prepare_heatmaps(self.cfg, self.run_dir, self.heatmap_sources, units)
         if out:
             self.heatmap_sources = {**self.heatmap_sources,
                                     **{k: [str(v)] for k, v in out.items()}}
@@ -255,7 +244,8 @@ class Orchestrator(AttackSources):
 
     def _ros_pool(self) -> ShimPool:
         from advocc_ros.orchestrator.rospool import RosShimPool
-        return RosShimPool(self.graph, self.cfg, self.scene, self.scene_file, self.robot,
+        task = self.task
+        return RosShimPool(self.graph, self.cfg, task.scene, task.scene_file, task.robot,
                            self.env, self.run_dir / 'logs', self.children)
 
     def _run_scene(self, scene_name: str, units: list[Unit], heatmap: pathlib.Path | None
@@ -265,42 +255,41 @@ class Orchestrator(AttackSources):
         from advocc_ros.model.robot import load_robot
         from advocc_ros.model.scene import load_scene
 
-        self.scene_file = pathlib.Path(scene_path(scene_name)).resolve()
-        self.scene = load_scene(self.scene_file)
-        self.scene_name = scene_name
-        self.robot = load_robot(self.scene.robot)
-        self.q_init = start_configuration(self.scene, self.robot)
-        self.heatmap_file, self.heatmap = heatmap, None
-        self.server = None
-        if heatmap is not None:
-            self._start_server(heatmap)
-        self.pool = (self.pool_factory or Orchestrator._ros_pool)(self)
-        self._write_children()
-        self.pending: collections.deque = collections.deque()
-        self.pool.discover(wait=True)
+        scene_file = pathlib.Path(scene_path(scene_name)).resolve()
+        scene = load_scene(scene_file)
+        robot = load_robot(scene.robot)
+        self.task = SceneTask(scene, scene_file, robot, start_configuration(scene, robot))
+        self.sources = AttackSources(self.cfg, self.run_dir, self.task, self, heatmap,
+                                     self.graph, self.env, self.children)
         try:
-            for unit in units:
-                self._run_unit(unit)
+            self.pool = (self.pool_factory or Orchestrator._ros_pool)(self)
+            self._write_children()
+            self.pending = collections.deque()
+            self.pool.discover(wait=True)
+            try:
+                for unit in units:
+                    self._run_unit(unit)
+            finally:
+                self.pool.close()
         finally:
-            self.pool.close()
-            self._stop_server()
+            self.sources.close()
 
     def _run_unit(self, unit: Unit) -> None:
         from advocc_ros.model.collision import CollisionWorld
 
         if all(t.key in self.store for t in unit.trials):
             return
-        objects = self._obstacles(unit.attack) if unit.attack is not None else ()
+        objects = self.sources.obstacles(unit.attack) if unit.attack is not None else ()
         self.pending = collections.deque(t for t in unit.trials if t.key not in self.store)
-        self.world = CollisionWorld(self.robot, self.scene.shapes +
+        self.world = CollisionWorld(self.task.robot, self.task.scene.shapes +
                                     [s for o in objects for s in o.shapes])
         self.unit = unit
-        self.crashes: collections.Counter = collections.Counter()
+        self.retries = collections.Counter()
         self.pool.inject(objects)
         last_discovery = t_start = time.monotonic()
         todo = len(self.pending)
         while self.pending or self._busy():
-            self._supervise()
+            self.supervise()
             now = time.monotonic()
             for shim in list(self.pool.shims):
                 self._step_shim(shim, now)
@@ -313,11 +302,44 @@ class Orchestrator(AttackSources):
         self.trial_phase_s += time.monotonic() - t_start
         self.trials_run += todo
         label = 'unattacked' if unit.attack is None else unit.attack.tag
-        self.bar.write(f'{self.scene.name}: {label}: {len(unit.trials)} trials done',
-                       file=sys.stderr)
+        self.say(f'{self.task.scene.name}: {label}: {len(unit.trials)} trials done')
 
     def _busy(self) -> bool:
         return any(s.state == ShimState.BUSY for s in self.pool.shims)
+
+    def live_shims(self) -> int:
+        return sum(1 for s in self.pool.shims if s.state != ShimState.DEAD)
+
+    def serve_queries(self, queries: ShimQueries, working: Callable[[], bool]) -> None:
+        """Plan an in-the-loop attack's queries: the shims hold one query's obstacles at a
+        time, and the queries with those obstacles run in parallel."""
+        from advocc_ros.model.scene import make_box
+
+        self.pending = collections.deque()
+        waiting: collections.deque = collections.deque()
+        current, sets = None, 0
+        while working() or self.pending or self._busy():
+            self.supervise()
+            while True:
+                try:
+                    waiting.append(queries.requests.get_nowait())
+                except queue.Empty:
+                    break
+            if waiting and not self.pending and not self._busy() \
+                    and waiting[0].key != current:
+                current, sets = waiting[0].key, sets + 1
+                self.pool.inject(tuple(make_box(f'q{sets}_{i}', o.shapes[0].pose.position_m,
+                                                o.shapes[0].dims)
+                                       for i, o in enumerate(waiting[0].obstacles)))
+            for job in [q for q in waiting if q.key == current]:
+                waiting.remove(job)
+                self.pending.append(job)
+            now = time.monotonic()
+            for shim in list(self.pool.shims):
+                self._step_shim(shim, now)
+            if all(s.state == ShimState.DEAD for s in self.pool.shims):
+                raise BenchError('no planner shim left for the attack\'s queries')
+            self.pool.spin(0.01)
 
     # -- supervision -------------------------------------------------------------------------
 
@@ -337,16 +359,17 @@ class Orchestrator(AttackSources):
         if self.bar is not None:
             self.bar.write(f'warning: {msg}', file=sys.stderr)
 
-    def _restart(self, child: Child, why: str) -> None:
+    def restart_child(self, child: Child, why: str) -> None:
         self._count_restart(child.name, why, child.tail)
         child.restart()
         self._write_children()
 
-    def _supervise(self) -> None:
+    def say(self, text: str) -> None:
+        self.bar.write(text, file=sys.stderr)
+
+    def supervise(self) -> None:
         """Restart dead children; a dead shim's trial goes back to the queue."""
-        if self.server is not None and not self.server.alive():
-            self._restart(self.server, f'exited with code {self.server.proc.returncode}')
-            self._reset_server_clients()
+        self.sources.supervise()
         for shim in self.pool.shims:
             if shim.state == ShimState.DEAD:
                 continue
@@ -396,42 +419,60 @@ class Orchestrator(AttackSources):
         if isinstance(job, PlanQuery):
             plan = PlanJob(job.q_start, job.goal, job.planner_id, job.time_budget_s, job.seed)
         else:
-            plan = PlanJob(self.q_init, self.scene.goal, job.planner, self.cfg.time_budget_s,
-                           job.seed)
+            plan = PlanJob(self.task.q_init, self.task.scene.goal, job.planner,
+                           self.cfg.time_budget_s, job.seed)
         self.pool.plan(shim, plan)
         shim.trial, shim.state, shim.since = job, ShimState.BUSY, now
         shim.deadline = now + plan.time_budget_s + self.cfg.plan_timeout_margin_s
 
     def _requeue(self, shim: Shim, exc: Exception) -> None:
-        trial, shim.trial, shim.state = shim.trial, None, ShimState.IDLE
+        """A plan call that failed (no answer): plan the trial again, up to the retry cap."""
+        job, shim.trial, shim.state = shim.trial, None, ShimState.IDLE
         shim.served += 1
-        log.warning('%s: plan call failed (%s); trial requeued', shim.name, exc)
-        self.pending.appendleft(trial)
+        answer = PlanAnswer('INTERNAL_ERROR', _INTERNAL_ERROR_CODE, f'plan call failed: {exc}',
+                            0.0, 0)
+        if isinstance(job, PlanQuery):
+            job.done(answer, self.task.robot.nq)
+        elif not self._retry(shim, job, answer):
+            self._record(shim, job, answer)
+
+    def _retry(self, shim: Shim, trial: Trial, answer: PlanAnswer) -> bool:
+        """Queue a trial that ended in an internal error again, unless it used its retries."""
+        if self.retries[trial.key] >= _INTERNAL_ERROR_RETRIES:
+            return False
+        self.retries[trial.key] += 1
+        log.warning('%s: internal error on %s (%s: %s); planned again (#%d)', shim.name,
+                    trial.key, answer.status, answer.message, self.retries[trial.key])
+        self.pending.append(trial)
+        return True
 
     def _finish(self, shim: Shim, answer: PlanAnswer) -> None:
-        from advocc_ros.evaluation.metrics import trial_metrics
+        from advocc_ros.evaluation.outcomes import INTERNAL_ERROR, outcome
 
         trial, shim.trial, shim.state = shim.trial, None, ShimState.IDLE
         shim.served += 1
-        status = answer.status
         if isinstance(trial, PlanQuery):
-            trial.done(answer, self.robot.nq)
+            trial.done(answer, self.task.robot.nq)
             return
-        if status in _FATAL_CODES:
-            raise BenchError(f'{shim.name} rejected trial {trial.key}: {status}: '
+        if answer.status in _FATAL_CODES:
+            raise BenchError(f'{shim.name} rejected trial {trial.key}: {answer.status}: '
                              f'{answer.message}')
-        if status == 'CRASH' and self.crashes[trial.key] < _CRASH_RETRIES:
-            self.crashes[trial.key] += 1
-            log.warning('%s: planner crashed on %s (%s); retrying', shim.name, trial.key,
-                        answer.message)
-            self.pending.append(trial)
+        if outcome(answer.status) == INTERNAL_ERROR and self._retry(shim, trial, answer):
             return
         if self.pending and shim.state == ShimState.IDLE:  # keep the shim busy while we compute
             self._dispatch(shim, self.pending.popleft(), time.monotonic())
-        success = status == 'SUCCESS'
+        self._record(shim, trial, answer)
+
+    def _record(self, shim: Shim, trial: Trial, answer: PlanAnswer) -> None:
+        """Score the answer's path and append the trial's record; a success whose path
+        collides is recorded as an internal error, and every internal error is announced."""
+        from advocc_ros.evaluation.metrics import PathInCollision, trial_metrics
+        from advocc_ros.evaluation.outcomes import INTERNAL_ERROR, record_outcome
+
+        success = answer.status == 'SUCCESS'
         record = {'key': trial.key, 'scene': trial.scene, 'planner': trial.planner,
                   'method': trial.method, 'budget': trial.budget, 'trial': trial.trial,
-                  'seed': trial.seed, 'success': success, 'status': status,
+                  'seed': trial.seed, 'success': success, 'status': answer.status,
                   'error_code': answer.error_code, 'message': answer.message,
                   'planning_time_s': float(answer.planning_time_s),
                   'time_budget_s': float(self.cfg.time_budget_s),
@@ -440,6 +481,15 @@ class Orchestrator(AttackSources):
                   'min_manipulability': None, 'min_clearance_rad': None, 'jds_rad': None,
                   'unix': round(time.time(), 3)}
         if success:
-            record.update(trial_metrics(self.robot, self.world, answer.path, self.q_init,
-                                        rng=np.random.default_rng(trial.seed)))
+            try:
+                record.update(trial_metrics(self.task.robot, self.world, answer.path,
+                                            self.task.q_init,
+                                            rng=np.random.default_rng(trial.seed)))
+            except PathInCollision as exc:
+                record.update(success=False, status='INTERNAL_ERROR',
+                              error_code=_INTERNAL_ERROR_CODE,
+                              message=f'{exc} ({answer.message})')
+        if record_outcome(record) == INTERNAL_ERROR:
+            self.say(f'warning: {trial.key}: internal error ({record["status"]}: '
+                     f'{record["message"]}): left out of PSR')
         self._append(record)

@@ -68,7 +68,7 @@ class PlanAnswer:
     """A shim's answer to one plan request."""
 
     status: str
-    """``ErrorCodes`` name (``'SUCCESS'``, ``'CRASH'``, ...), or the number as text."""
+    """``ErrorCodes`` name (``'SUCCESS'``, ``'INTERNAL_ERROR'``, ...), or the number as text."""
     error_code: int
     message: str
     planning_time_s: float
@@ -141,8 +141,8 @@ class PlanQuery:
 
         try:
             status = PlanStatus(int(answer.error_code))
-        except ValueError:
-            status = PlanStatus.PLANNING_FAILED
+        except ValueError:  # CRASH, FAILURE, a code we do not know: not a planning outcome
+            status = PlanStatus.INTERNAL_ERROR
         path = answer.path if status == PlanStatus.SUCCESS and answer.path is not None \
             else np.zeros((0, nq))
         stats = {}

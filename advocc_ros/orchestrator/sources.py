@@ -1,33 +1,129 @@
 """Where a benchmark's attacks come from: the run folder's cache, the heatmap server, or a
-planner-in-the-loop optimiser whose queries run on the shims."""
+planner-in-the-loop optimiser whose queries the run loop serves on the shims.
+
+``AttackSources`` holds one scene's attack state (its heatmap server and clients, the loaded
+heatmap) and is handed to the run loop, which it reaches only through ``RunLoop``.
+"""
 
 from __future__ import annotations
 
-import collections
+import dataclasses
 import json
 import logging
 import pathlib
-import queue
 import sys
 import threading
 import time
-from typing import Any
+from typing import Any, Callable, Protocol
+
+import numpy as np
 
 from advocc_ros.bench.protocol import AttackSpec, BenchError
-from advocc_ros.orchestrator.shims import CallFailed, ShimQueries, ShimState
+from advocc_ros.orchestrator.shims import CallFailed, ShimQueries
 from advocc_ros.paths import default_allowed_dirs
 from advocc_ros.ros.spawn import Child, node_name
 
 log = logging.getLogger(__name__)
 
 
+def attack_path(run_dir: pathlib.Path, spec: AttackSpec) -> pathlib.Path:
+    """The run folder's cached copy of an attack."""
+    from advocc_ros.paths import scene_path
+    return run_dir / 'attacks' / pathlib.Path(scene_path(spec.scene)).stem / f'{spec.tag}.yaml'
+
+
+def prepare_heatmaps(cfg, run_dir: pathlib.Path, given: dict[str, list[str]], units: list
+                     ) -> dict[str, pathlib.Path]:
+    """Heatmap file per scene that still needs a generated attack: the one given (``given``:
+    scene name, file stem or ``*`` -> files), the given shards merged, or built here."""
+    from advocc_ros.heatmap import (HeatmapConfig, build_heatmap, load_heatmap,
+                                    merge_heatmaps, save_heatmap)
+    from advocc_ros.paths import scene_path
+    from advocc_ros.model.scene import load_scene
+
+    need = []
+    for unit in units:
+        if unit.attack is not None and unit.scene not in need and \
+                not attack_path(run_dir, unit.attack).exists():
+            need.append(unit.scene)
+    out: dict[str, pathlib.Path] = {}
+    for scene_name in need:
+        stem = pathlib.Path(scene_path(scene_name)).stem
+        sources = given.get(scene_name) or given.get(stem) or given.get('*')
+        target = run_dir / 'heatmaps' / f'{stem}.npz'
+        if sources and len(sources) == 1:
+            out[scene_name] = pathlib.Path(sources[0]).resolve()
+            continue
+        if not target.exists():
+            if sources:
+                print(f'merging {len(sources)} heatmap shards for {stem}', file=sys.stderr)
+                save_heatmap(merge_heatmaps([load_heatmap(p) for p in sources]), target)
+            else:
+                scene = load_scene(scene_path(scene_name))
+                hcfg = HeatmapConfig(samples=cfg.heatmap_samples,
+                                     robot_only=cfg.heatmap_robot_only)
+                print(f'building the heatmap of {stem} ({hcfg.samples} samples)',
+                      file=sys.stderr, flush=True)
+                save_heatmap(build_heatmap(scene, hcfg, seed=cfg.seed,
+                                           workers=cfg.heatmap_workers), target)
+        out[scene_name] = target
+    return out
+
+
+@dataclasses.dataclass(frozen=True)
+class SceneTask:
+    """The scene a benchmark is running and its task."""
+
+    scene: Any
+    """``advocc_ros.model.scene.Scene``."""
+    scene_file: pathlib.Path
+    robot: Any
+    """``advocc_ros.model.robot.RobotModel`` of the scene."""
+    q_init: np.ndarray
+    """Start configuration (nq,) [rad]."""
+
+
+class RunLoop(Protocol):
+    """What the attack sources need from the benchmark's run loop."""
+
+    def supervise(self) -> None:
+        """Restart dead children (the heatmap server too, through ``AttackSources.supervise``)."""
+
+    def restart_child(self, child: Child, why: str) -> None:
+        """Count a restart of ``child`` (``BenchError`` past the limit) and restart it."""
+
+    def say(self, text: str) -> None:
+        """A progress line for the user."""
+
+    def serve_queries(self, queries: ShimQueries, working: Callable[[], bool]) -> None:
+        """Plan the optimiser's queries on the shims while ``working()`` or queries remain."""
+
+    def live_shims(self) -> int:
+        """Shims that can still plan."""
+
+
 class AttackSources:
-    """The Orchestrator's attack half: cached, served by ``heatmap_server``, or PFA/PFA++."""
+    """One scene's attacks: cached in the run folder, served by ``heatmap_server`` (started
+    here when ``heatmap_file`` is given and ``graph`` is a ROS graph), or PFA/PFA++."""
+
+    def __init__(self, cfg, run_dir: pathlib.Path, task: SceneTask, loop: RunLoop,
+                 heatmap_file: pathlib.Path | None = None, graph=None, env: dict | None = None,
+                 children: list[Child] | None = None):
+        self.cfg, self.run_dir, self.task, self.loop = cfg, run_dir, task, loop
+        self.heatmap_file = heatmap_file
+        self.heatmap = None
+        """The heatmap, loaded on the first in-the-loop attack."""
+        self.graph, self.env = graph, env or {}
+        self.children = children if children is not None else []
+        self.server: Child | None = None
+        self.server_clients: tuple | None = None
+        if heatmap_file is not None and graph is not None:
+            self._start_server(heatmap_file)
 
     # -- the heatmap server ------------------------------------------------------------------
 
     def _start_server(self, heatmap: pathlib.Path) -> None:
-        stem = node_name(self.scene_file.stem)
+        stem = node_name(self.task.scene_file.stem)
         # The heatmap lives in the run folder, wherever --out put it: allow that folder too.
         dirs = [str(d) for d in default_allowed_dirs()] + [str(self.run_dir.resolve())]
         self.server = Child(f'advocc_heatmap_{stem}', 'heatmap_server',
@@ -35,10 +131,10 @@ class AttackSources:
                             self.run_dir / 'logs')
         self.server.start()
         self.children.append(self.server)
-        self.server_clients = None
         self._reset_server_clients()
 
-    def _stop_server(self) -> None:
+    def close(self) -> None:
+        """Stop the heatmap server."""
         if self.server is None:
             return
         self.server.stop()
@@ -46,6 +142,13 @@ class AttackSources:
         for client in self.server_clients:
             self.graph.drop(client)
         self.server = self.server_clients = None
+
+    def supervise(self) -> None:
+        """Restart a heatmap server that died."""
+        if self.server is not None and not self.server.alive():
+            self.loop.restart_child(self.server,
+                                    f'exited with code {self.server.exit_code()}')
+            self._reset_server_clients()
 
     def _reset_server_clients(self) -> None:
         from advocc_msgs.srv import Attack, GetInfo
@@ -58,7 +161,7 @@ class AttackSources:
         from advocc_msgs.srv import GetInfo
         deadline = self.server.started_at + self.cfg.start_timeout_s
         while True:
-            self._supervise()
+            self.loop.supervise()
             try:
                 self.graph.call(self.server_clients[1], GetInfo.Request(), 2.0,
                                 self.server.alive)
@@ -71,26 +174,21 @@ class AttackSources:
 
     # -- attacks -----------------------------------------------------------------------------
 
-    def _attack_path(self, spec: AttackSpec) -> pathlib.Path:
-        from advocc_ros.paths import scene_path
-        return self.run_dir / 'attacks' / pathlib.Path(scene_path(spec.scene)).stem / \
-            f'{spec.tag}.yaml'
-
     def _scene_meta(self) -> dict:
-        return {'name': self.scene.name, 'file': str(self.scene_file),
-                'objects_hash': self.scene.objects_hash()}
+        return {'name': self.task.scene.name, 'file': str(self.task.scene_file),
+                'objects_hash': self.task.scene.objects_hash()}
 
     @staticmethod
     def _spec_meta(spec: AttackSpec) -> dict:
         return {'variant': spec.variant, 'seed': spec.seed, 'planner': spec.planner,
                 'planner_specific': spec.planner is not None}
 
-    def _obstacles(self, spec: AttackSpec) -> tuple:
+    def obstacles(self, spec: AttackSpec) -> tuple:
         """The attack's boxes: from the run folder, or generated now and cached there."""
         from advocc_ros.attack import load_obstacles, save_obstacles
         from advocc_ros.model.scene import SceneError
 
-        path = self._attack_path(spec)
+        path = attack_path(self.run_dir, spec)
         if path.exists():
             try:
                 objects, meta = load_obstacles(path)
@@ -116,10 +214,10 @@ class AttackSources:
 
         if self.server is None:
             raise BenchError(f'no heatmap server for {spec} (internal error)')
-        request = attack_request(self.scene, spec.budget, spec.method, self.cfg.box_size_m,
+        request = attack_request(self.task.scene, spec.budget, spec.method, self.cfg.box_size_m,
                                  spec.seed, self.cfg.goal_policy)
         for attempt in range(self.cfg.max_restarts + 1):
-            self._supervise()
+            self.loop.supervise()
             try:
                 self._wait_server()
                 t0 = time.perf_counter()
@@ -129,7 +227,7 @@ class AttackSources:
                 break
             except CallFailed as exc:
                 if self.server.alive():
-                    self._restart(self.server, f'did not answer ({exc})')
+                    self.loop.restart_child(self.server, f'did not answer ({exc})')
                     self._reset_server_clients()
         else:
             raise BenchError(f'no attack for {spec}: the heatmap server never answered')
@@ -147,13 +245,13 @@ class AttackSources:
             extra=dict(self._spec_meta(spec), round_trip_s=round(round_trip, 4),
                        source=f'/{self.server.name}/attack',
                        heatmap_file=self.server.params['heatmap_file']))
-        self.bar.write(f'{self.scene.name}: attack {spec.tag}: {len(boxes)} boxes '
-                       f'({data["status"].lower()}, {res.compute_time_s * 1e3:.0f} ms)',
-                       file=sys.stderr)
+        self.loop.say(f'{self.task.scene.name}: attack {spec.tag}: {len(boxes)} boxes '
+                      f'({data["status"].lower()}, {res.compute_time_s * 1e3:.0f} ms)')
         return boxes, meta
 
     def _generate_in_the_loop(self, spec: AttackSpec) -> tuple[tuple, dict]:
-        """PFA / PFA++: the optimiser runs in a thread; its planner queries run on the shims."""
+        """PFA / PFA++: the optimiser runs in a thread; the run loop serves its planner queries
+        on the shims."""
         from advocc_ros.attack import AttackConfig, attack
         from advocc_ros.heatmap import load_heatmap
         from advocc_ros.attack.pfa import PFA_PLANNER, PfaConfig, PfaOptions
@@ -163,57 +261,28 @@ class AttackSources:
         if self.heatmap_file is None:
             raise BenchError(f'no heatmap for {spec} (internal error)')
         if self.heatmap is None:
-            self.heatmap = load_heatmap(self.heatmap_file, robot_hash=self.robot.hash)
+            self.heatmap = load_heatmap(self.heatmap_file, robot_hash=self.task.robot.hash)
         pcfg = PfaConfig(**dict(self.cfg.pfa, planner_id=spec.planner or PFA_PLANNER))
-        queries = ShimQueries(sum(1 for s in self.pool.shims if s.state != ShimState.DEAD))
-        done = [0]
-
-        def progress(n: int, total: int) -> None:
-            done[0] = n
-
+        queries = ShimQueries(self.loop.live_shims())
+        task = self.task
         outcome: dict[str, Any] = {}
 
         def work() -> None:
             try:
                 outcome['result'] = attack(
-                    self.heatmap, self.robot, self.scene.objects, self.q_init, self.scene.goal,
+                    self.heatmap, task.robot, task.scene.objects, task.q_init, task.scene.goal,
                     spec.budget, spec.method, AttackConfig(),
                     box_size_m=self.cfg.box_size_m or None, seed=spec.seed,
-                    method_options=PfaOptions(queries, pcfg, progress))
+                    method_options=PfaOptions(queries, pcfg, lambda n, total: None))
             except BaseException as exc:  # noqa: BLE001 - re-raised in the main thread
                 outcome['error'] = exc
 
         thread = threading.Thread(target=work, name=f'attack-{spec.tag}', daemon=True)
-        self.pending = collections.deque()
-        waiting: collections.deque = collections.deque()
-        current = None
-        sets = 0
-        self.bar.write(f'{self.scene.name}: attack {spec.tag}: {pcfg.queries} planner queries '
-                       f'on {queries.workers} shims', file=sys.stderr)
+        self.loop.say(f'{task.scene.name}: attack {spec.tag}: {pcfg.queries} planner queries '
+                      f'on {queries.workers} shims')
         thread.start()
         try:
-            while thread.is_alive() or self.pending or self._busy():
-                self._supervise()
-                while True:
-                    try:
-                        waiting.append(queries.requests.get_nowait())
-                    except queue.Empty:
-                        break
-                if waiting and not self.pending and not self._busy() \
-                        and waiting[0].key != current:
-                    current, sets = waiting[0].key, sets + 1
-                    self.pool.inject(tuple(make_box(f'q{sets}_{i}', o.shapes[0].pose.position_m,
-                                                    o.shapes[0].dims)
-                                           for i, o in enumerate(waiting[0].obstacles)))
-                for job in [q for q in waiting if q.key == current]:
-                    waiting.remove(job)
-                    self.pending.append(job)
-                now = time.monotonic()
-                for shim in list(self.pool.shims):
-                    self._step_shim(shim, now)
-                if all(s.state == ShimState.DEAD for s in self.pool.shims):
-                    raise BenchError('no planner shim left for the attack\'s queries')
-                self.pool.spin(0.01)
+            self.loop.serve_queries(queries, thread.is_alive)
         finally:
             queries.aborted.set()
             thread.join(timeout=10)
@@ -234,8 +303,8 @@ class AttackSources:
                        source=f'{spec.method} in the orchestrator, queries on the planner shims',
                        heatmap_file=str(self.heatmap_file),
                        pfa=json.loads(json.dumps(stats, default=str))))
-        self.bar.write(f'{self.scene.name}: attack {spec.tag}: {len(boxes)} boxes '
-                       f'({result.status.value}, {result.compute_s:.1f} s, '
-                       f'{stats.get("queries")} queries, best failure rate '
-                       f'{stats.get("best_failure_rate")})', file=sys.stderr)
+        self.loop.say(f'{task.scene.name}: attack {spec.tag}: {len(boxes)} boxes '
+                      f'({result.status.value}, {result.compute_s:.1f} s, '
+                      f'{stats.get("queries")} queries, best failure rate '
+                      f'{stats.get("best_failure_rate")})')
         return boxes, meta

@@ -22,10 +22,12 @@ class PlanStatus(enum.IntEnum):
     GOAL_IN_COLLISION = -12
     INVALID_GOAL_CONSTRAINTS = -16
     INVALID_ROBOT_STATE = -17
-    CRASH = -29
     NO_IK_SOLUTION = -31
     INVALID_REQUEST = -101
     UNKNOWN_METHOD = -102
+    INTERNAL_ERROR = -105
+    """The planner itself failed (an exception, a dead worker, a path that collides): the
+    trial says nothing about the scene, so it must never count as a planning failure."""
 
 
 # OMPL geometric planners selectable by name (lower-case id -> class name in ompl.geometric).

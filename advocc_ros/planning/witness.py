@@ -163,8 +163,8 @@ def find_witness(robot: RobotModel, objects: tuple[SceneObject, ...] | list,
     with Planner(scene, config) as planner:
         result = planner.plan(q_init, goal, WITNESS_PLANNER, time_s, seed)
     witness = None
-    if result.status == PlanStatus.CRASH:  # not an answer about the task: not cached
-        log.error('witness search crashed: %s', result.message)
+    if result.status == PlanStatus.INTERNAL_ERROR:  # not an answer about the task: not cached
+        log.error('witness search failed internally: %s', result.message)
         return None
     if result.success:
         witness = Witness(robot.joint_names, result.path, dict(robot.locked_values), {

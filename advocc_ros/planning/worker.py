@@ -13,9 +13,15 @@ reuses across requests (imports and the robot model load once; the per-request c
 JSON line each way, measured ~1 ms). The parent waits for the answer with a watchdog deadline of
 ``time_budget_s + watchdog_margin_s``; past it, the child is killed (SIGKILL), the request is
 reported as ``TIMED_OUT`` with a message saying so, and a fresh child is started on the next
-request. A child that dies on its own is reported as ``CRASH``. Requests and answers are JSON
-lines on the child's stdin and a private duplicate of its stdout (fd 1 itself is redirected to
-stderr so that C++ output cannot corrupt the protocol); nothing is unpickled.
+request. A child that dies on its own, and an exception while serving a request, are reported
+as ``INTERNAL_ERROR``: they say nothing about the scene, so they must never read as a planning
+failure (an attack win). Requests and answers are JSON lines on the child's stdin and a private
+duplicate of its stdout (fd 1 itself is redirected to stderr so that C++ output cannot corrupt
+the protocol); nothing is unpickled.
+
+For diagnostics only, ``ADVOCC_PLANNING_FAULT`` in the worker's environment injects a fault into
+the plan requests of chosen seeds: ``raise:3,5`` raises inside the request, ``kill:3`` makes the
+worker SIGKILL itself mid-request (the tests of the INTERNAL_ERROR path use both).
 
 Why ompl 1.7.0 and how PRM* stays bounded. ompl 2.0.1's PRM/PRM* start a second C++ thread in
 ``solve`` that calls the Python validity checker while the first thread holds the GIL and PRM's
@@ -52,6 +58,32 @@ from advocc_ros.planning.types import (PlanningConfig, PlanResult, PlanStatus, _
                                        validate_request)
 
 log = logging.getLogger(__name__)
+
+FAULT_ENV = 'ADVOCC_PLANNING_FAULT'
+
+
+class InjectedFault(RuntimeError):
+    """The diagnostic exception of ``FAULT_ENV`` (logged without a traceback)."""
+
+
+def _inject_fault(seed: int) -> None:
+    """Raise or die here if ``FAULT_ENV`` asks for it for this seed (see the module docstring)."""
+    spec = os.environ.get(FAULT_ENV, '')
+    if not spec:
+        return
+    kind, _, seeds = spec.partition(':')
+    try:
+        chosen = {int(v) for v in seeds.split(',')}
+    except ValueError:
+        chosen = None
+    if kind not in ('raise', 'kill') or chosen is None:
+        raise ValueError(f'{FAULT_ENV}={spec!r}: expected raise:SEED[,SEED...] or '
+                         'kill:SEED[,SEED...]')
+    if seed not in chosen:
+        return
+    if kind == 'kill':
+        os.kill(os.getpid(), signal.SIGKILL)
+    raise InjectedFault(f'fault injected by {FAULT_ENV}={spec}')
 
 
 # --------------------------------------------------------------------------------------------
@@ -92,14 +124,18 @@ def _worker_main() -> None:
                 raise ValueError('worker has no scene for this request')
             config = PlanningConfig(**{k: tuple(v) if isinstance(v, list) else v
                                        for k, v in req['config'].items()})
+            _inject_fault(int(req['seed']))
             result = solve(cache['robot'], cache['world'],
                            np.asarray(req['q_start'], float),
                            GoalRegion.from_data(req['goal'], 'goal'), req['planner_id'],
                            float(req['time_budget_s']), int(req['seed']), config)
             reply(result.to_data())
-        except Exception as exc:  # a bad request must not kill the worker
-            log.exception('request failed')
-            reply({'status': int(PlanStatus.PLANNING_FAILED), 'message': f'worker: {exc}',
+        except Exception as exc:  # a bad request or a bug must not kill the worker
+            if isinstance(exc, InjectedFault):
+                log.error('request failed: %s', exc)
+            else:
+                log.exception('request failed')
+            reply({'status': int(PlanStatus.INTERNAL_ERROR), 'message': f'worker: {exc!r}',
                    'path': [], 'planning_time_s': 0.0, 'stats': {}})
 
 
@@ -149,7 +185,9 @@ class _Worker:
                 chunk = os.read(fd, 1 << 16)
                 if not chunk:
                     code = self.proc.wait()
-                    raise WorkerDied(f'planning worker exited with code {code}')
+                    how = (f'was killed by {signal.Signals(-code).name}' if code < 0
+                           else f'exited with code {code}')
+                    raise WorkerDied(f'planning worker {how}')
                 self._buf += chunk
         line, self._buf = self._buf.split(b'\n', 1)
         return json.loads(line)
@@ -176,8 +214,9 @@ class _Worker:
 class Planner:
     """Plans in a scene with one reusable, watched worker process (see the module docstring).
 
-    Thread-safe: concurrent ``plan`` calls are served one after the other. Use one ``Planner``
-    per parallel stream of requests (each owns a process).
+    Thread-safe: concurrent ``plan`` calls are served one after the other, and ``set_scene``
+    waits for the request in flight (a request never pairs one scene's key with another's
+    objects). Use one ``Planner`` per parallel stream of requests (each owns a process).
     """
 
     def __init__(self, scene: Scene, config: PlanningConfig = PlanningConfig()):
@@ -195,7 +234,8 @@ class Planner:
             raise RobotError('a Planner plans for one robot; create another for a new robot')
         data = scene.to_data()
         key = json.dumps([scene.objects_hash(), data['robot']], sort_keys=True)
-        self._scene, self._scene_data, self._scene_key = scene, data, key
+        with self._lock:
+            self._scene, self._scene_data, self._scene_key = scene, data, key
 
     @property
     def scene(self) -> Scene:
@@ -236,9 +276,10 @@ class Planner:
         request = {'op': 'plan', 'q_start': np.asarray(q_start, float).tolist(),
                    'goal': goal.to_data(), 'planner_id': planner_id,
                    'time_budget_s': float(budget), 'seed': int(seed),
-                   'config': dataclasses.asdict(self.config), 'scene_key': self._scene_key}
+                   'config': dataclasses.asdict(self.config)}
         with self._lock:
             self.requests += 1
+            request['scene_key'] = self._scene_key
             return self._call(request, budget)
 
     def _call(self, request: dict, budget: float) -> PlanResult:
@@ -255,7 +296,8 @@ class Planner:
         except WorkerDied as exc:
             self._kill_worker()
             log.error('%s', exc)
-            return _fail(PlanStatus.CRASH, str(exc), nq, time.monotonic() - t0)
+            return _fail(PlanStatus.INTERNAL_ERROR, str(exc), nq, time.monotonic() - t0,
+                         worker_died=True)
         round_trip = time.monotonic() - t_sent
         if answer is None:
             self._kill_worker()
@@ -264,7 +306,7 @@ class Planner:
             log.error('%s', msg)
             return _fail(PlanStatus.TIMED_OUT, msg, nq, round_trip, watchdog=True)
         if 'status' not in answer:
-            return _fail(PlanStatus.PLANNING_FAILED, f'unexpected worker answer {answer}', nq)
+            return _fail(PlanStatus.INTERNAL_ERROR, f'unexpected worker answer {answer}', nq)
         result = PlanResult.from_data(answer, nq)
         result.stats['round_trip_s'] = round_trip
         result.stats['overhead_s'] = round_trip - result.planning_time_s

@@ -1,4 +1,13 @@
-"""Starting and stopping node processes: the one way every advocc program does it."""
+"""Starting and stopping node processes: the one way every advocc program does it.
+
+A ``Child`` runs in a session (and process group) of its own, created by ``start_new_session``
+without any Python code between fork and exec: a ``preexec_fn`` runs in the forked copy of a
+process whose other threads (DDS, executors) may hold locks that copy can never take again.
+For the same reason the child asks for ``PR_SET_PDEATHSIG`` itself (``die_with_parent``, called
+by ``advocc_ros.nodes.run`` before rclpy starts). The group is signalled only while its leader is
+unreaped (``os.waitid`` with ``WNOWAIT``): the leader's zombie keeps the group id from being
+reused, so ``killpg`` cannot reach an unrelated group.
+"""
 
 from __future__ import annotations
 
@@ -18,6 +27,8 @@ log = logging.getLogger(__name__)
 _STOP_GRACE_S = 10.0
 _PR_SET_PDEATHSIG = 1
 _LIBC = ctypes.CDLL(None, use_errno=True)
+PARENT_ENV = 'ADVOCC_DIE_WITH_PARENT'
+"""Set by ``Child.start`` to the parent's pid: the child dies with that process."""
 
 
 def node_command(module: str, params: dict | None = None, remaps: dict | None = None
@@ -58,8 +69,15 @@ def stop(proc: subprocess.Popen, grace_s: float = 15.0) -> int:
     return proc.returncode
 
 
-def _die_with_parent() -> None:  # runs in the child between fork and exec
+def die_with_parent() -> None:
+    """In a process started by ``Child``: get SIGKILL when the parent dies. A parent that died
+    before the request took effect is caught by the pid check, and we exit at once."""
+    parent = os.environ.pop(PARENT_ENV, '')
+    if not parent.isdigit():
+        return
     _LIBC.prctl(_PR_SET_PDEATHSIG, signal.SIGKILL, 0, 0, 0)
+    if os.getppid() != int(parent):
+        os._exit(1)
 
 
 def node_name(text: str) -> str:
@@ -94,35 +112,51 @@ class Child:
             handle.write(f'\n=== start #{self.starts + 1} at {time.ctime()}: '
                          f'{" ".join(args)}\n'.encode())
             handle.flush()
-            self.proc = subprocess.Popen(args, env=self.env, stdin=subprocess.DEVNULL,
-                                         stdout=handle, stderr=subprocess.STDOUT,
-                                         start_new_session=True, preexec_fn=_die_with_parent)
+            env = dict(self.env, **{PARENT_ENV: str(os.getpid())})
+            self.proc = subprocess.Popen(args, env=env, stdin=subprocess.DEVNULL, stdout=handle,
+                                         stderr=subprocess.STDOUT, start_new_session=True)
         self.starts += 1
         self.started_at = time.monotonic()
         log.info('started %s (pid %d)', self.name, self.proc.pid)
 
+    def exit_code(self) -> int | None:
+        """The exit code (negative: killed by that signal) once the process has exited, else
+        None; the process is not reaped (see the module docstring)."""
+        if self.proc is None or self.proc.returncode is not None:
+            return None if self.proc is None else self.proc.returncode
+        try:
+            info = os.waitid(os.P_PID, self.proc.pid, os.WEXITED | os.WNOHANG | os.WNOWAIT)
+        except ChildProcessError:  # reaped elsewhere
+            return self.proc.poll()
+        if info is None:
+            return None
+        killed = info.si_code in (os.CLD_KILLED, os.CLD_DUMPED)
+        return -info.si_status if killed else info.si_status
+
     def alive(self) -> bool:
-        return self.proc is not None and self.proc.poll() is None
+        return self.proc is not None and self.exit_code() is None
 
     def _signal_group(self, sig: int) -> None:
+        if self.proc.returncode is not None:  # reaped: the group id may belong to others now
+            return
         try:
             os.killpg(self.proc.pid, sig)
         except (ProcessLookupError, PermissionError):
             pass
 
     def stop(self, grace_s: float = _STOP_GRACE_S) -> int | None:
-        """SIGINT to the group, SIGKILL after ``grace_s``; the group's leftovers are killed."""
+        """SIGINT to the group, SIGKILL after ``grace_s``; the group's leftovers are killed
+        before the leader is reaped."""
         if self.proc is None:
             return None
-        if self.proc.poll() is None:
+        if self.alive():
             self._signal_group(signal.SIGINT)
-            try:
-                self.proc.wait(grace_s)
-            except subprocess.TimeoutExpired:
+            deadline = time.monotonic() + grace_s
+            while self.alive() and time.monotonic() < deadline:
+                time.sleep(0.05)
+            if self.alive():
                 log.warning('%s ignored SIGINT for %.0f s: SIGKILL', self.name, grace_s)
         self._signal_group(signal.SIGKILL)  # e.g. a planning worker left behind
-        if self.proc.poll() is None:
-            self.proc.kill()
         self.proc.wait()
         return self.proc.returncode
 
@@ -137,4 +171,4 @@ class Child:
             return ''
 
 
-__all__ = ['Child', 'node_command', 'node_name', 'start_node', 'stop']
+__all__ = ['Child', 'die_with_parent', 'node_command', 'node_name', 'start_node', 'stop']

@@ -1,0 +1,54 @@
+"""How a trial ended, from its status: a success, one of the planner's failure modes, or an
+internal error.
+
+Only the planner's own answers measure the scene: every goal pose blocked (``GOAL_IN_COLLISION``,
+``NO_IK_SOLUTION``: the attack blocked the goal), out of time (``TIMED_OUT``: the paths were
+occluded) or no path found (``PLANNING_FAILED``). Anything else (``INTERNAL_ERROR`` from a
+planner that raised or died, a path that collides, ``CRASH``/``FAILURE``/an unknown code from a
+shim, a rejected request, a record that contradicts itself) is an internal error: a bug or a
+dead process must not lower PSR and pass for a successful attack, so internal errors stay out of
+PSR's denominator, are counted on their own, and a benchmark cell with more than
+``MAX_INTERNAL_ERROR_FRACTION`` of them fails the run.
+"""
+
+from __future__ import annotations
+
+SUCCESS = 'success'
+INTERNAL_ERROR = 'internal error'
+FAILURE_MODES = ('goal blocked', 'timed out', 'planning failed')
+"""The planner's failure modes, in table order."""
+_MODES = {'GOAL_IN_COLLISION': 'goal blocked', 'NO_IK_SOLUTION': 'goal blocked',
+          'TIMED_OUT': 'timed out', 'PLANNING_FAILED': 'planning failed'}
+MAX_INTERNAL_ERROR_FRACTION = 0.05
+"""A benchmark cell with a larger share of internal errors fails the run."""
+
+
+def outcome(status: str) -> str:
+    """``success``, a failure mode or ``internal error`` for a status name (``PlanStatus`` or
+    ``advocc_msgs/ErrorCodes``; a code without a name arrives as its number)."""
+    if status == 'SUCCESS':
+        return SUCCESS
+    return _MODES.get(status, INTERNAL_ERROR)
+
+
+def record_outcome(record: dict) -> str:
+    """The outcome of a trial record; one whose ``success`` flag contradicts its status is an
+    internal error."""
+    kind = outcome(str(record.get('status', '')))
+    if (kind == SUCCESS) != bool(record.get('success')):
+        return INTERNAL_ERROR
+    return kind
+
+
+def too_many_internal_errors(row: dict) -> bool:
+    """Whether a table row (``aggregate``) has more internal errors than the run may have."""
+    return row['internal_errors'] > MAX_INTERNAL_ERROR_FRACTION * row['trials']
+
+
+def internal_error_warning(row: dict, what: str = '') -> str | None:
+    """The warning to print for a row with internal errors, else None."""
+    if not row['internal_errors']:
+        return None
+    where = f'{what}: ' if what else ''
+    return (f'warning: {where}{row["internal_errors"]} of {row["trials"]} trials were internal '
+            'errors (the planner raised or died, not a planning outcome): left out of PSR')

@@ -1,0 +1,76 @@
+"""``evaluate_planner``: N plan requests on one scene, served by parallel planner processes."""
+
+from __future__ import annotations
+
+import concurrent.futures
+import queue
+import threading
+from typing import Any
+
+import numpy as np
+
+from advocc_ros.evaluation.metrics import (MetricsConfig, PathInCollision, TrialRecord,
+                                           aggregate, trial_metrics)
+from advocc_ros.model.collision import CollisionWorld
+
+
+def evaluate_planner(scene, planner_id: str, trials: int, time_budget_s: float = 5.0,
+                     seed: int = 0, workers: int = 1, planning_config=None,
+                     metrics_config: MetricsConfig = MetricsConfig(), progress=None
+                     ) -> dict[str, Any]:
+    """Run ``trials`` plan requests in ``scene`` and return the table row plus the records.
+
+    ``workers`` planner processes serve the trials in parallel (one ``Planner`` and one
+    ``CollisionWorld`` per thread); trial ``k`` uses seed ``seed + k``. ``progress(record)`` is
+    called after each trial. A success whose path collides is recorded as ``INTERNAL_ERROR``.
+    """
+    from advocc_ros.model.robot import load_robot
+    from advocc_ros.planning import Planner, PlanningConfig, start_configuration
+
+    if scene.goal is None:
+        raise ValueError(f'scene {scene.name!r} has no goal region')
+    planning_config = planning_config or PlanningConfig()
+    robot = load_robot(scene.robot)
+    q_init = start_configuration(scene, robot)
+    workers = max(1, min(int(workers), trials))
+    planners: queue.Queue = queue.Queue()
+    local = threading.local()
+    started = []
+
+    def run(k: int) -> TrialRecord:
+        planner = planners.get()
+        try:
+            res = planner.plan(q_init, scene.goal, planner_id, time_budget_s, seed + k)
+        finally:
+            planners.put(planner)
+        rec = TrialRecord(k, seed + k, res.success, res.status.name, float(res.planning_time_s),
+                          res.message, waypoints=len(res.path))
+        if res.success:
+            if not hasattr(local, 'world'):
+                local.world = CollisionWorld(robot, scene.shapes)
+            try:
+                metrics = trial_metrics(robot, local.world, res.path, q_init, metrics_config,
+                                        np.random.default_rng(seed + k))
+            except PathInCollision as exc:
+                rec.success, rec.status = False, 'INTERNAL_ERROR'
+                rec.message = f'{exc} ({res.message})'
+            else:
+                for key, value in metrics.items():
+                    setattr(rec, key, value)
+        if progress:
+            progress(rec)
+        return rec
+
+    try:
+        for _ in range(workers):
+            planner = Planner(scene, planning_config).start()
+            started.append(planner)
+            planners.put(planner)
+        with concurrent.futures.ThreadPoolExecutor(workers) as pool:
+            records = list(pool.map(run, range(trials)))
+    finally:
+        for planner in started:
+            planner.close()
+    row = aggregate(records, time_budget_s)
+    return dict(row, scene=scene.name, planner=planner_id, seed=seed,
+                records=[r.to_data() for r in records])
