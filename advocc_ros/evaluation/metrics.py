@@ -34,6 +34,7 @@ from typing import Any, Iterable
 import numpy as np
 import pinocchio as pin
 
+from advocc_ros.evaluation.hardness import time_summary
 from advocc_ros.model.collision import CollisionWorld
 from advocc_ros.model.robot import RobotModel
 
@@ -76,6 +77,8 @@ class TrialRecord:
     """CMR of this trial, raw [rad] (not x10^-2)."""
     jds_rad: float | None = None
     waypoints: int = 0
+    first_solution_s: float | None = None
+    """Request to first exact solution [s] of a success (``PlanResult.first_solution_s``)."""
 
     def to_data(self) -> dict:
         return dataclasses.asdict(self)
@@ -232,7 +235,8 @@ def _mean(values: list[float]) -> float | None:
 def aggregate(records: Iterable[TrialRecord | dict], time_budget_s: float) -> dict[str, Any]:
     """Table row of one (scene, planner, attack, budget) from per-trial records.
 
-    ``smr`` and ``cmr`` are x10^-2 (raw x 100); ``None`` means N/A (PSR = 0).
+    ``smr`` and ``cmr`` are x10^-2 (raw x 100); ``None`` means N/A (PSR = 0). The time to
+    first solution (median, p90, PSR at several budgets) comes from ``hardness.time_summary``.
     """
     rows = [r.to_data() if isinstance(r, TrialRecord) else dict(r) for r in records]
     ok = [r for r in rows if r['success']]
@@ -251,6 +255,7 @@ def aggregate(records: Iterable[TrialRecord | dict], time_budget_s: float) -> di
         'failures': {mode: sum(1 for r in rows if not r['success']
                                and failure_mode(r.get('status', '')) == mode)
                      for mode in FAILURE_MODES},
+        **time_summary(rows, time_budget_s),
     }
 
 
@@ -299,7 +304,7 @@ def evaluate_planner(scene, planner_id: str, trials: int, time_budget_s: float =
                 planners.put(planner)
             rec = TrialRecord(k, seed + k, res.success, res.status.name,
                               float(res.planning_time_s), res.message,
-                              waypoints=len(res.path))
+                              waypoints=len(res.path), first_solution_s=res.first_solution_s)
             if res.success:
                 if not hasattr(local, 'world'):
                     local.world = CollisionWorld(robot, scene.shapes)
