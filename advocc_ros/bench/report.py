@@ -10,8 +10,9 @@ from typing import Any
 from advocc_ros.attack.obstacles import obstacles_meta
 from advocc_ros.bench.protocol import BASELINE, BenchConfig, variation_scenes
 from advocc_ros.bench.records import RecordStore
-from advocc_ros.bench.tables import (baseline_table, cell_rows, failure_table, table1, table2,
-                                     table4)
+from advocc_ros.bench.tables import (baseline_table, cell_rows, failure_table, hardness_table,
+                                     table1, table2, table4)
+from advocc_ros.evaluation.hardness import solution_times
 from advocc_ros.fileio import atomic_write_text
 from advocc_ros.model.scene import read_yaml
 
@@ -95,8 +96,21 @@ def write_report(run_dir: str | pathlib.Path, cfg: BenchConfig, summary: dict | 
         'fixed goal samples valid without the boxes, the mean fraction still valid with them '
         f'(goal policy {cfg.goal_policy}).\n\n' + md_f)
     put('failures.csv', csv_f)
+    md_h, csv_h = hardness_table(rows, metas, cfg, stems)
+    put('hardness.md', '# Hardness beyond PSR\n\n'
+        'PSR@t: share of trials whose first exact solution came within t seconds of the request '
+        f'(read off the {cfg.time_budget_s:g} s runs); T1st: time to first solution, failures '
+        'counted at the budget; PT ratio: attacked / unattacked median T1st; Solvable: the '
+        'attacks\' verdicts (certified / goal blocked / unknown). "+": the trials did not '
+        'report their first-solution time, their planning time (an upper bound) stands in.\n\n'
+        + md_h)
+    put('hardness.csv', csv_h)
 
-    # Figures: PSR vs budget per scene (one panel per planner); heatmap slice + obstacles.
+    # Figures: PSR vs budget and time to first solution per scene; heatmap slice + obstacles.
+    by_cell: dict[tuple, list] = {}
+    for rec in store.records.values():
+        by_cell.setdefault((rec['scene'], rec['planner'], rec['method'], int(rec['budget'])),
+                           []).append(rec)
     for i, scene in enumerate(cfg.scenes):
         curves = {}
         for planner in cfg.planners:
@@ -113,6 +127,14 @@ def write_report(run_dir: str | pathlib.Path, cfg: BenchConfig, summary: dict | 
             name = f'figures/psr_vs_budget_{stem}.png'
             figures.plot_psr_vs_budget(curves, run_dir / name,
                                        title=f'Scene {i + 1} ({stem}): PSR vs budget')
+            out[name] = run_dir / name
+        times = {(p, m, b): solution_times(recs)[0] for (sc, p, m, b), recs in by_cell.items()
+                 if sc == scene}
+        if times:
+            name = f'figures/time_to_solution_{stem}.png'
+            figures.plot_time_to_solution(
+                times, cfg.time_budget_s, run_dir / name,
+                title=f'Scene {i + 1} ({stem}): trials solved vs time to first solution')
             out[name] = run_dir / name
         if scene in heatmaps:
             attack_files = sorted((run_dir / 'attacks' / stem).glob('*.yaml'))
