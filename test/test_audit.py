@@ -63,7 +63,8 @@ def test_audit_command_errors(tmp_path, capsys):
 def test_audit_end_to_end_table_pick(tmp_path, table_scene):
     """Task / paper on table_pick: the first box blocks every goal pose (measured), so the PSR
     drops to the last evaluated prefix and the goal-valid fraction goes to 0."""
-    from advocc_ros.evaluation.audit import run_audit, write_audit
+    from advocc_ros.evaluation.audit import run_audit
+    from advocc_ros.evaluation.audit_report import write_audit
     from advocc_ros.heatmap import HeatmapConfig, build_heatmap
 
     heatmap = build_heatmap(table_scene, HeatmapConfig(samples=3000), seed=0, workers=1)

@@ -36,6 +36,7 @@ def write_report(run_dir: str | pathlib.Path, cfg: BenchConfig, summary: dict | 
                  ) -> dict[str, pathlib.Path]:
     """Tables I, II, IV (+ baseline) as Markdown and CSV, figures, summary; all atomic."""
     import advocc_ros.bench.figures as figures
+    from advocc_ros.evaluation.figures import plot_heatmap_slices
     from advocc_ros.attack import load_obstacles
     from advocc_ros.heatmap import HeatmapError, load_heatmap
     from advocc_ros.paths import scene_path
@@ -153,8 +154,8 @@ def write_report(run_dir: str | pathlib.Path, cfg: BenchConfig, summary: dict | 
                 continue
             at = list(obstacles[0].shapes[0].pose.position_m) if obstacles else None
             name = f'figures/heatmap_{stem}.png'
-            figures.plot_heatmap_slices(heatmaps[scene], run_dir / name, scene=scene_obj,
-                                        obstacles=obstacles, at_m=at)
+            plot_heatmap_slices(heatmaps[scene], run_dir / name, scene=scene_obj,
+                                obstacles=obstacles, at_m=at)
             out[name] = run_dir / name
     if summary is not None:
         put('summary.json', json.dumps(summary, indent=2) + '\n')

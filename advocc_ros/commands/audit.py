@@ -111,7 +111,8 @@ def audit_heatmap(scene, out: pathlib.Path, heatmap_file: str | None, workers: i
 
 def run_audit_to(scene, heatmap, cfg, out: pathlib.Path, log=print) -> dict:
     """Run the audit with a progress line per evaluation on stderr and write its files."""
-    from advocc_ros.evaluation.audit import planner_label, run_audit, write_audit
+    from advocc_ros.evaluation.audit import run_audit
+    from advocc_ros.evaluation.audit_report import planner_label, write_audit
 
     def progress(m: int, planner: str, row: dict) -> None:
         print(f'  m={m} {planner_label(planner):<11} PSR {100 * row["psr"]:3.0f} % '
@@ -128,7 +129,7 @@ def run_audit_to(scene, heatmap, cfg, out: pathlib.Path, log=print) -> dict:
 
 
 def run(args: argparse.Namespace) -> int:
-    from advocc_ros.evaluation.audit import audit_answer, budget_table
+    from advocc_ros.evaluation.audit_report import audit_answer, budget_table
 
     cfg = audit_config(args)
     check_bag_arg(args)

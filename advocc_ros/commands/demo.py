@@ -68,7 +68,7 @@ def run(args) -> int:
     summary = heatmap.summary()
     print(json.dumps({k: summary[k] for k in ('valid_samples', 'candidates', 'build_s',
                                               'shape', 'nonzero_voxels', 'total_mass')}))
-    from advocc_ros.bench.figures import plot_heatmap_slices
+    from advocc_ros.evaluation.figures import plot_heatmap_slices
     plot_heatmap_slices(heatmap, out / f'heatmap_{scene.name}.png', scene=scene)
     print(f'slice figure: {out / f"heatmap_{scene.name}.png"}')
 
@@ -77,7 +77,8 @@ def run(args) -> int:
            f'(task attack, goal policy paper, up to {args.audit_budget} boxes, '
            f'{args.audit_trials} trials x {args.audit_time:g} s)')
     from advocc_ros.commands.audit import run_audit_to
-    from advocc_ros.evaluation.audit import AuditConfig, audit_answer, budget_table
+    from advocc_ros.evaluation.audit import AuditConfig
+    from advocc_ros.evaluation.audit_report import audit_answer, budget_table
     audit_cfg = AuditConfig(planners=planners, max_budget=args.audit_budget,
                             trials=args.audit_trials, time_budget_s=args.audit_time,
                             method='task', policy='paper',
