@@ -1,9 +1,13 @@
 """``advocc audit``: how few boxes make each planner fail this task, and where do they go?
 
 One attack at the largest budget K, then its prefixes m = 0, 1, 2, ... evaluated per planner
-(greedy picks are nested) until every planner is at PSR 0 %. Writes ``DIR/audit.md``,
-``DIR/audit.json``, two figures and ``DIR/audit.html`` (an offline 3D view); prints the
-answer and the per-budget table (``--json``: the audit as JSON). Progress goes to stderr.
+(greedy picks are nested) until every planner is at PSR 0 %; every prefix gets a verdict
+(certified solvable / goal blocked / unknown). The answer: how few boxes make the pick
+impossible (goal blocked, from a paper-policy attack) and how few make each planner fail while
+the task stays certified solvable (``--policy solvable`` runs that attack too). Writes
+``DIR/audit.md``, ``DIR/audit.json``, two figures and ``DIR/audit.html`` (an offline 3D
+view); prints the answer and the per-budget table (``--json``: the audit as JSON). Progress
+goes to stderr.
 """
 
 from __future__ import annotations
@@ -35,8 +39,10 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help='attack method; greedy ones (task, ours) give nested picks '
                         '(default %(default)s)')
     p.add_argument('--policy', default='paper', choices=POLICIES,
-                   help='goal policy: paper (boxes may block every goal pose) or reachable '
-                        '(default %(default)s)')
+                   help='goal policy of the evaluated attack: paper (boxes may block every '
+                        'goal pose), reachable, or solvable (a witness path stays valid); the '
+                        'goal-blocked answer always comes from a paper attack, a second one '
+                        'under the other policies (default %(default)s)')
     p.add_argument('--max-budget', type=int, default=5, metavar='K',
                    help='boxes of the attack whose prefixes are evaluated (default %(default)s)')
     p.add_argument('--trials', type=int, default=10,

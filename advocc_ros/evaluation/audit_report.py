@@ -30,28 +30,17 @@ def _failures(failures: dict) -> str:
 
 
 def audit_answer(audit: dict) -> str:
-    """The headline: per planner, how many boxes make it fail (PSR <= 20 %) and reach 0 %."""
+    """The headline: how few boxes make the pick impossible, and per planner how few make it
+    fail (PSR <= 20 %, and 0 %) while the task stays certified solvable."""
     s = audit['settings']
     lines = [f'Audit of {audit["scene"]}: attack {audit["method_label"]} (goal policy '
              f'{audit["policy"]}, {s["box_size_m"]} m boxes, up to {audit["max_budget"]}), '
-             f'{s["trials"]} trials x {s["time_budget_s"]:g} s per planner and budget.']
-    fail, zero = audit['min_budget'][str(ANSWER_THRESHOLD)], audit['min_budget'][str(0.0)]
+             f'{s["trials"]} trials x {s["time_budget_s"]:g} s per planner and budget.',
+             impossible_answer(audit),
+             'Fewest boxes that make each planner fail while the task stays certified '
+             'solvable (a witness path stays valid):']
+    lines += [f'- {_planner_answer(audit, planner)}.' for planner in audit['psr']]
     evaluated = len(audit['budgets']) - 1
-    for planner, curve in audit['psr'].items():
-        label = planner_label(planner)
-        m = fail[planner]
-        if m is None:
-            low = min(range(len(curve)), key=lambda i: curve[i])
-            lines.append(f'- {label} does not fail (PSR > 20 %) with up to '
-                         f'{_boxes(evaluated)}: lowest PSR {_pct(curve[low])} at m = {low} '
-                         f'(unattacked {_pct(curve[0])}).')
-            continue
-        row = audit['budgets'][m]['planners'][planner]
-        text = (f'- {label} fails (PSR <= 20 %) with {_boxes(m)}: PSR {_pct(curve[0])} -> '
-                f'{_pct(curve[m])} ({_failures(row["failures"])})')
-        if zero[planner] is not None and zero[planner] != m:
-            text += f'; PSR 0 % with {_boxes(zero[planner])}'
-        lines.append(text + '.')
     placed = ', '.join(f'#{b["pick"]} at {b["center_m"]}' for b in audit['boxes'][:evaluated])
     if placed:
         lines.append(f'Boxes (robot base frame, pick order): {placed}.')
@@ -61,14 +50,56 @@ def audit_answer(audit: dict) -> str:
     return '\n'.join(lines)
 
 
+def impossible_answer(audit: dict) -> str:
+    """How few boxes of the paper-policy attack leave no collision-free goal configuration."""
+    imp = audit['impossible']
+    which = 'this attack' if imp['same_attack'] else \
+        f'the {audit["method_label"]} attack under goal policy paper'
+    m = imp['goal_blocked_m']
+    if m is None:
+        verdicts = ', '.join(f'm={p["m"]} {p["solvable"]}' for p in imp['prefixes'])
+        return (f'Impossible: no prefix of {which} blocks the goal (up to '
+                f'{_boxes(len(imp["prefixes"]))}: {verdicts or "no boxes placed"}).')
+    why = imp['prefixes'][m - 1]['solvability'].get('message', '')
+    return (f'Impossible: {_boxes(m)} of {which} make the pick impossible for every planner '
+            f'(goal blocked{": " + why if why else ""}).')
+
+
+def _planner_answer(audit: dict, planner: str) -> str:
+    """One planner's line: its fewest boxes to fail while certified, else why not."""
+    label, curve = planner_label(planner), audit['psr'][planner]
+    fail = audit['min_budget_solvable'][str(ANSWER_THRESHOLD)][planner]
+    zero = audit['min_budget_solvable'][str(0.0)][planner]
+    if fail is not None:
+        row = audit['budgets'][fail]['planners'][planner]
+        text = (f'{label} fails (PSR <= 20 %) with {_boxes(fail)}, task certified: PSR '
+                f'{_pct(curve[0])} -> {_pct(curve[fail])} ({_failures(row["failures"])})')
+        if zero is not None and zero != fail:
+            text += f'; PSR 0 % with {_boxes(zero)}'
+        return text
+    certified = [m for m, b in enumerate(audit['budgets']) if b['solvable'] == 'certified']
+    if not certified:
+        text = f'{label}: no evaluated prefix is certified solvable'
+    else:
+        low = min(certified, key=lambda m: curve[m])
+        text = (f'{label} does not fail (PSR > 20 %) on a certified prefix (m = '
+                f'{", ".join(map(str, certified))}): lowest PSR {_pct(curve[low])} at m = {low}'
+                f' (unattacked {_pct(curve[0])})')
+    anyway = audit['min_budget'][str(ANSWER_THRESHOLD)][planner]
+    if anyway is not None:
+        text += (f'; it fails with {_boxes(anyway)}, where the task is '
+                 f'{audit["budgets"][anyway]["solvable"]}')
+    return text
+
+
 def budget_table(audit: dict) -> str:
-    """Markdown: per m, goal-valid fraction, and per planner PSR and failure modes."""
+    """Markdown: per m, the verdict, goal-valid fraction, and per planner PSR and failures."""
     planners = list(audit['psr'])
-    head = ['m', 'goal valid'] + [f'{planner_label(p)} {c}' for p in planners
-                                  for c in ('PSR', 'failures')]
+    head = ['m', 'solvable', 'goal valid'] + [f'{planner_label(p)} {c}' for p in planners
+                                              for c in ('PSR', 'failures')]
     lines = ['| ' + ' | '.join(head) + ' |', '|' + '---|' * len(head)]
     for b in audit['budgets']:
-        cells = [str(b['m']), _pct(b['goal_valid_fraction'])]
+        cells = [str(b['m']), b['solvable'], _pct(b['goal_valid_fraction'])]
         for p in planners:
             row = b['planners'][p]
             cells += [_pct(row['psr']), _failures(row['failures'])]
@@ -76,20 +107,28 @@ def budget_table(audit: dict) -> str:
     return '\n'.join(lines)
 
 
-def audit_markdown(audit: dict) -> str:
-    """The whole ``audit.md``: answer, per-budget table, minimal budgets, boxes, settings."""
-    s, planners = audit['settings'], list(audit['psr'])
-    thresholds = list(audit['min_budget'])
-    out = [f'# Audit: {audit["scene"]}', '', '## Answer', '', audit_answer(audit), '',
-           '## PSR per budget', '', budget_table(audit), '',
-           '## Minimal budget per PSR threshold', '',
-           '| planner | ' + ' | '.join(f'PSR <= {float(t) * 100:.0f} %' for t in thresholds)
+def _min_budget_table(audit: dict, key: str) -> list[str]:
+    """Markdown lines: per planner, the minimal budget per PSR threshold of ``audit[key]``."""
+    thresholds = list(audit[key])
+    out = ['| planner | ' + ' | '.join(f'PSR <= {float(t) * 100:.0f} %' for t in thresholds)
            + ' |', '|' + '---|' * (1 + len(thresholds))]
-    for p in planners:
-        cells = [audit['min_budget'][t][p] for t in thresholds]
+    for p in audit['psr']:
+        cells = [audit[key][t][p] for t in thresholds]
         out.append(f'| {planner_label(p)} | '
                    + ' | '.join(f'> {len(audit["budgets"]) - 1}' if c is None else str(c)
                                 for c in cells) + ' |')
+    return out
+
+
+def audit_markdown(audit: dict) -> str:
+    """The whole ``audit.md``: answer, per-budget table, minimal budgets, boxes, settings."""
+    s, planners = audit['settings'], list(audit['psr'])
+    out = [f'# Audit: {audit["scene"]}', '', '## Answer', '', audit_answer(audit), '',
+           '## PSR per budget', '', budget_table(audit), '',
+           '## Minimal budget per PSR threshold, task certified solvable', '',
+           *_min_budget_table(audit, 'min_budget_solvable'), '',
+           '## Minimal budget per PSR threshold, any verdict', '',
+           *_min_budget_table(audit, 'min_budget')]
     evaluated = len(audit['budgets']) - 1
     out += ['', '## Boxes in pick order', '',
             '| # | id | centre [m] | marginal mass | evaluated |', '|---|---|---|---|---|']
@@ -103,6 +142,8 @@ def audit_markdown(audit: dict) -> str:
             f'- attack: {audit["method"]}, goal policy {audit["policy"]}, max budget '
             f'{audit["max_budget"]}, seed {s["seed"]}: {audit["attack"]["status"]} '
             f'({audit["attack"]["message"]}), {audit["attack"]["compute_ms"]:.1f} ms',
+            f'- goal-blocked answer: {_impossible_attack(audit)}',
+            f'- witness: {_witness(audit["witness"])}',
             f'- planners: {", ".join(planners)}; {s["trials"]} trials, '
             f'{s["time_budget_s"]:g} s per plan, {s["workers"]} worker processes',
             f'- heatmap: {s["heatmap"]["valid_samples"]} samples, built for '
@@ -111,6 +152,22 @@ def audit_markdown(audit: dict) -> str:
             f'{audit["machine"]["cpu"]} ({audit["machine"]["cores"]} cores), Python '
             f'{audit["machine"]["python"]}', '']
     return '\n'.join(out)
+
+
+def _impossible_attack(audit: dict) -> str:
+    imp = audit['impossible']
+    if imp['same_attack']:
+        return 'the prefixes of this attack'
+    return (f'a second attack, goal policy paper: {imp["attack"]["status"]} '
+            f'({imp["attack"]["message"]}), boxes '
+            + ', '.join(f'#{b["pick"]} at {b["center_m"]}' for b in imp['boxes']))
+
+
+def _witness(source: dict | None) -> str:
+    if source is None:
+        return 'none found on the unattacked scene (no prefix can be certified)'
+    return 'found on the unattacked scene (' + ', '.join(f'{k} {v}' for k, v in source.items()) \
+        + ')'
 
 
 def write_audit(audit: dict, out_dir: str | pathlib.Path, heatmap, scene) -> dict[str, str]:
