@@ -88,7 +88,6 @@ def run_audit(scene, heatmap, cfg: AuditConfig = AuditConfig(),
     from advocc_ros.attack.methods import REGISTRY
     from advocc_ros.evaluation.perf import machine
     from advocc_ros.model import load_robot, start_configuration
-    from advocc_ros.planning.witness import find_witness
 
     if scene.goal is None or scene.start is None:
         raise ValueError(f'scene {scene.name!r} needs a start and a goal to be audited')
@@ -98,9 +97,9 @@ def run_audit(scene, heatmap, cfg: AuditConfig = AuditConfig(),
     t_start = time.perf_counter()
     robot = load_robot(scene.robot)
     q_init = start_configuration(scene, robot)
-    witness = find_witness(robot, scene.objects, q_init, scene.goal, seed=cfg.seed)
-    task = _Task(scene, robot, q_init, witness)
+    task = _Task(scene, robot, q_init)
     result = _attack(task, heatmap, cfg, cfg.policy, attack_cfg)
+    task = dataclasses.replace(task, witness=result.witness)
     log.info('audit %s: %d boxes (%s), evaluating prefixes', scene.name,
              len(result.obstacles), result.status.value)
     budgets, psr, stop_reason = _sweep(task, result, cfg, progress, planning_config)
@@ -120,7 +119,7 @@ def run_audit(scene, heatmap, cfg: AuditConfig = AuditConfig(),
                          heatmap={k: heatmap.meta.get(k) for k in
                                   ('valid_samples', 'scene_name', 'build_s')}),
         'attack': _attack_json(result),
-        'witness': None if witness is None else witness.source,
+        'witness': None if result.witness is None else result.witness.source,
         'boxes': _boxes_json(result),
         'budgets': budgets,
         'psr': psr,
@@ -135,19 +134,19 @@ def run_audit(scene, heatmap, cfg: AuditConfig = AuditConfig(),
 
 @dataclasses.dataclass(frozen=True)
 class _Task:
-    """The task under audit: its scene, robot, start and witness (None: none found)."""
+    """The task under audit: its scene, robot, start and the attack's witness (None: none)."""
 
     scene: Any
     robot: Any
     q_init: Any
-    witness: Any
+    witness: Any = None
 
     def solvability(self, boxes: tuple) -> dict:
         """The verdict on the task with ``boxes`` added, as JSON."""
         from advocc_ros.attack.solvable import assess
 
-        return assess(self.robot, self.scene.objects, tuple(boxes), self.q_init,
-                      self.scene.goal, self.witness).to_json()
+        return assess(self.robot, self.scene.objects, tuple(boxes), self.scene.goal,
+                      self.witness).to_json()
 
 
 def _attack(task: _Task, heatmap, cfg: AuditConfig, policy: str, attack_cfg):

@@ -61,8 +61,8 @@ def impossible_answer(audit: dict) -> str:
         return (f'Impossible: no prefix of {which} blocks the goal (up to '
                 f'{_boxes(len(imp["prefixes"]))}: {verdicts or "no boxes placed"}).')
     why = imp['prefixes'][m - 1]['solvability'].get('message', '')
-    return (f'Impossible: {_boxes(m)} of {which} make the pick impossible for every planner '
-            f'(goal blocked{": " + why if why else ""}).')
+    return (f'Impossible: {_boxes(m)} of {which} {"makes" if m == 1 else "make"} the pick '
+            f'impossible for every planner (goal blocked{": " + why if why else ""}).')
 
 
 def _planner_answer(audit: dict, planner: str) -> str:
@@ -81,10 +81,11 @@ def _planner_answer(audit: dict, planner: str) -> str:
     if not certified:
         text = f'{label}: no evaluated prefix is certified solvable'
     else:
-        low = min(certified, key=lambda m: curve[m])
+        low = min(certified, key=lambda m: (curve[m], -m))
         text = (f'{label} does not fail (PSR > 20 %) on a certified prefix (m = '
                 f'{", ".join(map(str, certified))}): lowest PSR {_pct(curve[low])} at m = {low}'
-                f' (unattacked {_pct(curve[0])})')
+                f' (unattacked {_pct(curve[0])}), median time to first solution '
+                f'{_seconds(audit, 0, planner)} -> {_seconds(audit, low, planner)}')
     anyway = audit['min_budget'][str(ANSWER_THRESHOLD)][planner]
     if anyway is not None:
         text += (f'; it fails with {_boxes(anyway)}, where the task is '
@@ -92,17 +93,24 @@ def _planner_answer(audit: dict, planner: str) -> str:
     return text
 
 
+def _seconds(audit: dict, m: int, planner: str) -> str:
+    """Median time to first solution of ``planner`` at prefix m (failures at the budget)."""
+    value = audit['budgets'][m]['planners'][planner]['first_solution_median_s']
+    return 'N/A' if value is None else f'{value:.2f} s'
+
+
 def budget_table(audit: dict) -> str:
-    """Markdown: per m, the verdict, goal-valid fraction, and per planner PSR and failures."""
+    """Markdown: per m, the verdict, goal-valid fraction, and per planner PSR, median time to
+    first solution (failures at the budget) and failures."""
     planners = list(audit['psr'])
     head = ['m', 'solvable', 'goal valid'] + [f'{planner_label(p)} {c}' for p in planners
-                                              for c in ('PSR', 'failures')]
+                                              for c in ('PSR', 'T1st', 'failures')]
     lines = ['| ' + ' | '.join(head) + ' |', '|' + '---|' * len(head)]
     for b in audit['budgets']:
         cells = [str(b['m']), b['solvable'], _pct(b['goal_valid_fraction'])]
         for p in planners:
             row = b['planners'][p]
-            cells += [_pct(row['psr']), _failures(row['failures'])]
+            cells += [_pct(row['psr']), _seconds(audit, b['m'], p), _failures(row['failures'])]
         lines.append('| ' + ' | '.join(cells) + ' |')
     return '\n'.join(lines)
 
