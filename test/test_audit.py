@@ -181,4 +181,4 @@ def test_audit_answer_does_not_count_a_blocked_goal_as_a_win():
         'impossible for every planner (goal blocked: why).' in text
     assert '- RRTConnect does not fail (PSR > 20 %) on a certified prefix (m = 0, 1): lowest ' \
         'PSR 70 % at m = 1 (unattacked 100 %), median time to first solution 0.10 s -> ' \
-        '0.20 s; it fails with 2 boxes, where the task is goal blocked.' in text
+        '0.20 s (PT ratio x2.00); it fails with 2 boxes, where the task is goal blocked.' in text

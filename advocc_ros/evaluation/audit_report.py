@@ -6,6 +6,7 @@ from __future__ import annotations
 import pathlib
 
 from advocc_ros.evaluation.audit import ANSWER_THRESHOLD
+from advocc_ros.evaluation.hardness import pt_ratio
 
 
 def planner_label(planner_id: str) -> str:
@@ -86,6 +87,10 @@ def _planner_answer(audit: dict, planner: str) -> str:
                 f'{", ".join(map(str, certified))}): lowest PSR {_pct(curve[low])} at m = {low}'
                 f' (unattacked {_pct(curve[0])}), median time to first solution '
                 f'{_seconds(audit, 0, planner)} -> {_seconds(audit, low, planner)}')
+        ratio = pt_ratio(audit['budgets'][low]['planners'][planner],
+                         audit['budgets'][0]['planners'][planner])
+        if ratio is not None:
+            text += f' (PT ratio x{ratio:.2f})'
     anyway = audit['min_budget'][str(ANSWER_THRESHOLD)][planner]
     if anyway is not None:
         text += (f'; it fails with {_boxes(anyway)}, where the task is '
