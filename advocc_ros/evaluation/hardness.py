@@ -4,9 +4,10 @@ Sampling planners have heavy-tailed run times in narrow passages, so one PSR at 
 most of what an attack does. Every trial records ``first_solution_s`` (request to the first
 exact solution, ``advocc_ros.planning.PlanResult``); from one set of runs at budget B:
 
-- ``psr_at[t]``: share of trials whose first solution came by t, for every t <= B (an anytime
-  view of the budget-B runs: the planner split B between goal sampling and search as for B, so
-  it is close to, not the same as, a rerun at budget t);
+- ``psr_at[t]``: share of trials whose first solution came by t, for every t <= B: an anytime
+  view of the budget-B runs, not a run at budget t. Up-front goal sampling may use a share of B
+  (``PlanningConfig.ik_time_fraction``), and where the boxes leave few goal configurations it
+  does, so PSR@t of a longer run can be lower than the PSR of a run at budget t;
 - median and p90 of the time to first solution, failures counted at the budget B;
 - PT ratio: attacked / unattacked median of that time (the slowdown an attack causes).
 
