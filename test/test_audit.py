@@ -60,13 +60,20 @@ def test_audit_command_errors(tmp_path, capsys):
     assert not list(tmp_path.iterdir())  # nothing ran
 
 
-def test_audit_end_to_end_table_pick(tmp_path, table_scene):
-    """Task / paper on table_pick: the first box blocks every goal pose (measured), so the PSR
-    drops to the last evaluated prefix and the goal-valid fraction goes to 0."""
-    from advocc_ros.evaluation.audit import run_audit, write_audit
+@pytest.fixture(scope='module')
+def small_heatmap(table_scene):
     from advocc_ros.heatmap import HeatmapConfig, build_heatmap
+    return build_heatmap(table_scene, HeatmapConfig(samples=3000), seed=0, workers=1)
 
-    heatmap = build_heatmap(table_scene, HeatmapConfig(samples=3000), seed=0, workers=1)
+
+def test_audit_end_to_end_table_pick(tmp_path, table_scene, small_heatmap):
+    """Task / paper on table_pick: the first box blocks every goal pose (measured), so the PSR
+    drops to the last evaluated prefix, the goal-valid fraction goes to 0, and the verdict of
+    that prefix is 'goal blocked': the failure is no evidence against the planner."""
+    from advocc_ros.evaluation.audit import run_audit
+    from advocc_ros.evaluation.audit_report import write_audit
+
+    heatmap = small_heatmap
     cfg = AuditConfig(planners=('rrtconnect',), max_budget=2, trials=2, time_budget_s=2.0,
                       workers=1)
     seen = []
@@ -100,3 +107,78 @@ def test_audit_end_to_end_table_pick(tmp_path, table_scene):
     md = (tmp_path / 'audit.md').read_text()
     assert md.index('## Answer') < md.index('## PSR per budget') < md.index('## Boxes')
     assert 'RRTConnect' in md and 'adv_0' in md
+    assert budgets[0]['solvable'] == 'certified' and data['witness']['planner'] == 'rrtconnect'
+    imp = data['impossible']
+    assert imp['same_attack'] and imp['goal_blocked_m'] == 1
+    assert budgets[1]['solvable'] == imp['prefixes'][0]['solvable'] == 'goal blocked'
+    assert imp['prefixes'][0]['solvability']['goal_probe']['converged'] >= 500
+    assert data['min_budget_solvable']['0.0']['rrtconnect'] is None  # m = 1 is not certified
+    assert '| 1 | goal blocked |' in md
+
+
+def test_audit_policy_solvable_gives_both_answers(tmp_path, table_scene, small_heatmap):
+    """--policy solvable: every evaluated prefix stays certified (the witness is kept by
+    construction) and a second, paper-policy attack says how few boxes block the goal."""
+    from advocc_ros.evaluation.audit import run_audit
+    from advocc_ros.evaluation.audit_report import audit_answer
+
+    cfg = AuditConfig(planners=('rrtconnect',), max_budget=2, trials=2, time_budget_s=1.0,
+                      policy='solvable', workers=1)
+    audit = run_audit(table_scene, small_heatmap, cfg)
+    assert audit['policy'] == 'solvable'
+    assert [b['solvable'] for b in audit['budgets']] == ['certified'] * len(audit['budgets'])
+    imp = audit['impossible']
+    assert not imp['same_attack'] and imp['goal_blocked_m'] == 1 and len(imp['boxes']) >= 1
+    assert audit['min_budget_solvable'] == audit['min_budget']  # every prefix certified
+    row = audit['budgets'][0]['planners']['rrtconnect']
+    assert row['first_solution_median_s'] > 0 and set(row['psr_at']) == {'1'}
+    text = audit_answer(audit)
+    assert 'Impossible: 1 box of the Task attack under goal policy paper makes the pick ' \
+        'impossible' in text
+    assert '- RRTConnect ' in text and 'certified' in text
+
+
+def _hand_audit(psr, verdicts, goal_blocked_m):
+    """A minimal audit dict for the report: one planner, its PSR curve and the verdicts."""
+    from advocc_ros.evaluation.audit import minimal_budgets
+    certified = [v if s == 'certified' else None for v, s in zip(psr, verdicts)]
+    budgets = [{'m': m, 'solvable': s, 'goal_valid_fraction': 1.0, 'planners': {'rrtconnect': {
+        'psr': v, 'first_solution_median_s': 0.1 * (m + 1),
+        'failures': {'goal blocked': 0, 'timed out': round(10 * (1 - v)),
+                     'planning failed': 0}}}} for m, (v, s) in enumerate(zip(psr, verdicts))]
+    prefixes = [{'m': m, 'solvable': s, 'solvability': {'message': 'why'}}
+                for m, s in enumerate(verdicts) if m > 0][:goal_blocked_m or None]
+    return {'scene': 'table_pick', 'method_label': 'Task', 'policy': 'solvable', 'max_budget': 3,
+            'settings': {'box_size_m': 0.05, 'trials': 10, 'time_budget_s': 5.0},
+            'psr': {'rrtconnect': psr}, 'budgets': budgets, 'boxes': [],
+            'min_budget': minimal_budgets({'rrtconnect': psr}),
+            'min_budget_solvable': minimal_budgets({'rrtconnect': certified}),
+            'impossible': {'same_attack': False, 'goal_blocked_m': goal_blocked_m,
+                           'prefixes': prefixes, 'boxes': []},
+            'stopped': 'test'}
+
+
+def test_audit_answer_names_both_numbers():
+    from advocc_ros.evaluation.audit_report import audit_answer, budget_table
+
+    audit = _hand_audit([1.0, 0.6, 0.2, 0.0], ['certified'] * 4, goal_blocked_m=None)
+    audit['impossible']['prefixes'] = [{'m': 1, 'solvable': 'certified'},
+                                       {'m': 2, 'solvable': 'unknown'}]
+    text = audit_answer(audit)
+    assert 'Impossible: no prefix of the Task attack under goal policy paper blocks the goal ' \
+        '(up to 2 boxes: m=1 certified, m=2 unknown)' in text
+    assert '- RRTConnect fails (PSR <= 20 %) with 2 boxes, task certified: PSR 100 % -> 20 % ' \
+        '(8 timed out); PSR 0 % with 3 boxes.' in text
+    assert '| 2 | certified | 100 % | 20 % | 0.30 s | 8 timed out |' in budget_table(audit)
+
+
+def test_audit_answer_does_not_count_a_blocked_goal_as_a_win():
+    from advocc_ros.evaluation.audit_report import audit_answer
+
+    audit = _hand_audit([1.0, 0.7, 0.0], ['certified', 'certified', 'goal blocked'], 2)
+    text = audit_answer(audit)
+    assert 'Impossible: 2 boxes of the Task attack under goal policy paper make the pick ' \
+        'impossible for every planner (goal blocked: why).' in text
+    assert '- RRTConnect does not fail (PSR > 20 %) on a certified prefix (m = 0, 1): lowest ' \
+        'PSR 70 % at m = 1 (unattacked 100 %), median time to first solution 0.10 s -> ' \
+        '0.20 s (PT ratio x2.00); it fails with 2 boxes, where the task is goal blocked.' in text

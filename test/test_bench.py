@@ -252,3 +252,43 @@ def test_plan_runs_variations_at_every_budget_after_their_scene():
     assert {t.budget for u in var_units for t in u.trials} == {0, 1, 2, 3}  # with m = 0
     assert all(len([t for t in u.trials if t.planner == 'rrtconnect']) == 2 for u in var_units)
     assert not any(u.attack is None for u in units if u.scene == 'table_pick')
+
+
+def test_hardness_table_and_time_figure(tmp_path):
+    """PSR@t from first-solution times, the PT ratio against the baseline, solvable verdicts
+    from the attack files, and the success-vs-time figure in the report."""
+    from advocc_ros.bench import write_report
+    from advocc_ros.bench.tables import hardness_table
+
+    cfg = _cfg(methods=('task',), budgets=(1,), planners=('prmstar',), time_budget_s=5.0)
+    recs = []
+    for k, first in enumerate((0.2, 0.2, 0.4, 0.4)):
+        recs.append(dict(_rec('table_pick', 'prmstar', BASELINE, 0, k, True, pt=4.9,
+                              time_budget_s=5.0), first_solution_s=first))
+    for k, first in enumerate((0.5, 1.5, 3.0, None)):
+        recs.append(dict(_rec('table_pick', 'prmstar', 'task', 1, k, first is not None, pt=4.9,
+                              time_budget_s=5.0), first_solution_s=first))
+    rows = cell_rows(recs, cfg)
+    attacks = [{'path': tmp_path / 'attacks' / 'table_pick' / f'task_{i}.yaml', 'method': 'task',
+                'budget': 1, 'solvable': verdict}
+               for i, verdict in enumerate(({'verdict': 'certified'}, 'certified', 'unknown'))]
+    md, csv_text = hardness_table(rows, attacks, cfg, {'table_pick': 'table_pick'})
+    lines = md.splitlines()
+    assert lines[0] == ('| Scene | Planner | Method | M | Trials | PSR | PSR@1s | PSR@2s | '
+                        'PSR@5s | T1st median [s] | T1st p90 [s] | PT ratio | Solvable c/b/u |')
+    base = next(line for line in lines if '| None |' in line).split(' | ')
+    assert base[6:12] == ['100', '100', '100', '0.300', '0.400', 'x1.00']
+    task = next(line for line in lines if '| Task |' in line)[:-2].split(' | ')
+    # medians: attacked (1.5 + 3.0) / 2 = 2.25 s vs unattacked 0.3 s
+    assert task[5:13] == ['75.00', '25', '50', '75', '2.250', '4.400', 'x7.50', '2/0/1']
+    header, base_csv, task_csv = csv_text.splitlines()
+    assert header.split(',')[6:9] == ['psr_at_1s_percent', 'psr_at_2s_percent',
+                                      'psr_at_5s_percent']
+    assert task_csv.endswith(',1,7.5,2,0,1')
+
+    store = RecordStore(tmp_path / 'records.jsonl')
+    for rec in recs:
+        store.append(rec)
+    out = write_report(tmp_path, cfg)
+    assert 'PSR@1s' in out['hardness.md'].read_text()
+    assert out['figures/time_to_solution_table_pick.png'].stat().st_size > 10_000

@@ -114,8 +114,9 @@ def test_tiny_benchmark_end_to_end(tmp_path, heatmap_file, ros_env):
         if r['success']:
             assert r['min_manipulability'] > 0 and r['jds_rad'] > 0
             assert r['min_clearance_rad'] >= 0 and r['waypoints'] >= 2
+            assert 0 < r['first_solution_s'] <= r['planning_time_s']
         else:
-            assert r['min_manipulability'] is None
+            assert r['min_manipulability'] is None and r['first_solution_s'] is None
     # Baseline: the unattacked table is solvable.
     base = [r for r in records if r['method'] == 'none' and r['planner'] == 'rrtconnect']
     assert sum(r['success'] for r in base) >= 2
@@ -123,6 +124,8 @@ def test_tiny_benchmark_end_to_end(tmp_path, heatmap_file, ros_env):
     for tag in ('ours_b1_v0', 'random_b1_v0'):
         text_yaml = (out / 'attacks' / 'table_pick' / f'{tag}.yaml').read_text()
         assert f'id: {tag}_0' in text_yaml
+    assert '| PSR@1s |' in (out / 'hardness.md').read_text()
+    assert (out / 'figures' / 'time_to_solution_table_pick.png').stat().st_size > 0
     table = (out / 'table1.md').read_text()
     assert '| Scene | Planner | Method | PSR@1 | SMR@1 | CMR@1 | JDS@1 | PT@1 |' in table
     for row in ('| Scene 1 (table_pick) | RRT | Ours |', '| Scene 1 (table_pick) | RRT | Random |',

@@ -116,6 +116,7 @@ def test_planner_shim_end_to_end(ros, table_scene):
             assert res.trajectory.joint_names[0] == 'panda_joint1'
             # budget 1 s; MoveIt-style simplification may add a little on a loaded machine
             assert 0 < res.planning_time_s < 1.0 + 2.0
+            assert 0 < res.first_solution_s <= res.planning_time_s
     assert codes.count(ErrorCodes.SUCCESS) >= 2, codes
 
     # 2. A cage injected on the topic walls in the goal: the outcome changes.

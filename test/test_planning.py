@@ -199,3 +199,20 @@ def test_planner_shim_yaml_matches_config_defaults():
     assert len(shared) >= 8
     for key in shared:
         assert params[key] == defaults[key], key
+
+
+@pytest.mark.parametrize('planner_id', ['rrtconnect', 'prmstar', 'bkpiece1'])
+def test_first_solution_time_is_recorded(planner, open_scene, planner_id):
+    """Every success says when its first exact solution existed; PRM* runs on to the budget
+    after it, the others stop there (the rest is simplification)."""
+    q0 = start_configuration(open_scene, planner.robot)
+    results = [planner.plan(q0, open_scene.goal, planner_id, BUDGET, seed) for seed in range(3)]
+    ok = [r for r in results if r.success]
+    assert len(ok) >= 2, [r.message for r in results]
+    for r in ok:
+        first = r.first_solution_s
+        assert r.stats['ik_time_s'] < first <= r.planning_time_s, (first, r.stats)
+        if planner_id == 'prmstar':
+            assert first < 0.7 * r.planning_time_s, (first, r.planning_time_s)
+    failed = planner.plan(q0, open_scene.goal, planner_id, 0.001, 0)
+    assert not failed.success and failed.first_solution_s is None

@@ -120,7 +120,7 @@ def audit_dir(tmp_path_factory, table_scene):
 
 
 def test_audit_writes_a_self_contained_page(audit_dir):
-    from advocc_ros.evaluation.audit import audit_answer
+    from advocc_ros.evaluation.audit_report import audit_answer
 
     page = (audit_dir / 'audit.html').read_text()
     audit = json.loads((audit_dir / 'audit.json').read_text())

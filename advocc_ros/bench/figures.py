@@ -1,100 +1,13 @@
-"""Figures: heatmap slices with placed obstacles (paper Figs. 4-5)."""
+"""Figures of a benchmark run: PSR against the budget, trials solved against time."""
 
 from __future__ import annotations
 
 import pathlib
 
-import matplotlib
+from advocc_ros.evaluation.figures import percent_axes, save_png  # sets matplotlib's backend
 
-matplotlib.use('Agg')  # files only; no display on robots' build machines
-import matplotlib.pyplot as plt  # noqa: E402
+import matplotlib.pyplot as plt  # noqa: E402 (after the backend is set)
 import numpy as np  # noqa: E402
-from matplotlib.colors import LogNorm  # noqa: E402
-from matplotlib.patches import Rectangle  # noqa: E402
-from matplotlib.ticker import MaxNLocator  # noqa: E402
-
-from advocc_ros.fileio import atomic_open  # noqa: E402
-from advocc_ros.heatmap import Heatmap  # noqa: E402
-from advocc_ros.model.scene import Scene, SceneObject  # noqa: E402
-
-_PLANES = (('XY', 2, (0, 1)), ('XZ', 1, (0, 2)), ('YZ', 0, (1, 2)))
-_AXES = 'xyz'
-
-
-def _percent_axes(ax) -> None:
-    """A PSR-style axis: 0-100 % with a little room, integer budgets, light grid, legend."""
-    ax.set_ylim(-3, 103)
-    ax.xaxis.set_major_locator(MaxNLocator(integer=True))
-    ax.grid(alpha=0.3)
-    ax.legend(fontsize=8)
-
-
-def _save(fig, out: str | pathlib.Path) -> None:
-    """Write the figure as PNG atomically and free it."""
-    with atomic_open(out, 'wb') as handle:
-        fig.savefig(handle, format='png', dpi=90)
-    plt.close(fig)
-
-
-def plot_heatmap_slices(heatmap: Heatmap, out: str | pathlib.Path, scene: Scene | None = None,
-                        obstacles: tuple[SceneObject, ...] | None = None,
-                        at_m: list[float] | None = None, numbered: bool = False) -> None:
-    """Three orthogonal slices of H through ``at_m`` (default: the peak of H outside the
-    robot's fixed base, which every sample occupies). Scene voxels are grey, obstacles red;
-    ``numbered`` labels obstacle i (in the given order) with i + 1."""
-    grid, H = heatmap.grid, heatmap.values
-    if at_m is None:
-        masked = H.copy()
-        base = grid.index_of(np.zeros(3))
-        r = int(np.ceil(0.15 / grid.voxel_m))  # skip the base link: its mass says nothing
-        lo, hi = np.maximum(base - r, 0), base + r + 1
-        masked[lo[0]:hi[0], lo[1]:hi[1], lo[2]:hi[2]] = 0
-        at_idx = np.array(np.unravel_index(int(np.argmax(masked)), H.shape))
-    else:
-        at_idx = np.clip(grid.index_of(np.asarray(at_m)), 0, np.asarray(grid.shape) - 1)
-    at = grid.centers(at_idx)
-    positive = H[H > 0]
-    norm = LogNorm(vmin=max(positive.min(), positive.max() * 1e-4), vmax=positive.max()) \
-        if positive.size else None
-    fig, axes = plt.subplots(1, 3, figsize=(15, 5), constrained_layout=True)
-    for ax, (name, normal, (a, b)) in zip(axes, _PLANES):
-        sl = [slice(None)] * 3
-        sl[normal] = at_idx[normal]
-        plane = H[tuple(sl)]
-        blocked = ~heatmap.free[tuple(sl)]
-        extent = (grid.origin_m[a], grid.upper_m[a], grid.origin_m[b], grid.upper_m[b])
-        img = ax.imshow(np.ma.masked_less_equal(plane.T, 0), origin='lower', extent=extent,
-                        cmap='inferno', norm=norm, interpolation='nearest')
-        ax.imshow(np.ma.masked_equal(blocked.T.astype(float), 0), origin='lower', extent=extent,
-                  cmap='Greys', vmin=0, vmax=1.5, alpha=0.8, interpolation='nearest')
-        for number, obj in enumerate(obstacles or (), start=1):
-            for shape in obj.shapes:
-                c, size = np.asarray(shape.pose.position_m), np.asarray(shape.dims)
-                if abs(c[normal] - at[normal]) <= size[normal] / 2 + grid.voxel_m:
-                    ax.add_patch(Rectangle((c[a] - size[a] / 2, c[b] - size[b] / 2), size[a],
-                                           size[b], fill=False, ec='red', lw=2))
-                else:
-                    ax.plot(c[a], c[b], 's', mfc='none', mec='red', ms=6)
-                if numbered:
-                    ax.annotate(str(number), (c[a] + size[a] / 2, c[b] + size[b] / 2),
-                                color='red', fontsize=10, fontweight='bold',
-                                xytext=(2, 2), textcoords='offset points',
-                                bbox=dict(boxstyle='round,pad=0.1', fc='white', alpha=0.6,
-                                          lw=0))
-        if scene is not None and scene.goal is not None:
-            g = np.asarray(scene.goal.center.position_m)
-            ax.plot(g[a], g[b], '*', color='cyan', ms=14, label='goal region centre')
-        ax.set_title(f'{name} slice at {_AXES[normal]} = {at[normal]:.2f} m')
-        ax.set_xlabel(f'{_AXES[a]} [m]')
-        ax.set_ylabel(f'{_AXES[b]} [m]')
-    if norm is not None:
-        fig.colorbar(img, ax=axes, shrink=0.8, label='H (accumulated weight)')
-    title = f'kinematic occupancy heatmap: {heatmap.meta.get("valid_samples")} samples'
-    if heatmap.meta.get('scene_name'):
-        title += f', scene {heatmap.meta["scene_name"]}'
-    fig.suptitle(title)
-    _save(fig, out)
-
 
 _METHOD_STYLE = {'ours': ('tab:red', 'o'), 'random': ('tab:gray', 's'),
                  'pfa': ('tab:blue', '^'), 'pfa++': ('tab:green', 'v')}
@@ -121,27 +34,56 @@ def plot_psr_vs_budget(curves: dict[tuple[str, str], dict[int, float]],
         ax.set_title(_PLANNER_TITLES.get(planner, planner))
         ax.set_xlabel('obstacle budget M')
         ax.set_ylabel('PSR [%]')
-        _percent_axes(ax)
+        percent_axes(ax)
     if title:
         fig.suptitle(title)
-    _save(fig, out)
+    save_png(fig, out)
 
 
-def plot_audit_psr(psr: dict[str, list[float]], goal_valid: list[float | None],
-                   out: str | pathlib.Path, title: str = '') -> None:
-    """An audit's curves: PSR [%] of each planner against the prefix budget m (one attack's
-    first m boxes), and the share of goal poses the boxes leave valid (dashed)."""
-    fig, ax = plt.subplots(figsize=(6.5, 4.2), constrained_layout=True)
-    for planner, curve in psr.items():
-        ax.plot(range(len(curve)), [100 * v for v in curve], marker='o', label=planner)
-    m = [i for i, v in enumerate(goal_valid) if v is not None]
-    ax.plot(m, [100 * goal_valid[i] for i in m], ls='--', color='gray',
-            label='goal poses valid')
-    for level in (80, 60, 40, 20):
-        ax.axhline(level, color='black', lw=0.5, alpha=0.25)
-    ax.set_xlabel('boxes m (prefix of the attack, pick order)')
-    ax.set_ylabel('PSR, goal poses valid [%]')
-    _percent_axes(ax)
+_T_MIN_S = 0.01
+"""Left end of the time axis [s] (log scale); faster solutions are drawn at it."""
+
+
+def plot_time_to_solution(times: dict[tuple[str, str, int], np.ndarray], time_budget_s: float,
+                          out: str | pathlib.Path, title: str = '') -> None:
+    """Success against time: per (planner, method) panel, the empirical CDF of the time to
+    first solution, one curve per budget m (m = 0, the unattacked scene, dashed in every panel
+    of its planner); failures never arrive, so a curve ends at its PSR. The legend gives each
+    curve's median and p90 (failures counted at the budget): heavy tails show as a long climb.
+
+    ``times[(planner, method, m)]``: per trial [s], ``inf`` for a failure.
+    """
+    planners = list(dict.fromkeys(p for p, _, _ in times))
+    methods = list(dict.fromkeys(m for _, m, b in times if b > 0)) or ['-']
+    fig, axes = plt.subplots(len(planners), len(methods), squeeze=False, sharex=True,
+                             figsize=(4.6 * len(methods), 3.4 * len(planners)),
+                             constrained_layout=True)
+    colors = plt.get_cmap('viridis')
+    budgets = sorted({b for _, _, b in times if b > 0})
+    for row, planner in enumerate(planners):
+        for col, method in enumerate(methods):
+            ax = axes[row][col]
+            curves = [(b, times[(p, m, b)]) for (p, m, b) in times
+                      if p == planner and (b == 0 or m == method)]
+            for budget, values in sorted(curves, key=lambda c: c[0]):
+                capped = np.minimum(values, time_budget_s)
+                label = (f'{"unattacked" if budget == 0 else f"M={budget}"} (median '
+                         f'{np.median(capped):.2f} s, p90 {np.quantile(capped, 0.9):.2f} s)')
+                solved = np.sort(values[np.isfinite(values)])
+                x = np.concatenate([[_T_MIN_S], np.maximum(solved, _T_MIN_S), [time_budget_s]])
+                y = 100 * np.concatenate([[0], np.arange(1, len(solved) + 1),
+                                          [len(solved)]]) / len(values)
+                style = dict(color='black', ls='--') if budget == 0 else dict(
+                    color=colors(budgets.index(budget) / max(1, len(budgets) - 1) * 0.85))
+                ax.step(x, y, where='post', label=label, **style)
+            ax.set_title(f'{_PLANNER_TITLES.get(planner, planner)}, {method}')
+            ax.set_xscale('log')  # run times span decades; a heavy tail is a slow climb
+            ax.set_xlabel('time to first solution [s]')
+            ax.set_ylabel('trials solved [%]')
+            ax.set_xlim(_T_MIN_S, time_budget_s)
+            ax.set_ylim(-3, 103)
+            ax.grid(alpha=0.3)
+            ax.legend(fontsize=7, loc='lower right')
     if title:
-        ax.set_title(title)
-    _save(fig, out)
+        fig.suptitle(title)
+    save_png(fig, out)

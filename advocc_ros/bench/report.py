@@ -10,9 +10,10 @@ from typing import Any
 from advocc_ros.attack.obstacles import obstacles_meta
 from advocc_ros.bench.protocol import BASELINE, BenchConfig, variation_scenes
 from advocc_ros.bench.records import RecordStore
+from advocc_ros.bench.tables import (baseline_table, cell_rows, failure_table, hardness_table,
+                                     table1, table2, table4)
+from advocc_ros.evaluation.hardness import solution_times
 from advocc_ros.evaluation.outcomes import MAX_INTERNAL_ERROR_FRACTION, too_many_internal_errors
-from advocc_ros.bench.tables import (baseline_table, cell_rows, failure_table, table1, table2,
-                                     table4)
 from advocc_ros.fileio import atomic_write_text
 from advocc_ros.model.scene import read_yaml
 
@@ -68,7 +69,8 @@ def write_report(run_dir: str | pathlib.Path, cfg: BenchConfig, summary: dict | 
                  ) -> dict[str, pathlib.Path]:
     """Tables I, II, IV (+ baseline) as Markdown and CSV, figures, summary; all atomic."""
     run_dir = pathlib.Path(run_dir)
-    rows = cell_rows(RecordStore(run_dir / 'records.jsonl').records.values(), cfg)
+    records = list(RecordStore(run_dir / 'records.jsonl').records.values())
+    rows = cell_rows(records, cfg)
     files = _Files(run_dir)
     heatmaps = _load_heatmaps(run_dir, cfg)
     metas = _attack_metas(run_dir)
@@ -76,6 +78,7 @@ def write_report(run_dir: str | pathlib.Path, cfg: BenchConfig, summary: dict | 
                   (summary or {}).get('notes', []))
     for i, scene in enumerate(cfg.scenes):
         _write_figures(files, rows, cfg, i, scene, heatmaps.get(scene), metas)
+        _write_time_figure(files, records, cfg, i, scene)
     if summary is not None:
         files.put('summary.json', json.dumps(summary, indent=2) + '\n')
     return files.out
@@ -140,6 +143,15 @@ def _write_tables(files: _Files, rows: dict[tuple, dict], cfg: BenchConfig, meta
               'without the boxes, the mean fraction still valid with them (goal policy '
               f'{cfg.goal_policy}).\n\n' + md_f)
     files.put('failures.csv', csv_f)
+    md_h, csv_h = hardness_table(rows, metas, cfg, stems)
+    files.put('hardness.md', '# Hardness beyond PSR\n\n'
+              'PSR@t: share of trials whose first exact solution came within t seconds of the '
+              f'request (read off the {cfg.time_budget_s:g} s runs); T1st: time to first '
+              'solution, failures counted at the budget; PT ratio: attacked / unattacked median '
+              'T1st; Solvable: the attacks\' verdicts (certified / goal blocked / unknown). "+": '
+              'the trials did not report their first-solution time, their planning time (an '
+              'upper bound) stands in.\n\n' + md_h)
+    files.put('hardness.csv', csv_h)
 
 
 def _psr_curves(rows: dict[tuple, dict], cfg: BenchConfig, scene: str
@@ -175,11 +187,31 @@ def _figure_attack(run_dir: pathlib.Path, stem: str, metas: list[dict], cfg: Ben
     return None
 
 
+def _write_time_figure(files: _Files, records: list[dict], cfg: BenchConfig, index: int,
+                       scene: str) -> None:
+    """Share of trials solved against time to first solution, one curve per cell of a scene."""
+    import advocc_ros.bench.figures as figures
+    from advocc_ros.paths import scene_path
+
+    by_cell: dict[tuple, list] = {}
+    for rec in records:
+        if rec['scene'] == scene:
+            by_cell.setdefault((rec['planner'], rec['method'], int(rec['budget'])), []).append(rec)
+    if not by_cell:
+        return
+    stem = pathlib.Path(scene_path(scene)).stem
+    figures.plot_time_to_solution(
+        {cell: solution_times(recs)[0] for cell, recs in by_cell.items()}, cfg.time_budget_s,
+        files.path(f'figures/time_to_solution_{stem}.png'),
+        title=f'Scene {index + 1} ({stem}): trials solved vs time to first solution')
+
+
 def _write_figures(files: _Files, rows: dict[tuple, dict], cfg: BenchConfig, index: int,
                    scene: str, heatmap, metas: list[dict]) -> None:
     """PSR vs budget of one scene (one panel per planner); its heatmap slice with the boxes."""
     import advocc_ros.bench.figures as figures
     from advocc_ros.attack import load_obstacles
+    from advocc_ros.evaluation.figures import plot_heatmap_slices
     from advocc_ros.paths import scene_path
     from advocc_ros.model.scene import SceneError, load_scene
 
@@ -198,5 +230,5 @@ def _write_figures(files: _Files, rows: dict[tuple, dict], cfg: BenchConfig, ind
         log.warning('figure of %s: %s', scene, exc)
         return
     at = list(obstacles[0].shapes[0].pose.position_m) if obstacles else None
-    figures.plot_heatmap_slices(heatmap, files.path(f'figures/heatmap_{stem}.png'),
-                                scene=scene_obj, obstacles=obstacles, at_m=at)
+    plot_heatmap_slices(heatmap, files.path(f'figures/heatmap_{stem}.png'),
+                        scene=scene_obj, obstacles=obstacles, at_m=at)

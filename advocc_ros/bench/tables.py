@@ -11,6 +11,7 @@ from advocc_ros.attack.methods import KNOWN_METHODS
 from advocc_ros.bench.protocol import (BASELINE, METHOD_LABELS, PLANNER_LABELS, THRESHOLDS,
                                        BenchConfig, scene_label)
 from advocc_ros.evaluation.budgets import minimal_budgets
+from advocc_ros.evaluation.hardness import PSR_TIMES_S, pt_ratio, time_key
 from advocc_ros.evaluation.metrics import aggregate
 from advocc_ros.evaluation.outcomes import FAILURE_MODES
 
@@ -191,6 +192,31 @@ def table2(rows: dict[tuple, dict], cfg: BenchConfig,
     return '\n'.join(md) + '\n', out.getvalue()
 
 
+def _measured_cells(rows: dict[tuple, dict], cfg: BenchConfig):
+    """(cell, row) of every measured cell in table order: scene, planner, the baseline first,
+    then the methods by budget."""
+    for scene in cfg.scenes:
+        for planner in cfg.planners:
+            for method in [BASELINE, *cfg.methods]:
+                for budget in ([0] if method == BASELINE else cfg.all_budgets):
+                    row = rows.get((scene, planner, method, budget))
+                    if row is not None:
+                        yield (scene, planner, method, budget), row
+
+
+def _attack_values(attacks: list[dict], field: str) -> dict[tuple, list]:
+    """``field`` of every attack file's metadata that has it, by (scene stem, method, budget);
+    the stem is the attack folder's name (``attacks/<scene stem>/...``)."""
+    values: dict[tuple, list] = {}
+    for meta in attacks:
+        value = meta.get(field)
+        if value is not None and 'path' in meta:
+            key = (pathlib.Path(meta['path']).parent.name, meta.get('method'),
+                   int(meta.get('budget') or 0))
+            values.setdefault(key, []).append(value)
+    return values
+
+
 def failure_table(rows: dict[tuple, dict], attacks: list[dict], cfg: BenchConfig,
                   stems: dict[str, str]) -> tuple[str, str]:
     """How the trials failed (Markdown, CSV): per cell, PSR, the failure-mode counts, the
@@ -200,13 +226,7 @@ def failure_table(rows: dict[tuple, dict], attacks: list[dict], cfg: BenchConfig
     ``attacks``: attack-file metadata with its ``path`` (``attacks/<scene stem>/...``);
     ``stems``: scene -> its file stem.
     """
-    gvf: dict[tuple, list] = {}
-    for meta in attacks:
-        value = meta.get('goal_valid_fraction')
-        if value is not None and 'path' in meta:
-            key = (pathlib.Path(meta['path']).parent.name, meta.get('method'),
-                   int(meta.get('budget') or 0))
-            gvf.setdefault(key, []).append(float(value))
+    gvf = _attack_values(attacks, 'goal_valid_fraction')
     head = ['Scene', 'Planner', 'Method', 'M', 'Trials', 'PSR', *FAILURE_MODES,
             'internal errors', 'Goal valid']
     md = ['| ' + ' | '.join(head) + ' |', '|' + '---|' * len(head)]
@@ -215,27 +235,21 @@ def failure_table(rows: dict[tuple, dict], attacks: list[dict], cfg: BenchConfig
     writer.writerow(['scene', 'planner', 'method', 'budget', 'trials', 'psr_percent',
                      *[m.replace(' ', '_') for m in FAILURE_MODES], 'internal_errors',
                      'goal_valid_fraction'])
-    for scene in cfg.scenes:
-        for planner in cfg.planners:
-            for method in [BASELINE, *cfg.methods]:
-                for budget in ([0] if method == BASELINE else cfg.all_budgets):
-                    row = rows.get((scene, planner, method, budget))
-                    if row is None:
-                        continue
-                    fails = row.get('failures', {})
-                    values = gvf.get((stems.get(scene, scene), method, budget))
-                    mean = sum(values) / len(values) if values else None
-                    md.append('| ' + ' | '.join([
-                        scene_label(cfg, scene), PLANNER_LABELS.get(planner, planner),
-                        METHOD_LABELS.get(method, method), str(budget), str(row['trials']),
-                        _psr_cell(row), *[str(fails.get(m, 0)) for m in FAILURE_MODES],
-                        str(row['internal_errors']),
-                        '1.00' if method == BASELINE else _fmt(mean, 2)]) + ' |')
-                    writer.writerow([scene, planner, method, budget, row['trials'],
-                                     _csv_num(None if row['psr'] is None else 100 * row['psr']),
-                                     *[fails.get(m, 0) for m in FAILURE_MODES],
-                                     row['internal_errors'],
-                                     _csv_num(1.0 if method == BASELINE else mean)])
+    for (scene, planner, method, budget), row in _measured_cells(rows, cfg):
+        fails = row.get('failures', {})
+        values = [float(v) for v in gvf.get((stems.get(scene, scene), method, budget), [])]
+        mean = sum(values) / len(values) if values else None
+        md.append('| ' + ' | '.join([
+            scene_label(cfg, scene), PLANNER_LABELS.get(planner, planner),
+            METHOD_LABELS.get(method, method), str(budget), str(row['trials']),
+            _psr_cell(row), *[str(fails.get(m, 0)) for m in FAILURE_MODES],
+            str(row.get('internal_errors', 0)),
+            '1.00' if method == BASELINE else _fmt(mean, 2)]) + ' |')
+        writer.writerow([scene, planner, method, budget, row['trials'],
+                         _csv_num(None if row['psr'] is None else 100 * row['psr']),
+                         *[fails.get(m, 0) for m in FAILURE_MODES],
+                         row.get('internal_errors', 0),
+                         _csv_num(1.0 if method == BASELINE else mean)])
     return '\n'.join(md) + '\n', out.getvalue()
 
 
@@ -279,3 +293,57 @@ def table4(attacks: list[dict], heatmaps: dict[str, dict]) -> tuple[str, str]:
         writer.writerow([method, planner or '', _csv_num(offline), f'{online:.6g}',
                          f'{total:.6g}', len(times)])
     return '\n'.join(md) + '\n', out.getvalue()
+
+
+def hardness_table(rows: dict[tuple, dict], attacks: list[dict], cfg: BenchConfig,
+                   stems: dict[str, str]) -> tuple[str, str]:
+    """Hardness beyond PSR (Markdown, CSV): per cell, PSR at 1/2/5 s (30 s when the budget
+    allows) read off the time to first solution, its median and p90 (failures at the budget),
+    the PT ratio against the unattacked cell, and the attacks' ``solvable`` verdicts
+    (c certified / b goal blocked / u unknown; ``--`` when the attacks did not say).
+
+    PSR@t is ``--`` when the trials did not report their first-solution time; the median and
+    the PT ratio then use the planning time (an upper bound), marked ``+``.
+    """
+    times = [t for t in PSR_TIMES_S if t <= cfg.time_budget_s + 1e-9]
+    verdicts = _attack_values(attacks, 'solvable')
+    head = ['Scene', 'Planner', 'Method', 'M', 'Trials', 'PSR', *[f'PSR@{t:g}s' for t in times],
+            'T1st median [s]', 'T1st p90 [s]', 'PT ratio', 'Solvable c/b/u']
+    md = ['| ' + ' | '.join(head) + ' |', '|' + '---|' * len(head)]
+    out = io.StringIO()
+    writer = csv.writer(out, lineterminator='\n')
+    writer.writerow(['scene', 'planner', 'method', 'budget', 'trials', 'psr_percent',
+                     *[f'psr_at_{t:g}s_percent' for t in times], 'first_solution_median_s',
+                     'first_solution_p90_s', 'first_solution_measured', 'pt_ratio',
+                     'certified', 'goal_blocked', 'unknown'])
+    for (scene, planner, method, budget), row in _measured_cells(rows, cfg):
+        psr_at = [row['psr_at'].get(time_key(t)) for t in times]
+        mark = '' if row['first_solution_measured'] else '+'
+        ratio = pt_ratio(row, rows.get((scene, planner, BASELINE, 0)))
+        counts = _verdict_counts(verdicts.get((stems.get(scene, scene), method, budget), []))
+        md.append('| ' + ' | '.join([
+            scene_label(cfg, scene), PLANNER_LABELS.get(planner, planner),
+            METHOD_LABELS.get(method, method), str(budget), str(row['trials']), _psr_cell(row),
+            *['--' if v is None else f'{100 * v:.0f}' for v in psr_at],
+            _fmt(row['first_solution_median_s'], 3) + mark,
+            _fmt(row['first_solution_p90_s'], 3) + mark,
+            '--' if ratio is None else f'x{ratio:.2f}{mark}',
+            '--' if counts is None else '/'.join(map(str, counts))]) + ' |')
+        writer.writerow([scene, planner, method, budget, row['trials'],
+                         _csv_num(None if row['psr'] is None else 100 * row['psr']),
+                         *[_csv_num(None if v is None else 100 * v) for v in psr_at],
+                         _csv_num(row['first_solution_median_s']),
+                         _csv_num(row['first_solution_p90_s']),
+                         int(row['first_solution_measured']), _csv_num(ratio),
+                         *(counts or ('', '', ''))])
+    return '\n'.join(md) + '\n', out.getvalue()
+
+
+def _verdict_counts(values: list) -> tuple[int, int, int] | None:
+    """(certified, goal blocked, unknown) among attack ``solvable`` entries (a verdict or a
+    mapping with one); None without entries."""
+    if not values:
+        return None
+    found = [v.get('verdict') if isinstance(v, dict) else v for v in values]
+    certified, blocked = found.count('certified'), found.count('goal blocked')
+    return certified, blocked, len(found) - certified - blocked

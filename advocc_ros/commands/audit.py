@@ -1,9 +1,13 @@
 """``advocc audit``: how few boxes make each planner fail this task, and where do they go?
 
 One attack at the largest budget K, then its prefixes m = 0, 1, 2, ... evaluated per planner
-(greedy picks are nested) until every planner is at PSR 0 %. Writes ``DIR/audit.md``,
-``DIR/audit.json``, two figures and ``DIR/audit.html`` (an offline 3D view); prints the
-answer and the per-budget table (``--json``: the audit as JSON). Progress goes to stderr.
+(greedy picks are nested) until every planner is at PSR 0 %; every prefix gets a verdict
+(certified solvable / goal blocked / unknown). The answer: how few boxes make the pick
+impossible (goal blocked, from a paper-policy attack) and how few make each planner fail while
+the task stays certified solvable (``--policy solvable`` runs that attack too). Writes
+``DIR/audit.md``, ``DIR/audit.json``, two figures and ``DIR/audit.html`` (an offline 3D
+view); prints the answer and the per-budget table (``--json``: the audit as JSON). Progress
+goes to stderr.
 """
 
 from __future__ import annotations
@@ -35,8 +39,10 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help='attack method; greedy ones (task, ours) give nested picks '
                         '(default %(default)s)')
     p.add_argument('--policy', default='paper', choices=POLICIES,
-                   help='goal policy: paper (boxes may block every goal pose) or reachable '
-                        '(default %(default)s)')
+                   help='goal policy of the evaluated attack: paper (boxes may block every '
+                        'goal pose), reachable, or solvable (a witness path stays valid); the '
+                        'goal-blocked answer always comes from a paper attack, a second one '
+                        'under the other policies (default %(default)s)')
     p.add_argument('--max-budget', type=int, default=5, metavar='K',
                    help='boxes of the attack whose prefixes are evaluated (default %(default)s)')
     p.add_argument('--trials', type=int, default=10,
@@ -111,7 +117,8 @@ def audit_heatmap(scene, out: pathlib.Path, heatmap_file: str | None, workers: i
 
 def run_audit_to(scene, heatmap, cfg, out: pathlib.Path, log=print) -> dict:
     """Run the audit with a progress line per evaluation on stderr and write its files."""
-    from advocc_ros.evaluation.audit import planner_label, run_audit, write_audit
+    from advocc_ros.evaluation.audit import run_audit
+    from advocc_ros.evaluation.audit_report import planner_label, write_audit
     from advocc_ros.evaluation.outcomes import internal_error_warning
 
     def progress(m: int, planner: str, row: dict) -> None:
@@ -133,7 +140,7 @@ def run_audit_to(scene, heatmap, cfg, out: pathlib.Path, log=print) -> dict:
 
 
 def run(args: argparse.Namespace) -> int:
-    from advocc_ros.evaluation.audit import audit_answer, budget_table
+    from advocc_ros.evaluation.audit_report import audit_answer, budget_table
 
     cfg = audit_config(args)
     check_bag_arg(args)

@@ -1,8 +1,10 @@
 """``advocc demo``: the main job end to end on the default scene (what `make demo` runs).
 
 1. offline: build (or reuse) the kinematic occupancy heatmap and plot its slices;
-2. MAIN: the audit (``advocc audit``): how few boxes make RRTConnect, PRM* and BKPIECE1 fail
-   the pick, and where do they go (one task attack, goal policy paper, its prefixes evaluated);
+2. MAIN: the audit (``advocc audit --policy solvable``): how few boxes make the pick
+   impossible (goal blocked, a paper-policy task attack), and how few make RRTConnect, PRM* and
+   BKPIECE1 fail while it stays certified solvable (a solvable-policy task attack, its
+   prefixes evaluated);
 3. online: the task attack through the ROS graph (heatmap_server + attacker processes),
    recorded as a ROS 2 bag;
 4. benchmark: the orchestrator runs a short version of the paper's protocol on the scene
@@ -24,6 +26,8 @@ from advocc_ros.commands.common import add_scene_args, scene_from_args
 
 
 def register(sub: argparse._SubParsersAction) -> None:
+    from advocc_ros.attack.goals import POLICIES
+
     parser = sub.add_parser('demo', help='heatmap, attack and evaluation on the default scene')
     add_scene_args(parser, required=False)
     parser.set_defaults(scene='table_pick')
@@ -37,6 +41,9 @@ def register(sub: argparse._SubParsersAction) -> None:
                         help='audit: trials per planner and budget')
     parser.add_argument('--audit-time', type=float, default=5.0,
                         help='audit: planning budget [s] (the paper\'s 5)')
+    parser.add_argument('--audit-policy', default='solvable', choices=POLICIES,
+                        help='audit: goal policy of the evaluated attack (default %(default)s; '
+                             'the goal-blocked answer comes from a paper one either way)')
     parser.add_argument('--budget', type=int, default=3, help='boxes for the attack stage')
     parser.add_argument('--trials', type=int, default=3, help='benchmark: trials per table cell')
     parser.add_argument('--time', type=float, default=2.0,
@@ -69,19 +76,21 @@ def run(args) -> int:
     summary = heatmap.summary()
     print(json.dumps({k: summary[k] for k in ('valid_samples', 'candidates', 'build_s',
                                               'shape', 'nonzero_voxels', 'total_mass')}))
-    from advocc_ros.bench.figures import plot_heatmap_slices
+    from advocc_ros.evaluation.figures import plot_heatmap_slices
     plot_heatmap_slices(heatmap, out / f'heatmap_{scene.name}.png', scene=scene)
     print(f'slice figure: {out / f"heatmap_{scene.name}.png"}')
 
     planners = tuple(p for p in args.planners.split(',') if p)
-    _stage(f'2. MAIN: audit - how few boxes make {", ".join(planners)} fail the pick? '
-           f'(task attack, goal policy paper, up to {args.audit_budget} boxes, '
-           f'{args.audit_trials} trials x {args.audit_time:g} s)')
+    _stage(f'2. MAIN: audit - how few boxes make the pick impossible, and how few make '
+           f'{", ".join(planners)} fail while it stays solvable? (task attack, goal policy '
+           f'{args.audit_policy}, up to {args.audit_budget} boxes, {args.audit_trials} trials x '
+           f'{args.audit_time:g} s)')
     from advocc_ros.commands.audit import run_audit_to
-    from advocc_ros.evaluation.audit import AuditConfig, audit_answer, budget_table
+    from advocc_ros.evaluation.audit import AuditConfig
+    from advocc_ros.evaluation.audit_report import audit_answer, budget_table
     audit_cfg = AuditConfig(planners=planners, max_budget=args.audit_budget,
                             trials=args.audit_trials, time_budget_s=args.audit_time,
-                            method='task', policy='paper',
+                            method='task', policy=args.audit_policy,
                             workers=max(1, min(2, args.workers)))
     audit = run_audit_to(scene, heatmap, audit_cfg, out / 'audit')
     print()

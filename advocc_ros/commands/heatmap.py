@@ -97,7 +97,7 @@ def _merge(args) -> int:
 
 
 def _plot(args) -> int:
-    from advocc_ros.bench.figures import plot_heatmap_slices
+    from advocc_ros.evaluation.figures import plot_heatmap_slices
 
     at = None
     if args.at:

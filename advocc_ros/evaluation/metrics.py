@@ -38,6 +38,7 @@ from typing import Any, Iterable
 import numpy as np
 import pinocchio as pin
 
+from advocc_ros.evaluation.hardness import time_summary
 from advocc_ros.evaluation.outcomes import FAILURE_MODES, INTERNAL_ERROR, SUCCESS, record_outcome
 from advocc_ros.model.collision import CollisionWorld
 from advocc_ros.model.robot import RobotModel
@@ -81,6 +82,8 @@ class TrialRecord:
     """CMR of this trial, raw [rad] (not x10^-2)."""
     jds_rad: float | None = None
     waypoints: int = 0
+    first_solution_s: float | None = None
+    """Request to first exact solution [s] of a success (``PlanResult.first_solution_s``)."""
 
     def to_data(self) -> dict:
         return dataclasses.asdict(self)
@@ -214,7 +217,9 @@ def aggregate(records: Iterable[TrialRecord | dict], time_budget_s: float) -> di
     """Table row of one (scene, planner, attack, budget) from per-trial records.
 
     ``trials`` counts every record, ``internal_errors`` those that measured nothing (left out of
-    PSR and PT); ``smr`` and ``cmr`` are x10^-2 (raw x 100); ``None`` means N/A.
+    PSR, PT and the times to first solution); ``smr`` and ``cmr`` are x10^-2 (raw x 100); ``None``
+    means N/A. The time to first solution (median, p90, PSR at several budgets) comes from
+    ``hardness.time_summary``.
     """
     rows = [r.to_data() if isinstance(r, TrialRecord) else dict(r) for r in records]
     kinds = [record_outcome(r) for r in rows]
@@ -233,6 +238,7 @@ def aggregate(records: Iterable[TrialRecord | dict], time_budget_s: float) -> di
         'pt': _mean([r['planning_time_s'] if r['success'] else time_budget_s for r in valid]),
         'time_budget_s': time_budget_s,
         'failures': {mode: kinds.count(mode) for mode in FAILURE_MODES},
+        **time_summary(valid, time_budget_s),
     }
 
 

@@ -44,7 +44,8 @@ def evaluate_planner(scene, planner_id: str, trials: int, time_budget_s: float =
         finally:
             planners.put(planner)
         rec = TrialRecord(k, seed + k, res.success, res.status.name, float(res.planning_time_s),
-                          res.message, waypoints=len(res.path))
+                          res.message, waypoints=len(res.path),
+                          first_solution_s=res.first_solution_s)
         if res.success:
             if not hasattr(local, 'world'):
                 local.world = CollisionWorld(robot, scene.shapes)

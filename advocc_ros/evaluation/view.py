@@ -228,7 +228,7 @@ def audit_view_html(audit_dir: str | pathlib.Path, scene: Scene, heatmap=None,
                     planned: RobotPath | str | None = None,
                     witness: RobotPath | None = None) -> str:
     """The page of an audit folder: its boxes, the answer and the PSR-per-budget figure."""
-    from advocc_ros.evaluation.audit import audit_answer
+    from advocc_ros.evaluation.audit_report import audit_answer
 
     folder = pathlib.Path(audit_dir)
     try:

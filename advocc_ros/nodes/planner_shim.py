@@ -223,6 +223,7 @@ class PlannerShim(Node):
         response.message = result.message
         response.planning_time_s = float(result.planning_time_s)
         if result.success:
+            response.first_solution_s = result.first_solution_s
             response.trajectory = trajectory_to_msg(robot, result.path)
             response.trajectory.header.frame_id = self._static.frame
         return response

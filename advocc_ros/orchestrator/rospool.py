@@ -225,4 +225,5 @@ class RosShimPool:
         status = code_name(res.error_code.val)
         path = trajectory_from_msg(self.robot, res.trajectory) if status == 'SUCCESS' else None
         return PlanAnswer(status, int(res.error_code.val), res.message,
-                          float(res.planning_time_s), len(res.trajectory.points), path)
+                          float(res.planning_time_s), len(res.trajectory.points), path,
+                          float(res.first_solution_s) if status == 'SUCCESS' else None)

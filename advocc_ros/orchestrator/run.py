@@ -475,6 +475,7 @@ class Orchestrator:
                   'seed': trial.seed, 'success': success, 'status': answer.status,
                   'error_code': answer.error_code, 'message': answer.message,
                   'planning_time_s': float(answer.planning_time_s),
+                  'first_solution_s': answer.first_solution_s,
                   'time_budget_s': float(self.cfg.time_budget_s),
                   'attack': None if self.unit.attack is None else self.unit.attack.tag,
                   'shim': shim.name, 'waypoints': answer.waypoints,

@@ -75,6 +75,8 @@ class PlanAnswer:
     waypoints: int
     path: np.ndarray | None = None
     """Waypoints (N, nq) [rad] of a SUCCESS, else None."""
+    first_solution_s: float | None = None
+    """Request to the first exact solution [s] of a SUCCESS, else None."""
 
 
 class CallFailed(RuntimeError):

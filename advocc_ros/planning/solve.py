@@ -41,6 +41,12 @@ def _make_goal_class(ob):
         allow, so planners that keep asking for goals (RRTConnect grows its goal tree, PRM adds
         goal milestones) trigger one extra IK attempt per request; a failed attempt serves a
         stored goal again (harmless duplicate).
+
+        ``first_pair_t`` is the monotonic time of the first ``isStartGoalPairValid`` call: the
+        moment an exact solution first exists. RRTConnect and BKPIECE1 call it when their trees
+        connect, PRM/PRM* when a start and a goal milestone join one component (measured: with
+        ``stop_at_first_solution`` PRM* returns within a millisecond of it), so optimizing
+        planners that run to the budget still report when they first solved the task.
         """
 
         def __init__(self, si, sampler: GoalSampler, goals: list, nq: int, cap: int,
@@ -49,9 +55,15 @@ def _make_goal_class(ob):
             self.setThreshold(1e-9)
             self.sampler, self.goals, self.nq, self.cap = sampler, goals, nq, cap
             self.lazy_deadline, self.served = lazy_deadline, 0
+            self.first_pair_t: float | None = None
 
         def distanceGoal(self, state):  # noqa: N802 (OMPL API)
             return self.sampler.region_distance(np.array([state[i] for i in range(self.nq)]))
+
+        def isStartGoalPairValid(self, start, goal):  # noqa: N802
+            if self.first_pair_t is None:
+                self.first_pair_t = time.monotonic()
+            return True  # OMPL's default: every pair is valid
 
         def _lazy(self) -> bool:
             return len(self.goals) < self.cap and time.monotonic() < self.lazy_deadline
@@ -93,44 +105,84 @@ def solve(robot: RobotModel, world: CollisionWorld, q_start: np.ndarray, goal: G
     """Plan in this process (no watchdog: use ``Planner`` unless you are the worker).
 
     ``world`` is the scene's collision model: its ``in_collision`` checks single states and its
-    ``first_collision`` the states along a motion.
+    ``first_collision`` the states along a motion. A success's ``stats['first_solution_s']`` is
+    the time from the request to the first exact solution (before simplification).
     """
-    in_collision = world.in_collision
-    global _OMPL_SEEDED
     t0 = time.monotonic()
-    deadline = t0 + time_budget_s
     nq = robot.nq
     error = validate_request(robot, q_start, goal, planner_id, time_budget_s, config)
     if error is not None:
         return error
     q_start = np.asarray(q_start, dtype=float)
-    if in_collision(q_start):
+    if world.in_collision(q_start):
         return _fail(PlanStatus.START_STATE_IN_COLLISION, 'start state is in collision', nq,
                      time.monotonic() - t0)
     ob, og, ou = _ompl()
+    _seed_ompl(ou, seed)
+    rng = np.random.default_rng(int(seed) % 2 ** 64)  # int64 message seeds may be < 0
+    sampler = GoalSampler(robot, world.in_collision, goal, rng, config)
+    if sampler.region_distance(q_start) == 0.0:
+        elapsed = time.monotonic() - t0
+        return PlanResult(PlanStatus.SUCCESS, 'start state already inside the goal region',
+                          np.stack([q_start, q_start]), elapsed,
+                          {'goal_configs': 0, 'first_solution_s': elapsed})
+    goals = sampler.sample(config.ik_goals, t0 + config.ik_time_fraction * time_budget_s)
+    ik_stats = {'ik_attempts': sampler.attempts, 'ik_converged': sampler.converged,
+                'ik_in_collision': sampler.colliding, 'ik_time_s': time.monotonic() - t0}
+    if not goals:
+        return _no_goal(sampler, nq, ik_stats)
+    # Simplification gets what the solve leaves, at least this reserve. OMPL's simplifier checks
+    # its deadline between passes, so a success can end ~0.1 s past the budget (measured).
+    reserve = min(0.15 * time_budget_s, 0.5) if config.simplify else 0.0
+    solve_deadline = t0 + time_budget_s - reserve
+    checks = [0]
+    ss = _simple_setup(ob, og, ou, robot, world, q_start, planner_id, config, checks)
+    goal_obj = _make_goal_class(ob)(ss.getSpaceInformation(), sampler, goals, nq,
+                                    config.max_goals, solve_deadline)
+    ss.setGoal(goal_obj)
+    ss.setup()
+    solve_time = solve_deadline - time.monotonic()
+    if solve_time <= 0:
+        return _fail(PlanStatus.TIMED_OUT, 'the budget was spent sampling goal configurations',
+                     nq, time.monotonic() - t0, **ik_stats)
+    t_solve = time.monotonic()
+    status = ss.solve(solve_time)
+    stats = dict(ik_stats, goal_configs=len(goals), validity_checks=checks[0],
+                 solve_time_s=time.monotonic() - t_solve,
+                 planner=planner_class_name(planner_id), ompl_status=status.asString())
+    if not ss.haveExactSolutionPath():
+        return _no_solution(status.asString(), time_budget_s, nq, time.monotonic() - t0, stats)
+    first = goal_obj.first_pair_t
+    stats['first_solution_s'] = (first if first is not None else time.monotonic()) - t0
+    return _solution(ss, nq, t0, t0 + time_budget_s, config, stats)
+
+
+def _seed_ompl(ou, seed: int) -> None:
+    """Seed OMPL's RNG; only the first call in a process has an effect (OMPL's rule)."""
+    global _OMPL_SEEDED
     if not _OMPL_SEEDED:
         ou.RNG.setSeed(int(seed) % (2 ** 31 - 1) + 1)
         _OMPL_SEEDED = True
-    rng = np.random.default_rng(int(seed) % 2 ** 64)  # int64 message seeds may be < 0
-    sampler = GoalSampler(robot, in_collision, goal, rng, config)
 
-    if sampler.region_distance(q_start) == 0.0:
-        return PlanResult(PlanStatus.SUCCESS, 'start state already inside the goal region',
-                          np.stack([q_start, q_start]), time.monotonic() - t0,
-                          {'goal_configs': 0})
-    goals = sampler.sample(config.ik_goals, t0 + config.ik_time_fraction * time_budget_s)
-    ik_time = time.monotonic() - t0
-    ik_stats = {'ik_attempts': sampler.attempts, 'ik_converged': sampler.converged,
-                'ik_in_collision': sampler.colliding, 'ik_time_s': ik_time}
-    if not goals:
-        if sampler.colliding:
-            return _fail(PlanStatus.GOAL_IN_COLLISION,
-                         f'every goal configuration IK found ({sampler.colliding} of '
-                         f'{sampler.attempts} attempts) is in collision', nq, ik_time, **ik_stats)
-        return _fail(PlanStatus.NO_IK_SOLUTION,
-                     f'no IK solution inside the goal region in {sampler.attempts} attempts '
-                     f'({ik_time:.2f} s)', nq, ik_time, **ik_stats)
 
+def _no_goal(sampler: GoalSampler, nq: int, ik_stats: dict) -> PlanResult:
+    """The failure when IK found no collision-free goal configuration in its share of time."""
+    ik_time = ik_stats['ik_time_s']
+    if sampler.colliding:
+        return _fail(PlanStatus.GOAL_IN_COLLISION,
+                     f'every goal configuration IK found ({sampler.colliding} of '
+                     f'{sampler.attempts} attempts) is in collision', nq, ik_time, **ik_stats)
+    return _fail(PlanStatus.NO_IK_SOLUTION,
+                 f'no IK solution inside the goal region in {sampler.attempts} attempts '
+                 f'({ik_time:.2f} s)', nq, ik_time, **ik_stats)
+
+
+def _simple_setup(ob, og, ou, robot: RobotModel, world: CollisionWorld, q_start: np.ndarray,
+                  planner_id: str, config: PlanningConfig, checks: list):
+    """OMPL's SimpleSetup: space with the KPIECE/SBL projection, validity and motion checks
+    (counted in ``checks[0]``), start state, planner and objective; the goal is set by the
+    caller."""
+    nq = robot.nq
     space = joint_space(ob, robot)
     proj = [j for j in config.projection_joints if 0 <= j < nq] or [0]
     cells, components = ou.vectorDouble(), ou.vectorUint()
@@ -140,50 +192,39 @@ def solve(robot: RobotModel, world: CollisionWorld, q_start: np.ndarray, goal: G
     space.registerDefaultProjection(
         ob.RealVectorOrthogonalProjectionEvaluator(space, cells, components))
     ss = og.SimpleSetup(space)
-    checks = [0]
 
     def is_valid(state) -> bool:
         checks[0] += 1
-        return not in_collision(np.array([state[i] for i in range(nq)]))
+        return not world.in_collision(np.array([state[i] for i in range(nq)]))
 
     ss.setStateValidityChecker(ob.StateValidityCheckerFn(is_valid))
     si = ss.getSpaceInformation()
     si.setStateValidityCheckingResolution(config.motion_step_rad / space.getMaximumExtent())
-    motion_validator = make_motion_validator(ob, si, space, world, nq, checks)
-    si.setMotionValidator(motion_validator)
+    si.setMotionValidator(make_motion_validator(ob, si, space, world, nq, checks))
     start = ob.State(space)
     for i in range(nq):
         start[i] = float(q_start[i])
     ss.setStartState(start)
-    # Simplification gets what the solve leaves, at least this reserve. OMPL's simplifier checks
-    # its deadline between passes, so a success can end ~0.1 s past the budget (measured).
-    reserve = min(0.15 * time_budget_s, 0.5) if config.simplify else 0.0
-    goal_obj = _make_goal_class(ob)(si, sampler, goals, nq, config.max_goals, deadline - reserve)
-    ss.setGoal(goal_obj)
-    planner = getattr(og, planner_class_name(planner_id))(si)
-    ss.setPlanner(planner)
+    ss.setPlanner(getattr(og, planner_class_name(planner_id))(si))
     if config.stop_at_first_solution:
         objective = ob.PathLengthOptimizationObjective(si)
         objective.setCostThreshold(ob.Cost(float('inf')))
         ss.setOptimizationObjective(objective)
-    ss.setup()
-    solve_time = deadline - reserve - time.monotonic()
-    if solve_time <= 0:
-        return _fail(PlanStatus.TIMED_OUT, 'the budget was spent sampling goal configurations',
-                     nq, time.monotonic() - t0, **ik_stats)
-    t_solve = time.monotonic()
-    status = ss.solve(solve_time)
-    solve_s = time.monotonic() - t_solve
-    stats = dict(ik_stats, goal_configs=len(goals), validity_checks=checks[0],
-                 solve_time_s=solve_s, planner=planner_class_name(planner_id),
-                 ompl_status=status.asString())
-    name = status.asString()
-    if not ss.haveExactSolutionPath():
-        elapsed = time.monotonic() - t0
-        if name == 'Timeout' or 'Approximate' in name:
-            return _fail(PlanStatus.TIMED_OUT, f'no solution within {time_budget_s:g} s '
-                         f'({name.lower()})', nq, elapsed, **stats)
-        return _fail(PlanStatus.PLANNING_FAILED, f'OMPL: {name}', nq, elapsed, **stats)
+    return ss
+
+
+def _no_solution(name: str, time_budget_s: float, nq: int, elapsed: float, stats: dict
+                 ) -> PlanResult:
+    """The failure when OMPL returned without an exact solution (``name``: its status)."""
+    if name == 'Timeout' or 'Approximate' in name:
+        return _fail(PlanStatus.TIMED_OUT, f'no solution within {time_budget_s:g} s '
+                     f'({name.lower()})', nq, elapsed, **stats)
+    return _fail(PlanStatus.PLANNING_FAILED, f'OMPL: {name}', nq, elapsed, **stats)
+
+
+def _solution(ss, nq: int, t0: float, deadline: float, config: PlanningConfig, stats: dict
+              ) -> PlanResult:
+    """The success: the solution simplified and interpolated like MoveIt's defaults."""
     if config.simplify:
         ss.simplifySolution(max(deadline - time.monotonic(), 0.01))
     path = ss.getSolutionPath()

@@ -130,11 +130,21 @@ class PlanResult:
     planning_time_s: float
     """Wall time spent in the worker: IK goal sampling + solve + post-processing [s]."""
     stats: dict = dataclasses.field(default_factory=dict)
-    """Diagnostics: validity checks, goal configurations, request round trip, ..."""
+    """Diagnostics: validity checks, goal configurations, request round trip, ...; a success
+    has ``first_solution_s``: request to first exact solution [s], before simplification (PRM*
+    and other optimizing planners run on to the budget after it)."""
 
     @property
     def success(self) -> bool:
         return self.status == PlanStatus.SUCCESS
+
+    @property
+    def first_solution_s(self) -> float | None:
+        """Time to the first solution [s]: None on failure, ``planning_time_s`` when the solver
+        did not record it (an answer that came without stats)."""
+        if not self.success:
+            return None
+        return float(self.stats.get('first_solution_s', self.planning_time_s))
 
     def to_data(self) -> dict:
         return {'status': int(self.status), 'message': self.message,

@@ -1,0 +1,208 @@
+"""An audit's report: the answer, the per-budget table, ``audit.md``, ``audit.json`` and the
+figures (``advocc_ros.evaluation.audit`` computes the audit). No ROS."""
+
+from __future__ import annotations
+
+import pathlib
+
+from advocc_ros.evaluation.audit import ANSWER_THRESHOLD
+from advocc_ros.evaluation.hardness import pt_ratio
+
+
+def planner_label(planner_id: str) -> str:
+    """``RRTConnect``, ``PRM*``, ``BKPIECE1``: the OMPL class name, ``star`` as ``*``."""
+    from advocc_ros.planning import planner_class_name
+
+    name = planner_class_name(planner_id) or planner_id
+    return name.replace('star', '*')
+
+
+def _pct(value: float | None) -> str:
+    return 'N/A' if value is None else f'{100 * value:.0f} %'
+
+
+def _boxes(m: int | None) -> str:
+    return f'{m} box' if m == 1 else f'{m} boxes'
+
+
+def _failures(row: dict) -> str:
+    counts = dict(row['failures'], **{'internal errors': row.get('internal_errors', 0)})
+    text = ', '.join(f'{n} {mode}' for mode, n in counts.items() if n)
+    return text or '-'
+
+
+def audit_answer(audit: dict) -> str:
+    """The headline: how few boxes make the pick impossible, and per planner how few make it
+    fail (PSR <= 20 %, and 0 %) while the task stays certified solvable."""
+    s = audit['settings']
+    lines = [f'Audit of {audit["scene"]}: attack {audit["method_label"]} (goal policy '
+             f'{audit["policy"]}, {s["box_size_m"]} m boxes, up to {audit["max_budget"]}), '
+             f'{s["trials"]} trials x {s["time_budget_s"]:g} s per planner and budget.',
+             impossible_answer(audit),
+             'Fewest boxes that make each planner fail while the task stays certified '
+             'solvable (a witness path stays valid):']
+    lines += [f'- {_planner_answer(audit, planner)}.' for planner in audit['psr']]
+    evaluated = len(audit['budgets']) - 1
+    placed = ', '.join(f'#{b["pick"]} at {b["center_m"]}' for b in audit['boxes'][:evaluated])
+    if placed:
+        lines.append(f'Boxes (robot base frame, pick order): {placed}.')
+    lines.append('Goal poses left valid: ' + ', '.join(
+        f'm={b["m"]}: {_pct(b["goal_valid_fraction"])}' for b in audit['budgets'])
+        + f'. Stopped: {audit["stopped"]}.')
+    return '\n'.join(lines)
+
+
+def impossible_answer(audit: dict) -> str:
+    """How few boxes of the paper-policy attack leave no collision-free goal configuration."""
+    imp = audit['impossible']
+    which = 'this attack' if imp['same_attack'] else \
+        f'the {audit["method_label"]} attack under goal policy paper'
+    m = imp['goal_blocked_m']
+    if m is None:
+        verdicts = ', '.join(f'm={p["m"]} {p["solvable"]}' for p in imp['prefixes'])
+        return (f'Impossible: no prefix of {which} blocks the goal (up to '
+                f'{_boxes(len(imp["prefixes"]))}: {verdicts or "no boxes placed"}).')
+    why = imp['prefixes'][m - 1]['solvability'].get('message', '')
+    return (f'Impossible: {_boxes(m)} of {which} {"makes" if m == 1 else "make"} the pick '
+            f'impossible for every planner (goal blocked{": " + why if why else ""}).')
+
+
+def _planner_answer(audit: dict, planner: str) -> str:
+    """One planner's line: its fewest boxes to fail while certified, else why not."""
+    label, curve = planner_label(planner), audit['psr'][planner]
+    fail = audit['min_budget_solvable'][str(ANSWER_THRESHOLD)][planner]
+    zero = audit['min_budget_solvable'][str(0.0)][planner]
+    if fail is not None:
+        row = audit['budgets'][fail]['planners'][planner]
+        text = (f'{label} fails (PSR <= 20 %) with {_boxes(fail)}, task certified: PSR '
+                f'{_pct(curve[0])} -> {_pct(curve[fail])} ({_failures(row)})')
+        if zero is not None and zero != fail:
+            text += f'; PSR 0 % with {_boxes(zero)}'
+        return text
+    certified = [m for m, b in enumerate(audit['budgets']) if b['solvable'] == 'certified']
+    if not certified:
+        text = f'{label}: no evaluated prefix is certified solvable'
+    else:
+        low = min(certified, key=lambda m: (curve[m] is None, curve[m] or 0.0, -m))
+        text = (f'{label} does not fail (PSR > 20 %) on a certified prefix (m = '
+                f'{", ".join(map(str, certified))}): lowest PSR {_pct(curve[low])} at m = {low}'
+                f' (unattacked {_pct(curve[0])}), median time to first solution '
+                f'{_seconds(audit, 0, planner)} -> {_seconds(audit, low, planner)}')
+        ratio = pt_ratio(audit['budgets'][low]['planners'][planner],
+                         audit['budgets'][0]['planners'][planner])
+        if ratio is not None:
+            text += f' (PT ratio x{ratio:.2f})'
+    anyway = audit['min_budget'][str(ANSWER_THRESHOLD)][planner]
+    if anyway is not None:
+        text += (f'; it fails with {_boxes(anyway)}, where the task is '
+                 f'{audit["budgets"][anyway]["solvable"]}')
+    return text
+
+
+def _seconds(audit: dict, m: int, planner: str) -> str:
+    """Median time to first solution of ``planner`` at prefix m (failures at the budget)."""
+    value = audit['budgets'][m]['planners'][planner]['first_solution_median_s']
+    return 'N/A' if value is None else f'{value:.2f} s'
+
+
+def budget_table(audit: dict) -> str:
+    """Markdown: per m, the verdict, goal-valid fraction, and per planner PSR, median time to
+    first solution (failures at the budget) and failures."""
+    planners = list(audit['psr'])
+    head = ['m', 'solvable', 'goal valid'] + [f'{planner_label(p)} {c}' for p in planners
+                                              for c in ('PSR', 'T1st', 'failures')]
+    lines = ['| ' + ' | '.join(head) + ' |', '|' + '---|' * len(head)]
+    for b in audit['budgets']:
+        cells = [str(b['m']), b['solvable'], _pct(b['goal_valid_fraction'])]
+        for p in planners:
+            row = b['planners'][p]
+            cells += [_pct(row['psr']), _seconds(audit, b['m'], p), _failures(row)]
+        lines.append('| ' + ' | '.join(cells) + ' |')
+    return '\n'.join(lines)
+
+
+def _min_budget_table(audit: dict, key: str) -> list[str]:
+    """Markdown lines: per planner, the minimal budget per PSR threshold of ``audit[key]``."""
+    thresholds = list(audit[key])
+    out = ['| planner | ' + ' | '.join(f'PSR <= {float(t) * 100:.0f} %' for t in thresholds)
+           + ' |', '|' + '---|' * (1 + len(thresholds))]
+    for p in audit['psr']:
+        cells = [audit[key][t][p] for t in thresholds]
+        out.append(f'| {planner_label(p)} | '
+                   + ' | '.join(f'> {len(audit["budgets"]) - 1}' if c is None else str(c)
+                                for c in cells) + ' |')
+    return out
+
+
+def audit_markdown(audit: dict) -> str:
+    """The whole ``audit.md``: answer, per-budget table, minimal budgets, boxes, settings."""
+    s, planners = audit['settings'], list(audit['psr'])
+    out = [f'# Audit: {audit["scene"]}', '', '## Answer', '', audit_answer(audit), '',
+           '## PSR per budget', '', budget_table(audit), '',
+           '## Minimal budget per PSR threshold, task certified solvable', '',
+           *_min_budget_table(audit, 'min_budget_solvable'), '',
+           '## Minimal budget per PSR threshold, any verdict', '',
+           *_min_budget_table(audit, 'min_budget')]
+    evaluated = len(audit['budgets']) - 1
+    out += ['', '## Boxes in pick order', '',
+            '| # | id | centre [m] | marginal mass | evaluated |', '|---|---|---|---|---|']
+    for b in audit['boxes']:
+        out.append(f'| {b["pick"]} | {b["id"]} | {b["center_m"]} | {b["mass"]:.4g} | '
+                   f'{"yes" if b["pick"] <= evaluated else "no (stopped earlier)"} |')
+    out += ['', 'Box #m is the last box of prefix m (edge '
+            f'{s["box_size_m"]} m, robot base frame).', '',
+            '![slices](audit_slices.png)', '', '![PSR vs budget](audit_psr.png)', '',
+            '## Settings', '',
+            f'- attack: {audit["method"]}, goal policy {audit["policy"]}, max budget '
+            f'{audit["max_budget"]}, seed {s["seed"]}: {audit["attack"]["status"]} '
+            f'({audit["attack"]["message"]}), {audit["attack"]["compute_ms"]:.1f} ms',
+            f'- goal-blocked answer: {_impossible_attack(audit)}',
+            f'- witness: {_witness(audit["witness"])}',
+            f'- planners: {", ".join(planners)}; {s["trials"]} trials, '
+            f'{s["time_budget_s"]:g} s per plan, {s["workers"]} worker processes',
+            f'- heatmap: {s["heatmap"]["valid_samples"]} samples, built for '
+            f'{s["heatmap"]["scene_name"]}',
+            f'- wall time: {audit["wall_s"]} s (attack, then the evaluations) on '
+            f'{audit["machine"]["cpu"]} ({audit["machine"]["cores"]} cores), Python '
+            f'{audit["machine"]["python"]}', '']
+    return '\n'.join(out)
+
+
+def _impossible_attack(audit: dict) -> str:
+    imp = audit['impossible']
+    if imp['same_attack']:
+        return 'the prefixes of this attack'
+    return (f'a second attack, goal policy paper: {imp["attack"]["status"]} '
+            f'({imp["attack"]["message"]}), boxes '
+            + ', '.join(f'#{b["pick"]} at {b["center_m"]}' for b in imp['boxes']))
+
+
+def _witness(source: dict | None) -> str:
+    if source is None:
+        return 'none found on the unattacked scene (no prefix can be certified)'
+    return 'found on the unattacked scene (' + ', '.join(f'{k} {v}' for k, v in source.items()) \
+        + ')'
+
+
+def write_audit(audit: dict, out_dir: str | pathlib.Path, heatmap, scene) -> dict[str, str]:
+    """Write ``audit.json``, ``audit.md``, ``audit_slices.png`` (heatmap slices through the first
+    box, boxes numbered in pick order) and ``audit_psr.png``; returns the paths by name."""
+    import json
+
+    from advocc_ros.evaluation.figures import plot_audit_psr, plot_heatmap_slices
+    from advocc_ros.fileio import atomic_write_text
+    from advocc_ros.model import make_box
+
+    out = pathlib.Path(out_dir)
+    names = ('audit.json', 'audit.md', 'audit_slices.png', 'audit_psr.png')
+    paths = {name: out / name for name in names}
+    atomic_write_text(paths['audit.json'], json.dumps(audit, indent=1) + '\n')
+    atomic_write_text(paths['audit.md'], audit_markdown(audit))
+    boxes = tuple(make_box(b['id'], b['center_m'], (b['size_m'],) * 3) for b in audit['boxes'])
+    plot_heatmap_slices(heatmap, paths['audit_slices.png'], scene=scene, obstacles=boxes,
+                        at_m=audit['boxes'][0]['center_m'] if boxes else None, numbered=True)
+    plot_audit_psr({planner_label(p): c for p, c in audit['psr'].items()},
+                   [b['goal_valid_fraction'] for b in audit['budgets']], paths['audit_psr.png'],
+                   title=f'{audit["scene"]}: {audit["method_label"]} attack, policy '
+                         f'{audit["policy"]}')
+    return {k: str(v) for k, v in paths.items()}
