@@ -126,6 +126,6 @@ def test_internal_errors_stay_out_of_psr_and_pt_but_are_counted():
     assert row['trials'] == 6 and row['internal_errors'] == 4
     assert row['psr'] == 0.5  # 1 success of the 2 trials that measured the planner
     assert row['pt'] == pytest.approx((1.0 + 5.0) / 2)
-    assert row['failures'] == {'goal blocked': 0, 'timed out': 0, 'planning failed': 1}
+    assert row['failures'] == {'goal not sampled': 0, 'timed out': 0, 'planning failed': 1}
     only_errors = aggregate(recs[2:5], time_budget_s=5.0)
     assert only_errors['psr'] is None and only_errors['pt'] is None

@@ -173,4 +173,4 @@ def test_task_makes_a_real_planner_fail(panda, heatmap, task, table_scene):
     clean = evaluate_planner(table_scene, 'rrtconnect', 3, 5.0, seed=0, planning_config=config)
     assert clean['psr'] >= 2 / 3  # unattacked RRTConnect solves table_pick in ~0.3 s
     assert attacked['psr'] <= 1 / 3
-    assert attacked['failures']['goal blocked'] + attacked['failures']['timed out'] > 0
+    assert attacked['failures']['goal not sampled'] + attacked['failures']['timed out'] > 0

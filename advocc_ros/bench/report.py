@@ -136,8 +136,10 @@ def _write_tables(files: _Files, rows: dict[tuple, dict], cfg: BenchConfig, meta
     stems = {scene: pathlib.Path(scene_path(scene)).stem for scene in cfg.scenes}
     md_f, csv_f = failure_table(rows, metas, cfg, stems)
     files.put('failures.md', '# How the trials failed\n\n'
-              'Per cell: trials that failed because every goal pose was blocked '
-              '(GOAL_IN_COLLISION or no IK solution), ran out of time, or failed otherwise, and '
+              'Per cell: trials that failed because the planner sampled no collision-free goal '
+              'configuration (GOAL_IN_COLLISION or no IK solution: whether the goal is really '
+              'blocked is the attacks\' solvable verdict in hardness.md), ran out of time, or '
+              'failed otherwise, and '
               'the internal errors (the planner raised or died, or returned a colliding path: '
               'not counted in PSR); "Goal valid": of the task\'s fixed goal samples valid '
               'without the boxes, the mean fraction still valid with them (goal policy '
