@@ -107,7 +107,11 @@ def test_audit_end_to_end_table_pick(tmp_path, table_scene, small_heatmap):
     md = (tmp_path / 'audit.md').read_text()
     assert md.index('## Answer') < md.index('## PSR per budget') < md.index('## Boxes')
     assert 'RRTConnect' in md and 'adv_0' in md
-    assert budgets[0]['solvable'] == 'certified' and data['witness']['planner'] == 'rrtconnect'
+    assert budgets[0]['solvable'] == 'certified'
+    assert data['witness']['source']['planner'] == 'rrtconnect'
+    from advocc_ros.planning.witness import load_witness
+    witness = load_witness(tmp_path / 'audit.witness.yaml')  # the 3D page animates it
+    assert witness.waypoints.tolist() == data['witness']['waypoints']
     imp = data['impossible']
     assert imp['same_attack'] and imp['goal_blocked_m'] == 1
     assert budgets[1]['solvable'] == imp['prefixes'][0]['solvable'] == 'goal blocked'

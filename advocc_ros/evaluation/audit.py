@@ -119,7 +119,7 @@ def run_audit(scene, heatmap, cfg: AuditConfig = AuditConfig(),
                          heatmap={k: heatmap.meta.get(k) for k in
                                   ('valid_samples', 'scene_name', 'build_s')}),
         'attack': _attack_json(result),
-        'witness': None if result.witness is None else result.witness.source,
+        'witness': None if result.witness is None else result.witness.to_data(),
         'boxes': _boxes_json(result),
         'budgets': budgets,
         'psr': psr,

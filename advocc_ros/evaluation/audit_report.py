@@ -177,27 +177,32 @@ def _impossible_attack(audit: dict) -> str:
             + ', '.join(f'#{b["pick"]} at {b["center_m"]}' for b in imp['boxes']))
 
 
-def _witness(source: dict | None) -> str:
-    if source is None:
+def _witness(witness: dict | None) -> str:
+    if witness is None:
         return 'none found on the unattacked scene (no prefix can be certified)'
-    return 'found on the unattacked scene (' + ', '.join(f'{k} {v}' for k, v in source.items()) \
-        + ')'
+    return 'found on the unattacked scene (' + ', '.join(
+        f'{k} {v}' for k, v in witness['source'].items()) + '; `audit.witness.yaml`)'
 
 
 def write_audit(audit: dict, out_dir: str | pathlib.Path, heatmap, scene) -> dict[str, str]:
     """Write ``audit.json``, ``audit.md``, ``audit_slices.png`` (heatmap slices through the first
-    box, boxes numbered in pick order) and ``audit_psr.png``; returns the paths by name."""
+    box, boxes numbered in pick order), ``audit_psr.png`` and the task's witness
+    (``audit.witness.yaml``, when one was found); returns the paths by name."""
     import json
 
     from advocc_ros.evaluation.figures import plot_audit_psr, plot_heatmap_slices
     from advocc_ros.fileio import atomic_write_text
     from advocc_ros.model import make_box
+    from advocc_ros.model.scene import save_yaml_atomic
 
     out = pathlib.Path(out_dir)
     names = ('audit.json', 'audit.md', 'audit_slices.png', 'audit_psr.png')
     paths = {name: out / name for name in names}
     atomic_write_text(paths['audit.json'], json.dumps(audit, indent=1) + '\n')
     atomic_write_text(paths['audit.md'], audit_markdown(audit))
+    if audit.get('witness') is not None:
+        paths['audit.witness.yaml'] = out / 'audit.witness.yaml'
+        save_yaml_atomic(paths['audit.witness.yaml'], audit['witness'])
     boxes = tuple(make_box(b['id'], b['center_m'], (b['size_m'],) * 3) for b in audit['boxes'])
     plot_heatmap_slices(heatmap, paths['audit_slices.png'], scene=scene, obstacles=boxes,
                         at_m=audit['boxes'][0]['center_m'] if boxes else None, numbered=True)
