@@ -16,7 +16,9 @@ outside the planning group, SPEC §4b) and its first ``goal_constraints`` entry,
   inscribed sphere, a stricter goal, never a looser one. ``XYZ_EULER_ANGLES`` tolerances (0, the
   message default) are read as rotation-vector tolerances, which agree to first order and
   exactly for rotations about one axis; ``ROTATION_VECTOR`` (1) is exact. Without an orientation
-  constraint every orientation is allowed.
+  constraint every orientation is allowed. Joint goals in the further ``goal_constraints``
+  entries (MoveIt: alternative goals; our export writes a region's seeds so) become the
+  region's seeds.
 """
 
 from __future__ import annotations
@@ -171,6 +173,17 @@ def _pose_goal(goal: dict, w: str, robot: RobotModel, T_base_world: pin.SE3) -> 
                       tool_offset=Pose(tuple(offset.tolist())))
 
 
+def _seed_goals(entries: list, where: str, robot: RobotModel) -> tuple[tuple[float, ...], ...]:
+    """The joint goals among further ``goal_constraints`` entries, in planned-joint order."""
+    seeds = []
+    for k, entry in enumerate(entries, 1):
+        w = f'{where}: goal_constraints[{k}]'
+        constraints = _list(_mapping(entry, w).get('joint_constraints'), f'{w}.joint_constraints')
+        if constraints:
+            seeds.append(tuple(_joint_goal(constraints, w, robot).values()))
+    return tuple(seeds)
+
+
 def load_request(path: str | pathlib.Path, robot: RobotModel,
                  T_world_base: pin.SE3 | None = None) -> MbmRequest:
     """Start state and goal of a MotionBenchMaker ``requestNNNN.yaml``.
@@ -204,7 +217,11 @@ def load_request(path: str | pathlib.Path, robot: RobotModel,
     if not goal.get('position_constraints'):
         raise SceneError(f'{w}.joint_constraints: missing or empty (a joint goal, or a pose goal '
                          'as position_constraints + orientation_constraints, is needed)')
-    return MbmRequest(start, None, _pose_goal(goal, w, robot, T_world_base.inverse()))
+    region = _pose_goal(goal, w, robot, T_world_base.inverse())
+    seeds = _seed_goals(goals[1:], where, robot)
+    if seeds:
+        region = dataclasses.replace(region, seed_joints=tuple(robot.joint_names), seeds=seeds)
+    return MbmRequest(start, None, region)
 
 
 def goal_region_at(robot: RobotModel, q_goal: dict[str, float],

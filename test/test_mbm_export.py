@@ -1,0 +1,180 @@
+"""Export of tasks as MotionBenchMaker problems: the files mean what MoveIt reads in them, and our
+own importer gives back the same task (collision verdicts, goal region, locked joints)."""
+
+import dataclasses
+import pathlib
+
+import numpy as np
+import pinocchio as pin
+import pytest
+import yaml
+
+from advocc_ros.model.collision import CollisionWorld
+from advocc_ros.model.ik import goal_configuration, start_configuration
+from advocc_ros.model.mbm import load_mbm_scene
+from advocc_ros.model.mbm_export import load_trajectory, problem_files, write_problem
+from advocc_ros.model.robot import load_robot
+from advocc_ros.model.scene import Pose, SceneError, SceneObject, Shape, load_scene, make_box
+
+from conftest import REPO
+
+FAMILIES = REPO / 'test' / 'data' / 'mbm' / 'families'
+
+
+def assert_same_task(original, imported, states: np.ndarray):
+    """Same robot (locked joints), start, goal region and collision verdicts on ``states``."""
+    robot_a, robot_b = load_robot(original.robot), load_robot(imported.robot)
+    assert robot_b.hash == robot_a.hash
+    assert robot_b.locked_values == pytest.approx(robot_a.locked_values)
+    q_a, q_b = start_configuration(original, robot_a), start_configuration(imported, robot_b)
+    assert q_b == pytest.approx(q_a, abs=1e-12)
+    ga, gb = original.goal, imported.goal
+    assert gb.link == ga.link
+    assert gb.center.position_m == pytest.approx(ga.center.position_m, abs=1e-9)
+    R_a, R_b = ga.center.to_se3().rotation, gb.center.to_se3().rotation
+    assert np.linalg.norm(pin.log3(R_a.T @ R_b)) < 1e-9
+    assert gb.position_tolerance_m == pytest.approx(ga.position_tolerance_m, abs=1e-12)
+    assert gb.orientation_tolerance_rad == pytest.approx(ga.orientation_tolerance_rad,
+                                                         abs=1e-12)
+    assert gb.tool_offset.position_m == pytest.approx(ga.tool_offset.position_m, abs=1e-12)
+    assert gb.seed_joints == ga.seed_joints
+    assert np.allclose(gb.seeds, ga.seeds, atol=1e-12)
+    verdict_a = CollisionWorld(robot_a, original.shapes).collisions_batch(states)
+    verdict_b = CollisionWorld(robot_b, imported.shapes).collisions_batch(states)
+    assert np.array_equal(verdict_a, verdict_b)
+    inside_a = [ga.contains(robot_a.ee_pose(q) * ga.tool_offset.to_se3()) for q in states]
+    inside_b = [gb.contains(robot_b.ee_pose(q) * gb.tool_offset.to_se3()) for q in states]
+    assert inside_a == inside_b
+    return verdict_a
+
+
+def _probe_states(robot, q_init, q_goal, rng, n=200):
+    """A straight path start -> goal, states near it and uniform ones: some collide."""
+    line = q_init + np.linspace(0, 1, 60)[:, None] * (q_goal - q_init)
+    near = line[rng.integers(0, len(line), n)] + rng.normal(0, 0.2, (n, robot.nq))
+    return np.vstack([line, np.clip(near, robot.lower, robot.upper), robot.sample_q(rng, n)])
+
+
+@pytest.fixture(scope='module')
+def attacked(table_scene):
+    """table_pick with three boxes (one in the way of a straight path) and that path."""
+    robot = load_robot(table_scene.robot)
+    q_init = start_configuration(table_scene, robot)
+    q_goal = goal_configuration(robot, table_scene.goal, q_init)
+    assert q_goal is not None
+    boxes = (make_box('adv_0', (0.45, 0.0, 0.55), (0.08,) * 3),
+             make_box('adv_1', (0.3, 0.3, 0.4), (0.08,) * 3),
+             SceneObject('adv_2', (Shape('box', (0.05, 0.1, 0.05), Pose(
+                 (0.6, -0.25, 0.3), (0.0, 0.0, 0.3826834, 0.9238795))),)))
+    path = np.array([q_init, 0.5 * (q_init + q_goal), q_goal])
+    return table_scene.with_objects(boxes), robot, path
+
+
+def test_round_trip_gives_the_same_task(attacked, tmp_path):
+    scene, robot, path = attacked
+    files = write_problem(tmp_path, 1, scene, robot, robot.joint_names, path)
+    assert files == problem_files(tmp_path, 1)
+    assert [f.name for f in files.__dict__.values()] == [
+        'scene0001.yaml', 'request0001.yaml', 'trajectory0001.yaml']
+    imported = load_mbm_scene(files.scene, files.request)
+    assert sorted(o.id for o in imported.objects) == sorted(o.id for o in scene.objects)
+    rng = np.random.default_rng(3)
+    verdicts = assert_same_task(scene, imported, _probe_states(robot, path[0], path[-1], rng))
+    assert verdicts.any() and not verdicts.all()  # the probe sees both verdicts
+    names, waypoints = load_trajectory(files.trajectory)
+    assert names == robot.joint_names
+    assert np.array_equal(waypoints, path)
+
+
+def test_files_mean_what_moveit_reads(attacked, tmp_path):
+    """MoveIt's semantics, applied to the written request, agree with our region: the tool
+    point inside the constraint box (in the box's frame) and the rotation vector of
+    ``R_goal^T R_link`` within the per-axis tolerances."""
+    scene, robot, path = attacked
+    files = write_problem(tmp_path, 7, scene, robot, robot.joint_names, path)
+    request = yaml.safe_load(files.request.read_text())
+    goal = request['goal_constraints'][0]
+    pc, oc = goal['position_constraints'][0], goal['orientation_constraints'][0]
+    assert request['goal_constraints'][1:] == []  # table_pick's region has no seeds
+    assert oc['parameterization'] == 1 and pc['link_name'] == oc['link_name'] == 'panda_hand'
+
+    def xyz(d, keys='xyz'):
+        return np.array([d[k] for k in keys])
+
+    box = pc['constraint_region']['primitives'][0]
+    assert box['type'] == 1
+    pose = pc['constraint_region']['primitive_poses'][0]
+    T_box = pin.XYZQUATToSE3(np.r_[xyz(pose['position']), xyz(pose['orientation'], 'xyzw')])
+    R_goal = pin.Quaternion(*np.roll(xyz(oc['orientation'], 'xyzw'), 1)).matrix()
+    tol = np.array([oc[f'absolute_{a}_axis_tolerance'] for a in 'xyz'])
+    rng = np.random.default_rng(0)
+    q_goal = path[-1]
+    states = np.vstack([q_goal + rng.normal(0, s, (150, robot.nq)) for s in (0.01, 0.05, 0.2)])
+    inside_ours, inside_moveit = [], []
+    for q in states:
+        T_link = robot.ee_pose(q)
+        point = T_link.act(xyz(pc['target_point_offset']))
+        in_box = np.all(np.abs(T_box.actInv(point)) <= 0.5 * np.array(box['dimensions']) + 1e-9)
+        in_rot = np.all(np.abs(pin.log3(R_goal.T @ T_link.rotation)) <= tol + 1e-9)
+        inside_moveit.append(bool(in_box and in_rot))
+        inside_ours.append(scene.goal.contains(T_link * scene.goal.tool_offset.to_se3()))
+    assert inside_ours == inside_moveit
+    assert 0 < sum(inside_ours) < len(states)
+    state = request['start_state']['joint_state']
+    assert state['name'][-2:] == ['panda_finger_joint1', 'panda_finger_joint2']
+    traj = yaml.safe_load(files.trajectory.read_text())['joint_trajectory']
+    times = [p['time_from_start']['sec'] + 1e-9 * p['time_from_start']['nanosec']
+             for p in traj['points']]
+    assert times[0] == 0 and all(b > a for a, b in zip(times, times[1:]))
+    slowest = np.max(np.abs(path[1] - path[0]) / robot.model.velocityLimit)
+    assert times[1] == pytest.approx(slowest, abs=1e-8)
+
+
+def test_a_joint_goal_problem_keeps_its_seed_and_fingers(tmp_path):
+    """A MotionBenchMaker problem with a joint goal (fingers at 0.065 -> 0.04) comes back
+    with the same region, seed and locked fingers."""
+    family = FAMILIES / 'table_pick'
+    scene = load_mbm_scene(family / 'scene0001.yaml', family / 'request0001.yaml')
+    assert scene.goal.seeds
+    robot = load_robot(scene.robot)
+    q_init = start_configuration(scene, robot)
+    q_goal = np.array(scene.goal.seeds[0])
+    files = write_problem(tmp_path, 1, scene, robot, robot.joint_names,
+                          np.array([q_init, q_goal]))
+    imported = load_mbm_scene(files.scene, files.request)
+    assert robot.locked_values == pytest.approx({'panda_finger_joint1': 0.04,
+                                                 'panda_finger_joint2': 0.04})
+    assert_same_task(scene, imported, _probe_states(robot, q_init, q_goal,
+                                                    np.random.default_rng(1)))
+
+
+def test_what_cannot_be_exported_is_a_clear_error(attacked, tmp_path):
+    scene, robot, path = attacked
+    ur5 = load_scene(REPO / 'config' / 'scenes' / 'ur5_table.yaml')
+    with pytest.raises(SceneError, match='only the default Panda'):
+        write_problem(tmp_path, 1, ur5, load_robot(ur5.robot), (), path)
+    turned = dataclasses.replace(scene, goal=dataclasses.replace(
+        scene.goal, tool_offset=Pose((0, 0, 0.1), (0.0, 0.0, 0.7071068, 0.7071068))))
+    with pytest.raises(SceneError, match='tool_offset has a rotation'):
+        write_problem(tmp_path, 1, turned, robot, robot.joint_names, path)
+    cloud = scene.with_objects([SceneObject('points', (Shape(
+        'cloud', (0.02,), Pose(), vertices=np.zeros((4, 3))),))])
+    with pytest.raises(SceneError, match='point-cloud objects'):
+        write_problem(tmp_path, 1, cloud, robot, robot.joint_names, path)
+    with pytest.raises(SceneError, match='planned joints'):
+        write_problem(tmp_path, 1, scene, robot, robot.joint_names[:6], path[:, :6])
+    assert not list(tmp_path.iterdir())
+
+
+@pytest.mark.parametrize('text,match', [
+    ('[1, 2]', 'expected a mapping'),
+    ('joint_trajectory: {joint_names: [a], points: []}', 'no points'),
+    ('joint_trajectory: {joint_names: [a, b], points: [{positions: [1.0]}]}', '1 values for 2'),
+    ('joint_trajectory: {joint_names: [a], points: [{positions: [.nan]}]}', 'positions'),
+    ('joint_trajectory: {joint_names: [3], points: [{positions: [1.0]}]}', 'joint names'),
+])
+def test_bad_trajectory_files_are_clear_errors(tmp_path, text, match):
+    path = pathlib.Path(tmp_path) / 'trajectory0001.yaml'
+    path.write_text(text)
+    with pytest.raises(SceneError, match=match):
+        load_trajectory(path)
