@@ -12,8 +12,8 @@ import importlib
 import logging
 import sys
 
-COMMANDS = ['heatmap', 'perf', 'demo', 'audit', 'evaluate', 'attack', 'call', 'scenes', 'bench',
-            'robot', 'view']
+COMMANDS = ['heatmap', 'perf', 'demo', 'audit', 'evaluate', 'attack', 'export', 'call', 'scenes',
+            'bench', 'robot', 'view']
 
 
 class UserError(Exception):

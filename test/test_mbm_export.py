@@ -2,6 +2,7 @@
 own importer gives back the same task (collision verdicts, goal region, locked joints)."""
 
 import dataclasses
+import json
 import pathlib
 
 import numpy as np
@@ -178,3 +179,112 @@ def test_bad_trajectory_files_are_clear_errors(tmp_path, text, match):
     path.write_text(text)
     with pytest.raises(SceneError, match=match):
         load_trajectory(path)
+
+
+# ---------------------------------------------------------------------------------------------
+# `advocc export` on a real attack under the solvable policy
+
+
+@pytest.fixture(scope='module')
+def solvable_attack(tmp_path_factory, table_scene):
+    """``advocc attack --policy solvable`` on table_pick: obstacles file, witness beside it."""
+    from advocc_ros.cli import main
+    from advocc_ros.heatmap import HeatmapConfig, build_heatmap, save_heatmap
+
+    folder = tmp_path_factory.mktemp('attack')
+    heatmap = folder / 'table_pick.npz'
+    save_heatmap(build_heatmap(table_scene, HeatmapConfig(samples=2000), seed=1), heatmap)
+    obstacles = folder / 'obs.yaml'
+    assert main(['attack', '--heatmap', str(heatmap), '--scene', 'table_pick', '--budget', '3',
+                 '--method', 'task', '--policy', 'solvable', '--out', str(obstacles)]) == 0
+    return obstacles
+
+
+def _witness_of(files, robot):
+    from advocc_ros.planning.witness import Witness
+
+    names, waypoints = load_trajectory(files.trajectory)
+    return Witness(joint_names=names, waypoints=waypoints, locked=dict(robot.locked_values),
+                   source={})
+
+
+def test_export_round_trip_keeps_the_witness_valid(solvable_attack, table_scene, tmp_path,
+                                                   capsys):
+    from advocc_ros.attack import load_obstacles
+    from advocc_ros.attack.solvable import certify
+    from advocc_ros.cli import main
+    from advocc_ros.model.mbm import load_any_scene
+    from advocc_ros.planning import PlanningConfig
+    from advocc_ros.planning.witness import load_witness, witness_path, witness_states
+
+    out = tmp_path / 'mbm'
+    assert main(['export', '--scene', 'table_pick', '--obstacles', str(solvable_attack),
+                 '--out', str(out)]) == 0
+    files = problem_files(out, 1)
+    imported = load_any_scene(files.scene, files.request)
+    boxes, _ = load_obstacles(solvable_attack)
+    original = table_scene.with_objects(boxes)
+    robot = load_robot(imported.robot)
+    witness = load_witness(witness_path(solvable_attack))
+    states = witness_states(witness)
+    rng = np.random.default_rng(5)
+    probe = _probe_states(robot, states[0], states[-1], rng)
+    verdicts = assert_same_task(original, imported, np.vstack([states, probe]))
+    assert not verdicts[:len(states)].any() and verdicts[len(states):].any()
+    step = PlanningConfig().motion_step_rad
+    world = CollisionWorld(robot, imported.shapes)
+    assert certify(world, imported.goal, _witness_of(files, robot), step) is None
+    assert np.array_equal(_witness_of(files, robot).waypoints, witness.waypoints)
+    # the checker can fail: the witness without its last waypoint misses the goal region
+    short = dataclasses.replace(witness, waypoints=witness.waypoints[:1])
+    assert certify(world, imported.goal, short, step) is not None
+
+    capsys.readouterr()
+    assert main(['evaluate', '--scene', str(files.scene), '--request', str(files.request),
+                 '--trials', '1', '--time', '2', '--json']) == 0
+    row = json.loads(capsys.readouterr().out)
+    assert row['objects'] == len(original.objects) and len(row['trials']) == 1
+
+
+def test_export_refuses_what_it_cannot_vouch_for(solvable_attack, tmp_path, capsys):
+    from advocc_ros.cli import main
+
+    out = tmp_path / 'mbm'
+    missing = tmp_path / 'none.witness.yaml'
+    assert main(['export', '--scene', 'table_pick', '--obstacles', str(solvable_attack),
+                 '--witness', str(missing), '--out', str(out)]) == 2
+    assert 'no witness file' in capsys.readouterr().err
+    # another task's goal: the witness does not end in the box scene's region
+    assert main(['export', '--scene', 'box', '--obstacles', str(solvable_attack),
+                 '--out', str(out)]) == 2
+    assert 'not a solution' in capsys.readouterr().err
+    assert not out.exists() or not list(out.iterdir())
+    assert main(['export', '--scene', 'table_pick', '--obstacles', str(solvable_attack),
+                 '--out', str(out)]) == 0
+    assert main(['export', '--scene', 'table_pick', '--obstacles', str(solvable_attack),
+                 '--out', str(out)]) == 2
+    assert 'already holds problem files' in capsys.readouterr().err
+
+
+def test_variations_are_attacked_again_and_certified(solvable_attack, tmp_path):
+    from advocc_ros.attack.solvable import certify
+    from advocc_ros.cli import main
+    from advocc_ros.model.mbm import load_any_scene
+    from advocc_ros.planning import PlanningConfig
+
+    out = tmp_path / 'dataset'
+    assert main(['export', '--scene', 'table_pick', '--obstacles', str(solvable_attack),
+                 '--out', str(out), '--variations', '2', '--seed', '3']) == 0
+    manifest = yaml.safe_load((out / 'export.yaml').read_text())
+    assert [p['scene'] for p in manifest['problems']] == ['scene0001.yaml', 'scene0002.yaml']
+    assert manifest['goal_policy'] == 'solvable'
+    centres = []
+    for k, entry in enumerate(manifest['problems'], 1):
+        files = problem_files(out, k)
+        scene = load_any_scene(files.scene, files.request)
+        robot = load_robot(scene.robot)
+        assert certify(CollisionWorld(robot, scene.shapes), scene.goal,
+                       _witness_of(files, robot), PlanningConfig().motion_step_rad) is None
+        assert entry['boxes'] and all(b in {o.id for o in scene.objects} for b in entry['boxes'])
+        centres.append(scene.goal.center.position_m)
+    assert not np.allclose(centres[0], centres[1])  # the target (and its goal) moved

@@ -1,0 +1,190 @@
+"""``advocc export``: an attacked task as MotionBenchMaker problem files, so that other planning
+stacks can run it: ``sceneNNNN.yaml`` (MoveIt PlanningScene with the boxes),
+``requestNNNN.yaml`` (MotionPlanRequest: start state, goal region as constraints) and
+``trajectoryNNNN.yaml`` (the witness path, a RobotTrajectory), plus ``export.yaml`` saying
+where each problem comes from.
+
+Without ``--variations`` the one problem is the scene with the obstacles file's boxes and its
+witness, re-certified first. With ``--variations N`` the folder holds N seeded variations of
+the scene (objects jittered as ``advocc scenes vary`` does), each attacked again with the
+obstacles file's method and budget under the ``solvable`` policy: the old boxes were placed for
+the old geometry, and only a fresh attack keeps a fresh witness valid. As MotionBenchMaker keeps
+only the problems its planner solved, a variation is kept only when its witness is certified
+with its boxes; the others are skipped (and listed) and further variations drawn, up to
+``--max-draws``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import pathlib
+import sys
+
+from advocc_ros.cli import UserError
+from advocc_ros.commands.common import add_scene_args, scene_from_args
+
+MANIFEST = 'export.yaml'
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser('export', help='write an attacked task (scene + boxes, request, witness '
+                       'trajectory) as MotionBenchMaker problem files',
+                       description=__doc__.splitlines()[0])
+    add_scene_args(p)
+    p.add_argument('--obstacles', required=True,
+                   help='obstacles file of `advocc attack` (its witness beside it as '
+                        '<stem>.witness.yaml)')
+    p.add_argument('--witness', metavar='FILE', help='witness file (default: beside '
+                   '--obstacles)')
+    p.add_argument('--out', required=True, help='folder to write the problem files into')
+    p.add_argument('--variations', type=int, default=0, metavar='N',
+                   help='write N seeded variations, each attacked again (default: the one task)')
+    p.add_argument('--seed', type=int, default=0, help='seed of the variations and attacks')
+    p.add_argument('--max-draws', type=int, metavar='K',
+                   help='variations tried at most for --variations N (default 3 N)')
+    p.add_argument('--heatmap', help='heatmap to attack the variations with (default: the '
+                   'obstacles file\'s heatmap_file)')
+    p.add_argument('--time', type=float, default=5.0,
+                   help='allowed_planning_time written into the requests [s] (default 5)')
+    p.add_argument('--json', action='store_true', help='print the manifest as JSON')
+    p.set_defaults(func=run)
+
+
+def _certified(robot, scene, witness) -> str | None:
+    """Why ``witness`` is not a solution of ``scene`` (its objects include the boxes), or None."""
+    from advocc_ros.attack.solvable import certify
+    from advocc_ros.model.collision import CollisionWorld
+    from advocc_ros.planning import PlanningConfig
+
+    if tuple(witness.joint_names) != robot.joint_names:
+        return f'its joints {list(witness.joint_names)} are not {list(robot.joint_names)}'
+    locked = {j: v for j, v in robot.locked_values.items() if j in witness.locked}
+    if any(abs(witness.locked[j] - v) > 1e-9 for j, v in locked.items()):
+        return f'it holds the locked joints at {witness.locked}, the task at {locked}'
+    return certify(CollisionWorld(robot, scene.shapes), scene.goal, witness,
+                   PlanningConfig().motion_step_rad)
+
+
+def _problem_entry(files, scene, boxes, witness, **extra) -> dict:
+    return {'scene': files.scene.name, 'request': files.request.name,
+            'trajectory': files.trajectory.name, 'name': scene.name,
+            'boxes': [o.id for o in boxes], 'waypoints': int(len(witness.waypoints)),
+            **extra}
+
+
+def _export_one(args, scene, robot, boxes) -> dict:
+    from advocc_ros.model.mbm_export import write_problem
+    from advocc_ros.planning.witness import load_witness, witness_path
+
+    path = pathlib.Path(args.witness) if args.witness else witness_path(args.obstacles)
+    if not path.is_file():
+        raise UserError(f'{path}: no witness file (attack with --policy solvable, or give '
+                        '--witness FILE)')
+    witness = load_witness(path)
+    attacked = scene.with_objects(boxes)
+    why = _certified(robot, attacked, witness)
+    if why is not None:
+        raise UserError(f'{path}: the witness is not a solution with the boxes of '
+                        f'{args.obstacles}: {why}')
+    files = write_problem(args.out, 1, attacked, robot, witness.joint_names, witness.waypoints,
+                          args.time)
+    return {'problems': [_problem_entry(files, attacked, boxes, witness, witness_file=str(path))],
+            'skipped': []}
+
+
+def _export_variations(args, scene, robot, meta) -> dict:
+    """Seeded variations of ``scene``, each attacked again under ``solvable`` (module doc)."""
+    from advocc_ros.attack import AttackConfig, attack
+    from advocc_ros.heatmap import load_heatmap
+    from advocc_ros.model.ik import start_configuration
+    from advocc_ros.model.mbm_export import write_problem
+    from advocc_ros.model.scene import SceneError
+    from advocc_ros.model.scenegen import vary_scene
+
+    heatmap_file = args.heatmap or meta.get('heatmap_file')
+    if not heatmap_file:
+        raise UserError(f'{args.obstacles} names no heatmap_file; give --heatmap to attack the '
+                        'variations')
+    if not isinstance(meta.get('method'), str) or not isinstance(meta.get('budget'), int):
+        raise UserError(f'{args.obstacles}: method and budget are needed to attack the '
+                        'variations again')
+    heatmap = load_heatmap(heatmap_file, robot_hash=robot.hash)
+    try:
+        cfg = AttackConfig(box_size_m=meta.get('box_size_m') or AttackConfig().box_size_m,
+                           goal_policy='solvable')
+    except ValueError as exc:
+        raise UserError(f'{args.obstacles}: {exc}') from None
+    draws = args.max_draws or 3 * args.variations
+    problems, skipped = [], []
+    for index in range(1, draws + 1):
+        if len(problems) == args.variations:
+            break
+        try:
+            var = vary_scene(scene, index, args.seed).scene
+        except SceneError as exc:
+            skipped.append({'variation': index, 'reason': str(exc)})
+            continue
+        result = attack(heatmap, robot, var.objects, start_configuration(var, robot), var.goal,
+                        meta['budget'], meta['method'], cfg, seed=args.seed + index)
+        verdict = result.solvable.verdict if result.solvable is not None else None
+        why = (f'attack {result.status.value}: {result.message}' if not result.status.ok
+               else f'solvable: {verdict}' if verdict != 'certified' or result.witness is None
+               else _certified(robot, var.with_objects(result.obstacles), result.witness))
+        if why is not None:
+            skipped.append({'variation': index, 'reason': why})
+            print(f'advocc export: variation {index} skipped ({why})', file=sys.stderr)
+            continue
+        attacked = var.with_objects(result.obstacles)
+        files = write_problem(args.out, len(problems) + 1, attacked, robot,
+                              result.witness.joint_names, result.witness.waypoints, args.time)
+        problems.append(_problem_entry(files, attacked, result.obstacles, result.witness,
+                                       variation=index))
+    if len(problems) < args.variations:
+        raise UserError(f'only {len(problems)} of {args.variations} variations kept in '
+                        f'{draws} draws (skipped: {skipped}); raise --max-draws')
+    return {'problems': problems, 'skipped': skipped, 'heatmap': str(heatmap_file)}
+
+
+def run(args: argparse.Namespace) -> int:
+    from advocc_ros.attack import load_obstacles
+    from advocc_ros.model.mbm_export import check_exportable
+    from advocc_ros.model.robot import load_robot
+    from advocc_ros.model.scene import save_yaml_atomic
+
+    if args.variations < 0:
+        raise UserError('--variations must be >= 0')
+    if args.max_draws is not None and args.max_draws < args.variations:
+        raise UserError('--max-draws must be >= --variations')
+    if not 0 < args.time <= 600:
+        raise UserError('--time must be in (0, 600]')
+    scene = scene_from_args(args)
+    check_exportable(scene)
+    robot = load_robot(scene.robot)
+    boxes, meta = load_obstacles(args.obstacles)
+    made_for = (meta.get('scene') or {}).get('objects_hash')
+    if made_for not in (None, scene.objects_hash()):
+        print(f'advocc export: warning: {args.obstacles} was made for scene '
+              f'{meta["scene"].get("name")!r}, not {scene.name!r}', file=sys.stderr)
+    out = pathlib.Path(args.out)
+    if out.exists() and any(out.glob('scene[0-9]*.yaml')):
+        raise UserError(f'{out}: already holds problem files; choose an empty folder')
+    if args.variations:
+        written = _export_variations(args, scene, robot, meta)
+    else:
+        written = _export_one(args, scene, robot, boxes)
+    manifest = {'format': 'advocc_mbm_export', 'version': 1, 'scene': scene.name,
+                'obstacles': str(args.obstacles), 'method': meta.get('method'),
+                'budget': meta.get('budget'), 'goal_policy': (
+                    'solvable' if args.variations else meta.get('goal_policy')),
+                'seed': args.seed, 'variations': args.variations, **written}
+    save_yaml_atomic(out / MANIFEST, manifest)
+    if args.json:
+        print(json.dumps(manifest, indent=1))
+    else:
+        for entry in written['problems']:
+            print(f'{out / entry["scene"]}  {entry["request"]}  {entry["trajectory"]}  '
+                  f'({len(entry["boxes"])} boxes, witness of {entry["waypoints"]} waypoints)')
+        if written['skipped']:
+            print(f'{len(written["skipped"])} variation(s) skipped: see {out / MANIFEST}')
+    return 0
