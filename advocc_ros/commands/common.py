@@ -20,8 +20,8 @@ def add_scene_args(parser: argparse.ArgumentParser, required: bool = True) -> No
                              'scene file (MoveIt PlanningScene YAML, sceneNNNN.yaml)')
     parser.add_argument('--request', metavar='FILE',
                         help='MotionBenchMaker request file (requestNNNN.yaml): its start state '
-                             'and a goal region around its goal configuration\'s end-effector '
-                             'pose replace the scene\'s')
+                             'and its goal replace the scene\'s (a region around a joint '
+                             'goal\'s end-effector pose, or a pose goal\'s own region)')
     parser.add_argument('--goal-tol', metavar='TOL', help=GOAL_TOL_HELP)
 
 
