@@ -248,6 +248,7 @@ def test_export_round_trip_keeps_the_witness_valid(solvable_attack, table_scene,
 
 def test_export_refuses_what_it_cannot_vouch_for(solvable_attack, tmp_path, capsys):
     from advocc_ros.cli import main
+    from advocc_ros.planning.witness import load_witness, save_witness, witness_path
 
     out = tmp_path / 'mbm'
     missing = tmp_path / 'none.witness.yaml'
@@ -264,6 +265,25 @@ def test_export_refuses_what_it_cannot_vouch_for(solvable_attack, tmp_path, caps
     assert main(['export', '--scene', 'table_pick', '--obstacles', str(solvable_attack),
                  '--out', str(out)]) == 2
     assert 'already holds problem files' in capsys.readouterr().err
+    # a witness made with other finger values is another robot's path
+    witness = load_witness(witness_path(solvable_attack))
+    other = tmp_path / 'other.witness.yaml'
+    save_witness(other, dataclasses.replace(witness, locked={
+        j: v + 0.01 for j, v in witness.locked.items()}))
+    assert main(['export', '--scene', 'table_pick', '--obstacles', str(solvable_attack),
+                 '--witness', str(other), '--out', str(tmp_path / 'other')]) == 2
+    assert 'locked joints' in capsys.readouterr().err
+    # variations need a heatmap to attack with, and enough draws
+    data = yaml.safe_load(solvable_attack.read_text())
+    data.pop('heatmap_file')
+    bare = tmp_path / 'bare.yaml'
+    bare.write_text(yaml.safe_dump(data))
+    assert main(['export', '--scene', 'table_pick', '--obstacles', str(bare), '--out',
+                 str(tmp_path / 'v'), '--variations', '2']) == 2
+    assert 'give --heatmap' in capsys.readouterr().err
+    assert main(['export', '--scene', 'table_pick', '--obstacles', str(solvable_attack),
+                 '--out', str(tmp_path / 'v'), '--variations', '3', '--max-draws', '2']) == 2
+    assert '--max-draws must be' in capsys.readouterr().err
 
 
 def test_variations_are_attacked_again_and_certified(solvable_attack, tmp_path):
