@@ -232,6 +232,27 @@ def test_mbm_request(data, tmp_path, panda):
             assert str(exc)
 
 
+@settings(**SETTINGS)
+@given(data=st.data())
+def test_mbm_trajectory(data, tmp_path):
+    from advocc_ros.model.mbm_export import load_trajectory, trajectory_data
+    from advocc_ros.model.scene import SceneError
+    doc = trajectory_data(['a', 'b'], np.array([[0.0, 0.1], [0.5, -0.2], [1.0, 0.3]]),
+                          np.ones(2))
+    path = tmp_path / 'trajectory.yaml'
+    if data.draw(st.booleans(), label='bytes'):
+        path.write_bytes(_flip(data, yaml.safe_dump(doc).encode()))
+    else:
+        path.write_text(yaml.safe_dump(mutate(data, doc)))
+    _count('mbm_trajectory')
+    with _Timer():
+        try:
+            names, points = load_trajectory(path)
+            assert points.shape == (points.shape[0], len(names)) and np.isfinite(points).all()
+        except SceneError as exc:
+            assert str(exc)
+
+
 # ---------------------------------------------------------------------------------------------
 # Obstacles files
 
