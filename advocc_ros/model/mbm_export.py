@@ -143,8 +143,11 @@ def planning_scene_data(scene: Scene, robot: RobotModel) -> dict:
             'allowed_collision_matrix': {'entry_names': [], 'entry_values': [],
                                          'default_entry_names': [], 'default_entry_values': []},
             'link_padding': [], 'link_scale': [], 'object_colors': [],
-            'world': {'collision_objects': [collision_object_data(o) for o in scene.objects]},
-            'is_diff': False}
+            'world': {'collision_objects': [collision_object_data(o) for o in scene.objects],
+                      'octomap': {'header': _header(), 'origin': pose_data(Pose()),
+                                  'octomap': {'header': _header(), 'binary': True,
+                                              'id': 'OcTree', 'resolution': 0.1, 'data': []}}},
+            'is_diff': False}  # an empty octomap: MoveIt adds nothing for it
 
 
 def _constraints(**kinds) -> dict:
