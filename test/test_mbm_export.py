@@ -214,8 +214,7 @@ def test_export_round_trip_keeps_the_witness_valid(solvable_attack, table_scene,
     from advocc_ros.attack.solvable import certify
     from advocc_ros.cli import main
     from advocc_ros.model.mbm import load_any_scene
-    from advocc_ros.planning import PlanningConfig
-    from advocc_ros.planning.witness import load_witness, witness_path, witness_states
+    from advocc_ros.planning.witness import load_witness, witness_file, witness_states
 
     out = tmp_path / 'mbm'
     assert main(['export', '--scene', 'table_pick', '--obstacles', str(solvable_attack),
@@ -225,30 +224,29 @@ def test_export_round_trip_keeps_the_witness_valid(solvable_attack, table_scene,
     boxes, _ = load_obstacles(solvable_attack)
     original = table_scene.with_objects(boxes)
     robot = load_robot(imported.robot)
-    witness = load_witness(witness_path(solvable_attack))
-    states = witness_states(witness)
+    witness = load_witness(witness_file(solvable_attack))
+    states = witness_states(witness.configurations(robot))
     rng = np.random.default_rng(5)
     probe = _probe_states(robot, states[0], states[-1], rng)
     verdicts = assert_same_task(original, imported, np.vstack([states, probe]))
     assert not verdicts[:len(states)].any() and verdicts[len(states):].any()
-    step = PlanningConfig().motion_step_rad
     world = CollisionWorld(robot, imported.shapes)
-    assert certify(world, imported.goal, _witness_of(files, robot), step) is None
-    assert np.array_equal(_witness_of(files, robot).waypoints, witness.waypoints)
+    assert certify(robot, world, imported.goal, _witness_of(files, robot))[0] is None
+    assert np.array_equal(_witness_of(files, robot).waypoints, witness.configurations(robot))
     # the checker can fail: the witness without its last waypoint misses the goal region
-    short = dataclasses.replace(witness, waypoints=witness.waypoints[:1])
-    assert certify(world, imported.goal, short, step) is not None
+    short = dataclasses.replace(witness, waypoints=witness.waypoints[:-1])
+    assert certify(robot, world, imported.goal, short)[0] is not None
 
     capsys.readouterr()
     assert main(['evaluate', '--scene', str(files.scene), '--request', str(files.request),
                  '--trials', '1', '--time', '2', '--json']) == 0
     row = json.loads(capsys.readouterr().out)
-    assert row['objects'] == len(original.objects) and len(row['trials']) == 1
+    assert row['objects'] == len(original.objects) and len(row['records']) == row['trials'] == 1
 
 
 def test_export_refuses_what_it_cannot_vouch_for(solvable_attack, tmp_path, capsys):
     from advocc_ros.cli import main
-    from advocc_ros.planning.witness import load_witness, save_witness, witness_path
+    from advocc_ros.planning.witness import load_witness, save_witness, witness_file
 
     out = tmp_path / 'mbm'
     missing = tmp_path / 'none.witness.yaml'
@@ -266,13 +264,13 @@ def test_export_refuses_what_it_cannot_vouch_for(solvable_attack, tmp_path, caps
                  '--out', str(out)]) == 2
     assert 'already holds problem files' in capsys.readouterr().err
     # a witness made with other finger values is another robot's path
-    witness = load_witness(witness_path(solvable_attack))
+    witness = load_witness(witness_file(solvable_attack))
     other = tmp_path / 'other.witness.yaml'
     save_witness(other, dataclasses.replace(witness, locked={
         j: v + 0.01 for j, v in witness.locked.items()}))
     assert main(['export', '--scene', 'table_pick', '--obstacles', str(solvable_attack),
                  '--witness', str(other), '--out', str(tmp_path / 'other')]) == 2
-    assert 'locked joints' in capsys.readouterr().err
+    assert 'locked joint' in capsys.readouterr().err
     # variations need a heatmap to attack with, and enough draws
     data = yaml.safe_load(solvable_attack.read_text())
     data.pop('heatmap_file')
@@ -290,7 +288,6 @@ def test_variations_are_attacked_again_and_certified(solvable_attack, tmp_path):
     from advocc_ros.attack.solvable import certify
     from advocc_ros.cli import main
     from advocc_ros.model.mbm import load_any_scene
-    from advocc_ros.planning import PlanningConfig
 
     out = tmp_path / 'dataset'
     assert main(['export', '--scene', 'table_pick', '--obstacles', str(solvable_attack),
@@ -303,8 +300,8 @@ def test_variations_are_attacked_again_and_certified(solvable_attack, tmp_path):
         files = problem_files(out, k)
         scene = load_any_scene(files.scene, files.request)
         robot = load_robot(scene.robot)
-        assert certify(CollisionWorld(robot, scene.shapes), scene.goal,
-                       _witness_of(files, robot), PlanningConfig().motion_step_rad) is None
+        assert certify(robot, CollisionWorld(robot, scene.shapes), scene.goal,
+                       _witness_of(files, robot))[0] is None
         assert entry['boxes'] and all(b in {o.id for o in scene.objects} for b in entry['boxes'])
         centres.append(scene.goal.center.position_m)
     assert not np.allclose(centres[0], centres[1])  # the target (and its goal) moved

@@ -55,15 +55,16 @@ def _certified(robot, scene, witness) -> str | None:
     """Why ``witness`` is not a solution of ``scene`` (its objects include the boxes), or None."""
     from advocc_ros.attack.solvable import certify
     from advocc_ros.model.collision import CollisionWorld
-    from advocc_ros.planning import PlanningConfig
 
-    if tuple(witness.joint_names) != robot.joint_names:
-        return f'its joints {list(witness.joint_names)} are not {list(robot.joint_names)}'
-    locked = {j: v for j, v in robot.locked_values.items() if j in witness.locked}
-    if any(abs(witness.locked[j] - v) > 1e-9 for j, v in locked.items()):
-        return f'it holds the locked joints at {witness.locked}, the task at {locked}'
-    return certify(CollisionWorld(robot, scene.shapes), scene.goal, witness,
-                   PlanningConfig().motion_step_rad)
+    return certify(robot, CollisionWorld(robot, scene.shapes), scene.goal, witness)[0]
+
+
+def _write(args, index: int, attacked, robot, witness):
+    """The problem files of ``attacked`` with ``witness`` (in the robot's joint order)."""
+    from advocc_ros.model.mbm_export import write_problem
+
+    return write_problem(args.out, index, attacked, robot, robot.joint_names,
+                         witness.configurations(robot), args.time)
 
 
 def _problem_entry(files, scene, boxes, witness, **extra) -> dict:
@@ -74,10 +75,9 @@ def _problem_entry(files, scene, boxes, witness, **extra) -> dict:
 
 
 def _export_one(args, scene, robot, boxes) -> dict:
-    from advocc_ros.model.mbm_export import write_problem
-    from advocc_ros.planning.witness import load_witness, witness_path
+    from advocc_ros.planning.witness import load_witness, witness_file
 
-    path = pathlib.Path(args.witness) if args.witness else witness_path(args.obstacles)
+    path = pathlib.Path(args.witness) if args.witness else witness_file(args.obstacles)
     if not path.is_file():
         raise UserError(f'{path}: no witness file (attack with --policy solvable, or give '
                         '--witness FILE)')
@@ -87,8 +87,7 @@ def _export_one(args, scene, robot, boxes) -> dict:
     if why is not None:
         raise UserError(f'{path}: the witness is not a solution with the boxes of '
                         f'{args.obstacles}: {why}')
-    files = write_problem(args.out, 1, attacked, robot, witness.joint_names, witness.waypoints,
-                          args.time)
+    files = _write(args, 1, attacked, robot, witness)
     return {'problems': [_problem_entry(files, attacked, boxes, witness, witness_file=str(path))],
             'skipped': []}
 
@@ -98,7 +97,6 @@ def _export_variations(args, scene, robot, meta) -> dict:
     from advocc_ros.attack import AttackConfig, attack
     from advocc_ros.heatmap import load_heatmap
     from advocc_ros.model.ik import start_configuration
-    from advocc_ros.model.mbm_export import write_problem
     from advocc_ros.model.scene import SceneError
     from advocc_ros.model.scenegen import vary_scene
 
@@ -127,17 +125,16 @@ def _export_variations(args, scene, robot, meta) -> dict:
             continue
         result = attack(heatmap, robot, var.objects, start_configuration(var, robot), var.goal,
                         meta['budget'], meta['method'], cfg, seed=args.seed + index)
-        verdict = result.solvable.verdict if result.solvable is not None else None
         why = (f'attack {result.status.value}: {result.message}' if not result.status.ok
-               else f'solvable: {verdict}' if verdict != 'certified' or result.witness is None
+               else f'solvable: {result.solvable.verdict} ({result.solvable.message})'
+               if not result.solvable.certified
                else _certified(robot, var.with_objects(result.obstacles), result.witness))
         if why is not None:
             skipped.append({'variation': index, 'reason': why})
             print(f'advocc export: variation {index} skipped ({why})', file=sys.stderr)
             continue
         attacked = var.with_objects(result.obstacles)
-        files = write_problem(args.out, len(problems) + 1, attacked, robot,
-                              result.witness.joint_names, result.witness.waypoints, args.time)
+        files = _write(args, len(problems) + 1, attacked, robot, result.witness)
         problems.append(_problem_entry(files, attacked, result.obstacles, result.witness,
                                        variation=index))
     if len(problems) < args.variations:
