@@ -279,6 +279,11 @@ def test_export_refuses_what_it_cannot_vouch_for(solvable_attack, tmp_path, caps
     assert main(['export', '--scene', 'table_pick', '--obstacles', str(bare), '--out',
                  str(tmp_path / 'v'), '--variations', '2']) == 2
     assert 'give --heatmap' in capsys.readouterr().err
+    data['method'] = 'pfa'
+    bare.write_text(yaml.safe_dump(data))
+    assert main(['export', '--scene', 'table_pick', '--obstacles', str(bare), '--heatmap',
+                 str(solvable_attack), '--out', str(tmp_path / 'v'), '--variations', '2']) == 2
+    assert "method 'pfa'" in capsys.readouterr().err
     assert main(['export', '--scene', 'table_pick', '--obstacles', str(solvable_attack),
                  '--out', str(tmp_path / 'v'), '--variations', '3', '--max-draws', '2']) == 2
     assert '--max-draws must be' in capsys.readouterr().err

@@ -94,7 +94,7 @@ def _export_one(args, scene, robot, boxes) -> dict:
 
 def _export_variations(args, scene, robot, meta) -> dict:
     """Seeded variations of ``scene``, each attacked again under ``solvable`` (module doc)."""
-    from advocc_ros.attack import AttackConfig, attack
+    from advocc_ros.attack import REGISTRY, AttackConfig, attack
     from advocc_ros.heatmap import load_heatmap
     from advocc_ros.model.ik import start_configuration
     from advocc_ros.model.scene import SceneError
@@ -104,9 +104,11 @@ def _export_variations(args, scene, robot, meta) -> dict:
     if not heatmap_file:
         raise UserError(f'{args.obstacles} names no heatmap_file; give --heatmap to attack the '
                         'variations')
-    if not isinstance(meta.get('method'), str) or not isinstance(meta.get('budget'), int):
-        raise UserError(f'{args.obstacles}: method and budget are needed to attack the '
-                        'variations again')
+    binds = [m for m, spec in REGISTRY.items() if not spec.queries_planner]  # not PFA
+    if meta.get('method') not in binds or not isinstance(meta.get('budget'), int):
+        raise UserError(f'{args.obstacles}: method {meta.get("method")!r} and budget '
+                        f'{meta.get("budget")!r}: the variations are attacked again under '
+                        f'--policy solvable, which needs one of {binds} and a budget')
     heatmap = load_heatmap(heatmap_file, robot_hash=robot.hash)
     try:
         cfg = AttackConfig(box_size_m=meta.get('box_size_m') or AttackConfig().box_size_m,
@@ -125,9 +127,10 @@ def _export_variations(args, scene, robot, meta) -> dict:
             continue
         result = attack(heatmap, robot, var.objects, start_configuration(var, robot), var.goal,
                         meta['budget'], meta['method'], cfg, seed=args.seed + index)
+        verdict = result.solvable
         why = (f'attack {result.status.value}: {result.message}' if not result.status.ok
-               else f'solvable: {result.solvable.verdict} ({result.solvable.message})'
-               if not result.solvable.certified
+               else 'not assessed' if verdict is None
+               else f'{verdict.verdict} ({verdict.message})' if not verdict.certified
                else _certified(robot, var.with_objects(result.obstacles), result.witness))
         if why is not None:
             skipped.append({'variation': index, 'reason': why})
