@@ -32,7 +32,7 @@ from typing import Sequence
 import numpy as np
 
 from advocc_ros.model.goal import GoalRegion
-from advocc_ros.model.mbm_fields import _floats, _list, _mapping
+from advocc_ros.model.mbm_fields import _floats, _list, _mapping, base_frame
 from advocc_ros.model.pose import Pose, SceneError
 from advocc_ros.model.robot import RobotModel, RobotSpec
 from advocc_ros.model.scene import Scene, SceneObject, read_yaml, save_yaml_atomic
@@ -186,7 +186,7 @@ def request_data(scene: Scene, robot: RobotModel, planning_time_s: float = 5.0,
         'workspace_parameters': {'header': _header(), 'min_corner': _xyz((-1, -1, -1)),
                                  'max_corner': _xyz((1, 1, 1))},
         'start_state': robot_state_data(task_state(scene, robot)),
-        'goal_constraints': goal_constraints_data(scene.goal, scene.frame),
+        'goal_constraints': goal_constraints_data(scene.goal, base_frame(robot)),
         'path_constraints': _constraints(),
         'trajectory_constraints': {'constraints': []}, 'reference_trajectories': [],
         'pipeline_id': '', 'planner_id': planner_id, 'group_name': MOVEIT_GROUP,
