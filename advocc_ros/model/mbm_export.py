@@ -44,7 +44,7 @@ ROTATION_VECTOR = 1
 MOVEIT_GROUP = 'panda_arm'
 """The Panda's planning group in MoveIt's configuration (ours is the SRDF's ``arm``)."""
 JOINT_GOAL_TOLERANCE_RAD = 1e-3
-"""Tolerance of a joint goal written for a region seed (MotionBenchMaker's own value)."""
+"""Tolerance of the joint goal written for a region seed [rad]: the seed is a point goal."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -70,7 +70,7 @@ def check_exportable(scene: Scene) -> None:
                          'MotionBenchMaker problem (the files do not name a robot model)')
     if scene.start is None or scene.goal is None:
         raise SceneError(f'{scene.name}: a start and a goal region are needed to export')
-    if not np.allclose(scene.goal.tool_offset.quat_xyzw, (0, 0, 0, 1), atol=1e-9):
+    if not np.allclose(scene.goal.tool_offset.to_se3().rotation, np.eye(3), atol=1e-9):
         raise SceneError(f'{scene.name}: goal.tool_offset has a rotation; MoveIt\'s '
                          'target_point_offset is a point, so the region cannot be written')
     clouds = [o.id for o in scene.objects if any(s.kind == 'cloud' for s in o.shapes)]
