@@ -59,6 +59,7 @@ def floats(data: Any, where: str) -> np.ndarray:
 
 
 def pose_se3(data: Any, where: str) -> pin.SE3:
+    """A ``geometry_msgs/Pose`` mapping (``None``: identity); the quaternion is normalised."""
     if data is None:
         return pin.SE3.Identity()
     data = as_mapping(data, where)
@@ -72,6 +73,7 @@ def pose_se3(data: Any, where: str) -> pin.SE3:
 
 
 def primitive_shape(prim: Any, where: str, pose: pin.SE3) -> Shape:
+    """A ``shape_msgs/SolidPrimitive`` mapping (box, sphere, cylinder) placed at ``pose``."""
     prim = as_mapping(prim, where)
     raw = prim.get('type')
     kind = PRIMITIVES.get(raw.lower() if isinstance(raw, str) else raw)
