@@ -118,7 +118,7 @@ def load_heatmap(path: str | pathlib.Path, robot_hash: str | None = None) -> Hea
         raise HeatmapError(f'{path}: not a heatmap file (missing {sorted(missing)})')
     try:
         version = int(arrays['format_version'])
-    except (TypeError, ValueError):
+    except (TypeError, ValueError, OverflowError):
         raise HeatmapError(f'{path}: format_version is not an integer') from None
     if version != FORMAT_VERSION:
         raise HeatmapError(f'{path}: format version {version}, this advocc reads '
