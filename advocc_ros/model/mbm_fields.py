@@ -76,7 +76,8 @@ def primitive_shape(prim: Any, where: str, pose: pin.SE3) -> Shape:
     """A ``shape_msgs/SolidPrimitive`` mapping (box, sphere, cylinder) placed at ``pose``."""
     prim = as_mapping(prim, where)
     raw = prim.get('type')
-    kind = PRIMITIVES.get(raw.lower() if isinstance(raw, str) else raw)
+    key = raw.lower() if isinstance(raw, str) else raw
+    kind = PRIMITIVES.get(key) if isinstance(key, (str, int)) else None  # a list: unhashable
     if kind is None:
         raise SceneError(f'{where}.type: expected box, sphere or cylinder (or 1, 2, 3), got '
                          f'{raw!r}')
