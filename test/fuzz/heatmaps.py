@@ -120,7 +120,7 @@ def generate(rng: random.Random, raw: bytes, canary: pathlib.Path
         elif op == 'dup':
             items.append(items[i])
         elif op == 'rename':
-            items[i] = (rng.choice(['../' + items[i][0], items[i][0][:-4], 'x.npy', '']),
+            items[i] = (rng.choice(['../' + items[i][0], items[i][0][:-4], 'x.npy', ' ']),
                         items[i][1])
         elif op == 'extra':
             items.append(('extra.npy', _npy(np.zeros(3))))
