@@ -221,3 +221,21 @@ def test_nan_point_in_a_cloud_file_names_the_file(tmp_path):
     from advocc_ros.model.scene import SceneError
     with pytest.raises(SceneError, match=r'objects\[0\] \(.*c\.pcd\)\.points: 1 NaN/inf'):
         _cloud(tmp_path, 'c.pcd', PCD.format(count='1 1 1', y='nan'))
+
+
+def test_cloud_message_with_the_wrong_byte_order_is_refused():
+    """Little-endian floats flagged big-endian decode to points ~4e8 m away; coal's octree
+    keys overflow there and its distance queries segfaulted the heatmap server."""
+    from advocc_ros.model.scene import SceneError
+    from advocc_ros.ros.clouds import cloud_shape_from_msg
+    with pytest.raises(SceneError, match='an octree of 0.02 m leaves reaches 655.36 m'):
+        cloud_shape_from_msg(_cloud_msg(is_bigendian=True), 0.02, [-np.inf] * 3, [np.inf] * 3)
+
+
+def test_cloud_points_the_octree_would_drop_are_refused():
+    """Beyond 2^15 leaves from the origin coal.makeOctree drops a point without a word."""
+    from advocc_ros.model.cloud import make_cloud_shape
+    from advocc_ros.model.scene import SceneError
+    assert make_cloud_shape([[655.0, 0.0, 0.0]], 0.02).vertices.shape == (1, 3)
+    with pytest.raises(SceneError, match='a coordinate of 1e\\+04 m'):
+        make_cloud_shape([[0.6, 0.0, 0.8], [1e4, 1e4, 1e4]], 0.02)

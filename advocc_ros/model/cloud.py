@@ -27,6 +27,10 @@ log = logging.getLogger(__name__)
 DEFAULT_RESOLUTION_M = 0.02
 """Octree leaf edge [m] when a cloud object does not name one."""
 CLOUD_SUFFIXES = ('.ply', '.pcd')
+_OCTREE_HALF_KEYS = 2 ** 15
+"""Leaves per axis on each side of the origin that octomap's 16-bit keys address: a point
+beyond is silently dropped by ``coal.makeOctree``, and far beyond (~10^8 m) its key overflows
+and coal's distance queries on the tree segfault."""
 
 _CACHE: dict[tuple[str, float], dict[str, Any]] = {}
 """(content hash, resolution) -> {'octree': coal.OcTree, 'keys': sorted leaf keys}."""
@@ -58,6 +62,12 @@ def make_cloud_shape(points, resolution_m: float = DEFAULT_RESOLUTION_M, pose: P
     if not MIN_CLOUD_RESOLUTION_M <= res <= MAX_CLOUD_RESOLUTION_M:
         raise SceneError(f'{where}.resolution: {res} m is outside {MIN_CLOUD_RESOLUTION_M}..'
                          f'{MAX_CLOUD_RESOLUTION_M} m (MIN/MAX_CLOUD_RESOLUTION_M)')
+    reach_m = res * _OCTREE_HALF_KEYS
+    far_m = float(np.abs(pts).max())
+    if far_m >= reach_m:
+        raise SceneError(f'{where}.points: a coordinate of {far_m:.4g} m; an octree of {res} m '
+                         f'leaves reaches {reach_m:g} m from the origin (a byte-swapped or '
+                         'unscaled cloud?)')
     return Shape('cloud', (res,), pose, np.ascontiguousarray(pts), None)
 
 

@@ -92,6 +92,9 @@ def main(argv=None) -> int:
     parser = argparse.ArgumentParser(prog='python -m fuzz', description=__doc__)
     parser.add_argument('--inputs', type=int, default=10_000, help='total inputs (default 10000)')
     parser.add_argument('--seed', type=int, default=1)
+    parser.add_argument('--first', type=int, default=0,
+                        help='index of the first input of each family (replay: --families F '
+                        '--first N --inputs 1)')
     parser.add_argument('--workers', type=int, default=2, help='parser worker processes')
     parser.add_argument('--timeout-s', type=float, default=20.0,
                         help='per input; past it the input is a hang (default 20)')
@@ -110,7 +113,8 @@ def main(argv=None) -> int:
     with tempfile.TemporaryDirectory(prefix='advocc_fuzz_') as tmp:
         tmp = pathlib.Path(tmp)
         _heatmap(tmp / 'base.npz')
-        context = {'seed': args.seed, 'heatmap': str(tmp / 'base.npz'), 'tmp': str(tmp)}
+        context = {'seed': args.seed, 'heatmap': str(tmp / 'base.npz'), 'tmp': str(tmp),
+                   'first': args.first, 'logs': str(out / 'logs')}
         tally = Tally(out, args.seed, files.bases(context), tmp)
         services = [f for f in families if f.startswith('srv_')]
         thread = None
@@ -119,7 +123,8 @@ def main(argv=None) -> int:
             thread = threading.Thread(target=srv.run_all, daemon=True, args=(
                 {f: counts[f] for f in services}, context, args.timeout_s, tally.record))
             thread.start()
-        jobs = [(f, i) for f in families if f in files.FAMILIES for i in range(counts[f])]
+        jobs = [(f, i) for f in families if f in files.FAMILIES
+                for i in range(args.first, args.first + counts[f])]
         jobs.sort(key=lambda job: (job[1], job[0]))  # families interleaved: load spreads out
         files_run = threading.Thread(target=_progress, args=(tally, sum(counts.values())),
                                      daemon=True)

@@ -29,6 +29,9 @@ CLOUD_ENTRY = 'scene.yaml.objects[0]'
 """What a scene file's cloud object is called in errors (the cloud file's path may stand in)."""
 
 
+_DUMPER = getattr(yaml, 'CSafeDumper', yaml.SafeDumper)
+
+
 @dataclasses.dataclass
 class Input:
     """One generated file: its name, bytes, and whether a parser must refuse it."""
@@ -70,8 +73,8 @@ def _yaml_input(rng: random.Random, docs: list[tuple[str, Any]], key: str) -> In
     text, doc = rng.choice(docs)
     r = rng.random()
     if r < 0.55:
-        out = yaml.safe_dump(mutate_doc(rng, doc), default_flow_style=rng.random() < 0.3,
-                             allow_unicode=True).encode()
+        out = yaml.dump(mutate_doc(rng, doc), Dumper=_DUMPER, allow_unicode=True,
+                        default_flow_style=rng.random() < 0.3).encode()
     elif r < 0.75:
         out = mutate_text(rng, text).encode('utf-8', 'surrogatepass')
     elif r < 0.93:

@@ -204,7 +204,9 @@ class _Node:
 
     def __init__(self, module: str, params: dict, env: dict, log_dir: pathlib.Path):
         self.module, self.params, self.env = module, params, env
+        log_dir.mkdir(parents=True, exist_ok=True)
         self.log_path = log_dir / f'{module}.log'
+        self.log_path.write_text('')
         self.proc = None
         self.restarts = -1
 
@@ -223,7 +225,7 @@ class _Node:
 
     def tail(self) -> str:
         text = self.log_path.read_text(errors='replace')
-        return text[-600:]
+        return text[-1500:]
 
 
 def _classify(res, codes: dict[int, str], check) -> tuple[str, str]:
@@ -275,11 +277,13 @@ def _serve(family: str, n: int, node: _Node, ctx, srv_type, make, check_of, time
     try:
         wait_ready()
         base = ctx['base'][family]
-        for index in range(n):
+        for index in range(ctx['first'], ctx['first'] + n):
             req = make(random.Random(f'{seed}:{family}:{index}'), base)
             t0 = time.monotonic()
             future = client.call_async(req)
-            executor.spin_until_future_complete(future, timeout_sec=timeout_s)
+            while not future.done() and node.proc.poll() is None \
+                    and time.monotonic() - t0 < timeout_s:
+                executor.spin_once(timeout_sec=0.1)
             seconds = time.monotonic() - t0
             if node.proc.poll() is not None:
                 record((family, index), 'crash', f'node died (exit {node.proc.returncode}): '
@@ -307,10 +311,10 @@ def run_all(counts: dict[str, int], context: dict, timeout_s: float, record) -> 
     from advocc_msgs.srv import Attack, Plan
     from advocc_ros.model.scene import load_scene
     from advocc_ros.ros.conversions import attack_request as good_attack, goal_region_to_msg
-    tmp = pathlib.Path(context['tmp'])
+    tmp, logs = pathlib.Path(context['tmp']), pathlib.Path(context['logs'])
     domain = 1 + os.getpid() % 99  # the pytest fixtures use 100..229
     env = dict(os.environ, ROS_DOMAIN_ID=str(domain), ROS_LOCALHOST_ONLY='1',
-               PYTHONUNBUFFERED='1')
+               PYTHONUNBUFFERED='1', PYTHONFAULTHANDLER='1')  # a segfault's stack in the log
     scene = load_scene(SCENES / 'table_pick.yaml')
     plan = Plan.Request(planner_id='rrtconnect', time_budget_s=0.3, seed=0)
     plan.start_state = JointState(name=list(scene.start), position=list(scene.start.values()))
@@ -318,14 +322,15 @@ def run_all(counts: dict[str, int], context: dict, timeout_s: float, record) -> 
     nodes = {
         'srv_attack': _Node('heatmap_server', {'heatmap_file': context['heatmap'],
                                                'max_budget': 8, 'allowed_dirs': [str(tmp)]},
-                            env, tmp),
+                            env, logs),
         'srv_plan': _Node('planner_shim', {'scene_file': str(SCENES / 'table_pick.yaml'),
                                            'time_budget_s': 0.3, 'max_time_budget_s': 0.5,
-                                           'watchdog_margin_s': 3.0}, env, tmp),
+                                           'watchdog_margin_s': 3.0}, env, logs),
     }
     rcl_context = rclpy.Context()
     rclpy.init(context=rcl_context, domain_id=domain)
-    ctx = {'context': rcl_context, 'base': {'srv_attack': good_attack(scene, 2), 'srv_plan': plan}}
+    ctx = {'context': rcl_context, 'first': context['first'],
+           'base': {'srv_attack': good_attack(scene, 2), 'srv_plan': plan}}
     kinds = {'srv_attack': (Attack, attack_request, _check_attack),
              'srv_plan': (Plan, plan_request, lambda req: _check_plan)}
     threads = []
