@@ -239,3 +239,15 @@ def test_cloud_points_the_octree_would_drop_are_refused():
     assert make_cloud_shape([[655.0, 0.0, 0.0]], 0.02).vertices.shape == (1, 3)
     with pytest.raises(SceneError, match='a coordinate of 1e\\+04 m'):
         make_cloud_shape([[0.6, 0.0, 0.8], [1e4, 1e4, 1e4]], 0.02)
+
+
+def test_mbm_joint_constraint_position_that_is_a_list_is_refused(tmp_path, panda):
+    """``position: [[2.9]]`` reached ``float()`` of a 2-D array: a bare TypeError."""
+    from advocc_ros.model.mbm import load_request
+    from advocc_ros.model.scene import SceneError
+    joints = ', '.join(f'{{joint_name: panda_joint{i}, position: {"[[2.9]]" if i == 5 else 0}}}'
+                       for i in range(1, 8))
+    path = tmp_path / 'request.yaml'
+    path.write_text(f'goal_constraints: [{{joint_constraints: [{joints}]}}]\n')
+    with pytest.raises(SceneError, match=r'joint_constraints\[4\]\.position: expected 1 numbers'):
+        load_request(path, panda)

@@ -48,7 +48,7 @@ def numbers(data: Any, where: str, keys: str) -> np.ndarray:
     if not isinstance(data, (list, tuple)) or len(data) != len(keys):
         raise SceneError(f'{where}: expected {len(keys)} numbers ({",".join(keys)}), got '
                          f'{data!r}')
-    return finite_array(data, where)
+    return finite_array(data, where, len(keys))  # n: a nested list is not a number
 
 
 def floats(data: Any, where: str) -> np.ndarray:

@@ -34,6 +34,9 @@ def _float(rng: random.Random) -> float:
 
 def _joint_state(rng: random.Random, js) -> None:
     names, pos = list(js.name), list(js.position)
+    if not names or len(names) != len(pos):  # an earlier edit emptied or cut it: add to it
+        js.name, js.position = names + ['panda_joint1'], pos + [_float(rng)]
+        return
     op = rng.choice(['name', 'value', 'cut', 'dup', 'fingers', 'many', 'empty'])
     i = rng.randrange(len(names))
     if op == 'name':
@@ -278,7 +281,11 @@ def _serve(family: str, n: int, node: _Node, ctx, srv_type, make, check_of, time
         wait_ready()
         base = ctx['base'][family]
         for index in range(ctx['first'], ctx['first'] + n):
-            req = make(random.Random(f'{seed}:{family}:{index}'), base)
+            try:
+                req = make(random.Random(f'{seed}:{family}:{index}'), base)
+            except Exception as exc:  # a bug of the generator, not of the node: say so
+                record((family, index), 'crash', f'fuzz generator: {exc!r}', 0.0)
+                continue
             t0 = time.monotonic()
             future = client.call_async(req)
             while not future.done() and node.proc.poll() is None \
