@@ -128,7 +128,7 @@ def _check_pcd_header(path: pathlib.Path) -> None:
         if not count.isdigit() or not 1 <= int(count) <= _PCD_MAX_COUNT:
             raise SceneError(f'PCD header: field {name!r} has COUNT {count} (1..{_PCD_MAX_COUNT})')
     for key in ('WIDTH', 'HEIGHT', 'POINTS'):
-        value = (header.get(key) or ['?'])[0]
+        value = (header.get(key) or ['(missing)'])[0]
         if not value.isdigit() or int(value) > MAX_CLOUD_POINTS:
             raise SceneError(f'PCD header: {key} {value} is not a number of points up to '
                              f'{MAX_CLOUD_POINTS:,} (MAX_CLOUD_POINTS)')

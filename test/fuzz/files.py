@@ -13,6 +13,7 @@ import pathlib
 import random
 import shutil
 import tempfile
+import warnings
 from typing import Any, Callable
 
 import numpy as np
@@ -110,6 +111,7 @@ def generate(family: str, index: int, seed: int, base: dict, workdir: pathlib.Pa
 
 def setup(context: dict) -> dict:
     from advocc_ros.model.robot import load_robot
+    warnings.simplefilter('ignore')  # numpy/trimesh warn about the garbage they are fed
     robot = load_robot()
     workdir = pathlib.Path(tempfile.mkdtemp(prefix='fuzz_', dir=context['tmp']))
     base = bases(context)
