@@ -159,7 +159,7 @@ def attack_request(rng: random.Random, base):
         elif field == 'seed':
             req.seed = rng.randint(-2 ** 63, 2 ** 63 - 1)
         elif field == 'policy':
-            req.goal_policy = rng.choice(['', 'paper', 'reachable', 'nope'])
+            req.goal_policy = rng.choice(['', 'paper', 'reachable', 'solvable', 'nope'])
         elif field == 'start':
             _joint_state(rng, req.start_state)
         elif field == 'goal':
@@ -170,6 +170,8 @@ def attack_request(rng: random.Random, base):
             _cloud(rng, req)
     if req.method in ('pfa', 'pfa++', 'task') and rng.random() < 0.8:
         req.method = 'ours'  # PFA/task take seconds per request: keep a few, not a fifth
+    if req.goal_policy == 'solvable' and rng.random() < 0.5:
+        req.goal_policy = ''  # a witness search per request: seconds, keep a few
     return req
 
 
