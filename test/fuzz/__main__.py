@@ -98,6 +98,9 @@ def main(argv=None) -> int:
     parser.add_argument('--workers', type=int, default=2, help='parser worker processes')
     parser.add_argument('--timeout-s', type=float, default=20.0,
                         help='per input; past it the input is a hang (default 20)')
+    parser.add_argument('--service-timeout-s', type=float, default=60.0,
+                        help='per service request (default 60: an attack may spend the 30 s '
+                        'budget of its witness search, then its goal probe)')
     parser.add_argument('--families', default=','.join(SHARES),
                         help=f'comma-separated subset of {",".join(SHARES)}')
     parser.add_argument('--out', default='out/fuzz', help='report.json and failing cases here')
@@ -121,7 +124,8 @@ def main(argv=None) -> int:
         if services:
             from fuzz import services as srv
             thread = threading.Thread(target=srv.run_all, daemon=True, args=(
-                {f: counts[f] for f in services}, context, args.timeout_s, tally.record))
+                {f: counts[f] for f in services}, context, args.service_timeout_s,
+                tally.record))
             thread.start()
         jobs = [(f, i) for f in families if f in files.FAMILIES
                 for i in range(args.first, args.first + counts[f])]
@@ -154,6 +158,7 @@ def _report(tally: Tally, out: pathlib.Path, args, counts: dict, elapsed: float)
     report = {
         'inputs': sum(sum(c.values()) for c in tally.counts.values()), 'planned': counts,
         'seed': args.seed, 'workers': args.workers, 'timeout_s': args.timeout_s,
+        'service_timeout_s': args.service_timeout_s,
         'elapsed_s': round(elapsed, 1),
         'counts': {f: {k: c[k] for k in CATEGORIES} for f, c in sorted(tally.counts.items())},
         'slowest': {f: {'seconds': round(s, 3), 'index': i}
