@@ -41,6 +41,9 @@ MAX_HEATMAP_BYTES = MAX_HEATMAP_VOXELS * 9 + (64 << 20)
 """Uncompressed size of all arrays of a heatmap file (H, free mask, metadata)."""
 MAX_TRIALS = 100_000
 """Trials of one evaluation or benchmark cell."""
+MAX_GOAL_DISTANCE_M = 100.0
+"""Goal region centre and tool offset [m, per axis]: no arm has a task farther away, and goal IK
+towards 1e308 m spends every budget it has (a minute per attack request) on overflow."""
 MAX_PLANNER_QUERIES = 10_000
 """Planner queries of one planner-in-the-loop attack (PFA, PFA++)."""
 

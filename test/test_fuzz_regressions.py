@@ -271,3 +271,14 @@ def test_attack_certifies_without_a_witness_instead_of_raising(panda, table_scen
     q = panda.q_from_names(list(table_scene.start), list(table_scene.start.values()), 'start')
     result = attack(heatmap, panda, table_scene.objects, q, far, 2, 'ours', certify=True)
     assert result.solvable is not None and 'no witness' in result.solvable.message
+
+
+@pytest.mark.parametrize('field', ['center', 'tool_offset'])
+def test_goal_a_planet_away_is_refused(table_scene, field):
+    """A tool offset of -1e308 m kept a heatmap_server request busy for 59 s (goal IK,
+    witness search and goal probe all spend their budgets on overflow)."""
+    import dataclasses
+
+    from advocc_ros.model.scene import Pose, SceneError
+    with pytest.raises(SceneError, match=f'goal.{field}: a coordinate of 1e\\+308 m, limit 100'):
+        dataclasses.replace(table_scene.goal, **{field: Pose((0.0, 0.0, -1e308))})

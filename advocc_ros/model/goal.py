@@ -8,6 +8,7 @@ from typing import Any
 import numpy as np
 import pinocchio as pin
 
+from advocc_ros.limits import MAX_GOAL_DISTANCE_M
 from advocc_ros.model.pose import Pose, SceneError, finite_array
 
 
@@ -48,6 +49,11 @@ class GoalRegion:
             raise SceneError('goal.seeds: seeds without joint names')
         for k, seed in enumerate(self.seeds):
             finite_array(seed, f'goal.seeds[{k}]', len(self.seed_joints))
+        for what, pose in (('center', self.center), ('tool_offset', self.tool_offset)):
+            far_m = float(np.abs(pose.position_m).max())
+            if far_m > MAX_GOAL_DISTANCE_M:
+                raise SceneError(f'goal.{what}: a coordinate of {far_m:.3g} m, limit '
+                                 f'{MAX_GOAL_DISTANCE_M:g} m (MAX_GOAL_DISTANCE_M)')
 
     @staticmethod
     def _seeds_from_data(data: Any, where: str) -> tuple[tuple[str, ...], tuple]:
