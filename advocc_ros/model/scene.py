@@ -194,8 +194,9 @@ def read_yaml(path: str | pathlib.Path) -> Any:
         raise SceneError(f'{path}: cannot read ({exc})') from exc
     except ValueError as exc:
         raise SceneError(f'{path}: {exc}') from None
+    loader = _YAML_LOADER(text)  # what yaml.safe_load does, with libyaml's parser
     try:
-        data = yaml.load(text, Loader=_YAML_LOADER)
+        data = loader.get_single_data()
     except yaml.YAMLError as exc:
         raise SceneError(f'{path}: malformed YAML ({exc})') from exc
     except RecursionError:
@@ -204,6 +205,8 @@ def read_yaml(path: str | pathlib.Path) -> Any:
         # scalars, e.g. a !!timestamp that is not one (AttributeError on a failed match)
         raise SceneError(f'{path}: malformed YAML (a tagged or complex value that cannot be '
                          f'built: {type(exc).__name__}: {exc})') from None
+    finally:
+        loader.dispose()
     try:
         yaml_size(data)
     except ValueError as exc:
