@@ -88,17 +88,21 @@ class GoalRegion:
         if not isinstance(link, str) or not link:
             raise SceneError(f'{where}.link: expected a link name, got {link!r}')
         seed_joints, seeds = cls._seeds_from_data(data.get('seeds'), f'{where}.seeds')
-        return cls(
-            center=Pose.from_data(data['center'], f'{where}.center'),
-            position_tolerance_m=tuple(finite_array(
-                data.get('position_tolerance', [0.02] * 3), f'{where}.position_tolerance', 3,
-                nonneg=True).tolist()),
-            orientation_tolerance_rad=tuple(finite_array(
-                data.get('orientation_tolerance', [0.1] * 3), f'{where}.orientation_tolerance',
-                3, nonneg=True).tolist()),
-            link=link,
-            tool_offset=Pose.from_data(data.get('tool_offset'), f'{where}.tool_offset'),
-            seed_joints=seed_joints, seeds=seeds)
+        fields = dict(
+                center=Pose.from_data(data['center'], f'{where}.center'),
+                position_tolerance_m=tuple(finite_array(
+                    data.get('position_tolerance', [0.02] * 3), f'{where}.position_tolerance', 3,
+                    nonneg=True).tolist()),
+                orientation_tolerance_rad=tuple(finite_array(
+                    data.get('orientation_tolerance', [0.1] * 3), f'{where}.orientation_tolerance',
+                    3, nonneg=True).tolist()),
+                link=link,
+                tool_offset=Pose.from_data(data.get('tool_offset'), f'{where}.tool_offset'),
+                seed_joints=seed_joints, seeds=seeds)
+        try:
+            return cls(**fields)
+        except SceneError as exc:  # __post_init__'s checks know no file
+            raise SceneError(f'{where}: {exc}') from None
 
     def to_data(self) -> dict:
         data = {'link': self.link, 'center': self.center.to_data(),
