@@ -6,8 +6,9 @@ STAMP  := $(VENV)/.advocc-installed
 MSGS   := $(shell find msg_defs -type f | sort)
 OUT    ?= out/demo
 PYTEST_ARGS ?=
+FUZZ_INPUTS ?= 10000
 
-.PHONY: install demo test perf clean
+.PHONY: install demo test fuzz perf clean
 
 install: $(STAMP)
 
@@ -32,6 +33,11 @@ demo: $(STAMP)
 
 test: $(STAMP)
 	$(PY) -m pytest $(PYTEST_ARGS)
+
+# Generated malformed inputs against every parser and both services (test/fuzz); fails on any
+# crash, hang or wrongly accepted input. Report: out/fuzz/report.json.
+fuzz: $(STAMP)
+	PYTHONPATH=test$${PYTHONPATH:+:$$PYTHONPATH} $(PY) -m fuzz --inputs $(FUZZ_INPUTS) --out out/fuzz
 
 perf: $(STAMP)
 	$(VENV)/bin/advocc perf heatmap --json

@@ -8,10 +8,15 @@ node configs instead (``AttackConfig.max_budget``, ``max_box_m``,
 
 from __future__ import annotations
 
+import numpy as np
+
 MAX_FILE_BYTES = 64 * 1024 * 1024
 """Scene, request, obstacles and mesh files [bytes] (a 200k-vertex mesh in YAML is ~10 MB)."""
 MAX_YAML_NODES = 2_000_000
 """Values in one YAML document after expanding aliases (stops "billion laughs" files)."""
+MAX_YAML_FLOW_DEPTH = 1000
+"""Open ``[``/``{`` at any point of a YAML file, checked before parsing: libyaml's composer
+recurses in C and overflows the stack near 100,000 levels (a segfault, not an error)."""
 MAX_OBJECTS = 1000
 """Collision objects in one scene file, obstacles file or request."""
 MAX_SHAPES = 10_000
@@ -36,6 +41,9 @@ MAX_HEATMAP_BYTES = MAX_HEATMAP_VOXELS * 9 + (64 << 20)
 """Uncompressed size of all arrays of a heatmap file (H, free mask, metadata)."""
 MAX_TRIALS = 100_000
 """Trials of one evaluation or benchmark cell."""
+MAX_GOAL_DISTANCE_M = 100.0
+"""Goal region centre and tool offset [m, per axis]: no arm has a task farther away, and goal IK
+towards 1e308 m spends every budget it has (a minute per attack request) on overflow."""
 MAX_PLANNER_QUERIES = 10_000
 """Planner queries of one planner-in-the-loop attack (PFA, PFA++)."""
 
@@ -43,6 +51,7 @@ TABLE = [
     ('scene/request/obstacles/mesh file size', f'{MAX_FILE_BYTES >> 20} MiB',
      'limits.MAX_FILE_BYTES'),
     ('YAML values after alias expansion', f'{MAX_YAML_NODES:,}', 'limits.MAX_YAML_NODES'),
+    ('YAML open brackets at one point', f'{MAX_YAML_FLOW_DEPTH:,}', 'limits.MAX_YAML_FLOW_DEPTH'),
     ('collision objects per scene/request', f'{MAX_OBJECTS:,}', 'limits.MAX_OBJECTS'),
     ('shapes (primitives + meshes) per scene/request', f'{MAX_SHAPES:,}', 'limits.MAX_SHAPES'),
     ('vertices per mesh', f'{MAX_MESH_VERTICES:,}', 'limits.MAX_MESH_VERTICES'),
@@ -60,6 +69,21 @@ TABLE = [
     ('planner queries per PFA attack', f'{MAX_PLANNER_QUERIES:,}', 'limits.MAX_PLANNER_QUERIES'),
 ]
 """(what, limit, where it is set) rows for the README."""
+
+
+def yaml_flow_depth(raw: bytes, limit: int = MAX_YAML_FLOW_DEPTH) -> None:
+    """``ValueError`` if more than ``limit`` brackets (``[``, ``{``) are open at some point of
+    ``raw``; brackets inside quotes count too (an over-estimate, never an under-estimate)."""
+    brackets = raw.translate(None, bytes(b for b in range(256) if b not in b'[]{}'))
+    depth = 0
+    for start in range(0, len(brackets), 1 << 22):  # bounded memory for any file
+        chunk = np.frombuffer(brackets[start:start + (1 << 22)], np.uint8)
+        steps = np.where((chunk == ord('[')) | (chunk == ord('{')), 1, -1)
+        levels = depth + np.cumsum(steps)
+        if levels.max(initial=0) > limit:
+            raise ValueError(f'YAML nesting: more than {limit:,} open brackets '
+                             '(limit MAX_YAML_FLOW_DEPTH)')
+        depth = int(levels[-1]) if len(levels) else depth
 
 
 def yaml_size(data, limit: int = MAX_YAML_NODES, max_depth: int = 200) -> int:

@@ -11,7 +11,9 @@ from __future__ import annotations
 import dataclasses
 import io
 import json
+import math
 import pathlib
+import tokenize
 import zipfile
 import zlib
 
@@ -101,13 +103,15 @@ def load_heatmap(path: str | pathlib.Path, robot_hash: str | None = None) -> Hea
     try:
         with zipfile.ZipFile(io.BytesIO(raw)) as zf:
             inflated = sum(info.file_size for info in zf.infolist())
-        if inflated > MAX_HEATMAP_BYTES:  # checked before inflating: no zip bomb
-            raise HeatmapError(f'{path}: arrays of {inflated} bytes, limit {MAX_HEATMAP_BYTES} '
-                               '(MAX_HEATMAP_VOXELS)')
+            if inflated > MAX_HEATMAP_BYTES:  # checked before inflating: no zip bomb
+                raise HeatmapError(f'{path}: arrays of {inflated} bytes, limit '
+                                   f'{MAX_HEATMAP_BYTES} (MAX_HEATMAP_VOXELS)')
+            _check_headers(zf, path)
         with np.load(io.BytesIO(raw), allow_pickle=False) as npz:
             arrays = {k: npz[k] for k in npz.files}
     except (zipfile.BadZipFile, zlib.error, ValueError, OSError, EOFError, KeyError,
-            NotImplementedError) as exc:
+            NotImplementedError, SyntaxError, tokenize.TokenError) as exc:  # numpy's header
+        # parser raises the last two on a garbled header dict
         if isinstance(exc, HeatmapError):
             raise
         raise HeatmapError(f'{path}: not a readable heatmap file (corrupted or truncated: '
@@ -118,7 +122,7 @@ def load_heatmap(path: str | pathlib.Path, robot_hash: str | None = None) -> Hea
         raise HeatmapError(f'{path}: not a heatmap file (missing {sorted(missing)})')
     try:
         version = int(arrays['format_version'])
-    except (TypeError, ValueError):
+    except (TypeError, ValueError, OverflowError):
         raise HeatmapError(f'{path}: format_version is not an integer') from None
     if version != FORMAT_VERSION:
         raise HeatmapError(f'{path}: format version {version}, this advocc reads '
@@ -127,7 +131,7 @@ def load_heatmap(path: str | pathlib.Path, robot_hash: str | None = None) -> Hea
         grid = VoxelGrid(tuple(float(v) for v in arrays['origin_m']),
                          float(arrays['voxel_m']), tuple(int(v) for v in arrays['shape']))
         meta = json.loads(arrays['meta_json'].tobytes().decode())
-    except (ValueError, TypeError, UnicodeDecodeError, OverflowError) as exc:
+    except (ValueError, TypeError, UnicodeDecodeError, OverflowError, RecursionError) as exc:
         raise HeatmapError(f'{path}: invalid grid or metadata ({exc})') from exc
     if grid.size > MAX_HEATMAP_VOXELS:
         raise HeatmapError(f'{path}: grid of {grid.size} voxels, limit {MAX_HEATMAP_VOXELS}')
@@ -145,6 +149,27 @@ def load_heatmap(path: str | pathlib.Path, robot_hash: str | None = None) -> Hea
     if robot_hash is not None:
         check_robot(heatmap, robot_hash, path)
     return heatmap
+
+
+def _check_headers(zf: zipfile.ZipFile, path: pathlib.Path) -> None:
+    """Each ``.npy`` member's header against its size, before numpy allocates what the header
+    claims (a lying shape would ask for terabytes); object (pickled) arrays are refused."""
+    for info in zf.infolist():
+        with zf.open(info) as handle:
+            version = np.lib.format.read_magic(handle)
+            if version not in ((1, 0), (2, 0)):
+                raise HeatmapError(f'{path}: {info.filename}: .npy format {version} is not one '
+                                   'this advocc writes')
+            read = np.lib.format.read_array_header_1_0 if version == (1, 0) \
+                else np.lib.format.read_array_header_2_0
+            shape, _, dtype = read(handle)
+        if dtype.hasobject:
+            raise HeatmapError(f'{path}: {info.filename} holds Python objects (pickled data), '
+                               'which are never loaded')
+        claimed = math.prod(shape) * dtype.itemsize
+        if claimed > info.file_size:
+            raise HeatmapError(f'{path}: {info.filename}: its header claims {claimed} bytes of '
+                               f'data, the member holds {info.file_size}')
 
 
 def check_robot(heatmap: Heatmap, robot_hash: str, path: str | pathlib.Path = 'heatmap'

@@ -8,9 +8,11 @@ from advocc_ros.model.scene import (GoalRegion, Operation, Pose, SHAPES, Scene, 
                                     SceneObject, Shape, apply_operation, finite_array, load_scene,
                                     make_box, make_mesh_shape, objects_from_data, objects_to_data,
                                     read_yaml, save_yaml_atomic, scene_from_data)
-from advocc_ros.model.mbm import (GoalTolerance, MbmRequest, apply_request, base_frame,
-                                  goal_region_at, is_mbm_scene, load_any_scene, load_mbm_scene,
-                                  load_request, objects_from_planning_scene, parse_goal_tolerance)
+from advocc_ros.model.mbm import (apply_request, is_mbm_scene, load_any_scene, load_mbm_scene,
+                                  objects_from_planning_scene)
+from advocc_ros.model.mbm_fields import base_frame
+from advocc_ros.model.mbm_request import (GoalTolerance, MbmRequest, goal_region_at, load_request,
+                                          parse_goal_tolerance)
 from advocc_ros.model.collision import CollisionWorld, coal_geometry
 from advocc_ros.model.voxels import SolidLUT, VoxelGrid, occupied_mask, points_in_shape
 from advocc_ros.model.ik import (GoalSampler, IkConfig, dls_ik, goal_configuration, goal_set,

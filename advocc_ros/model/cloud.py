@@ -27,6 +27,10 @@ log = logging.getLogger(__name__)
 DEFAULT_RESOLUTION_M = 0.02
 """Octree leaf edge [m] when a cloud object does not name one."""
 CLOUD_SUFFIXES = ('.ply', '.pcd')
+_OCTREE_HALF_KEYS = 2 ** 15
+"""Leaves per axis on each side of the origin that octomap's 16-bit keys address: a point
+beyond is silently dropped by ``coal.makeOctree``, and far beyond (~10^8 m) its key overflows
+and coal's distance queries on the tree segfault."""
 
 _CACHE: dict[tuple[str, float], dict[str, Any]] = {}
 """(content hash, resolution) -> {'octree': coal.OcTree, 'keys': sorted leaf keys}."""
@@ -58,6 +62,12 @@ def make_cloud_shape(points, resolution_m: float = DEFAULT_RESOLUTION_M, pose: P
     if not MIN_CLOUD_RESOLUTION_M <= res <= MAX_CLOUD_RESOLUTION_M:
         raise SceneError(f'{where}.resolution: {res} m is outside {MIN_CLOUD_RESOLUTION_M}..'
                          f'{MAX_CLOUD_RESOLUTION_M} m (MIN/MAX_CLOUD_RESOLUTION_M)')
+    reach_m = res * _OCTREE_HALF_KEYS
+    far_m = float(np.abs(pts).max())
+    if far_m >= reach_m:
+        raise SceneError(f'{where}.points: a coordinate of {far_m:.4g} m; an octree of {res} m '
+                         f'leaves reaches {reach_m:g} m from the origin (a byte-swapped or '
+                         'unscaled cloud?)')
     return Shape('cloud', (res,), pose, np.ascontiguousarray(pts), None)
 
 
@@ -80,11 +90,48 @@ def read_cloud_file(path: str | pathlib.Path, where: str = 'cloud') -> np.ndarra
             points = np.asarray(loaded.vertices, dtype=float)
         else:
             from pypcd4 import PointCloud
+            _check_pcd_header(path)
             pc = PointCloud.from_path(str(path))
             points = np.asarray(pc.numpy(('x', 'y', 'z')), dtype=float)
+    except SceneError as exc:
+        raise SceneError(f'{where}.file: {path}: {exc}') from None
     except Exception as exc:  # the readers raise many types on bad files
         raise SceneError(f'{where}.file: {path} could not be read ({exc})') from exc
     return points.reshape(-1, 3) if points.size else np.zeros((0, 3))
+
+
+_PCD_SIZES = {'F': (4, 8), 'U': (1, 2, 4, 8), 'I': (1, 2, 4, 8)}
+_PCD_MAX_COUNT = 1024
+"""Elements of one PCD field (histogram descriptors have a few hundred; xyz has 1)."""
+
+
+def _check_pcd_header(path: pathlib.Path) -> None:
+    """``SceneError`` on a PCD header whose fields, sizes, counts or point numbers pypcd4
+    would trust: a COUNT of 2^64 makes it build a dtype of 2^64 entries (a hang)."""
+    header: dict[str, list[str]] = {}
+    with open(path, 'rb') as handle:
+        for raw in handle:
+            words = raw.decode('ascii', 'replace').split()
+            if words and not words[0].startswith('#'):
+                header[words[0].upper()] = words[1:]
+            if words and words[0].upper() == 'DATA' or len(header) > 64:
+                break
+    fields = header.get('FIELDS', [])
+    sizes, types = header.get('SIZE', []), header.get('TYPE', [])
+    counts = header.get('COUNT', ['1'] * len(fields))
+    if not fields or not len(fields) == len(sizes) == len(types) == len(counts):
+        raise SceneError(f'PCD header: FIELDS, SIZE, TYPE and COUNT must list one entry per '
+                         f'field, got {len(fields)}, {len(sizes)}, {len(types)}, {len(counts)}')
+    for name, size, kind, count in zip(fields, sizes, types, counts):
+        if kind not in _PCD_SIZES or not size.isdigit() or int(size) not in _PCD_SIZES[kind]:
+            raise SceneError(f'PCD header: field {name!r} has TYPE {kind} SIZE {size}')
+        if not count.isdigit() or not 1 <= int(count) <= _PCD_MAX_COUNT:
+            raise SceneError(f'PCD header: field {name!r} has COUNT {count} (1..{_PCD_MAX_COUNT})')
+    for key in ('WIDTH', 'HEIGHT', 'POINTS'):
+        value = (header.get(key) or ['(missing)'])[0]
+        if not value.isdigit() or int(value) > MAX_CLOUD_POINTS:
+            raise SceneError(f'PCD header: {key} {value} is not a number of points up to '
+                             f'{MAX_CLOUD_POINTS:,} (MAX_CLOUD_POINTS)')
 
 
 def cloud_shape_from_data(entry: dict, where: str, base_dir: pathlib.Path | None,
@@ -96,6 +143,8 @@ def cloud_shape_from_data(entry: dict, where: str, base_dir: pathlib.Path | None
         if not path.is_absolute() and base_dir is not None:
             path = base_dir / path
         points = read_cloud_file(path, where)
+        if len(points) and not np.all(np.isfinite(points)):  # name the file, not just the entry
+            where = f'{where} ({path})'
     elif 'points' in entry:
         points = entry['points']
     else:

@@ -8,6 +8,7 @@ from typing import Any
 import numpy as np
 import pinocchio as pin
 
+from advocc_ros.limits import MAX_GOAL_DISTANCE_M
 from advocc_ros.model.pose import Pose, SceneError, finite_array
 
 
@@ -48,6 +49,11 @@ class GoalRegion:
             raise SceneError('goal.seeds: seeds without joint names')
         for k, seed in enumerate(self.seeds):
             finite_array(seed, f'goal.seeds[{k}]', len(self.seed_joints))
+        for what, pose in (('center', self.center), ('tool_offset', self.tool_offset)):
+            far_m = float(np.abs(pose.position_m).max())
+            if far_m > MAX_GOAL_DISTANCE_M:
+                raise SceneError(f'goal.{what}: a coordinate of {far_m:.3g} m, limit '
+                                 f'{MAX_GOAL_DISTANCE_M:g} m (MAX_GOAL_DISTANCE_M)')
 
     @staticmethod
     def _seeds_from_data(data: Any, where: str) -> tuple[tuple[str, ...], tuple]:
@@ -82,17 +88,21 @@ class GoalRegion:
         if not isinstance(link, str) or not link:
             raise SceneError(f'{where}.link: expected a link name, got {link!r}')
         seed_joints, seeds = cls._seeds_from_data(data.get('seeds'), f'{where}.seeds')
-        return cls(
-            center=Pose.from_data(data['center'], f'{where}.center'),
-            position_tolerance_m=tuple(finite_array(
-                data.get('position_tolerance', [0.02] * 3), f'{where}.position_tolerance', 3,
-                nonneg=True).tolist()),
-            orientation_tolerance_rad=tuple(finite_array(
-                data.get('orientation_tolerance', [0.1] * 3), f'{where}.orientation_tolerance',
-                3, nonneg=True).tolist()),
-            link=link,
-            tool_offset=Pose.from_data(data.get('tool_offset'), f'{where}.tool_offset'),
-            seed_joints=seed_joints, seeds=seeds)
+        fields = dict(
+                center=Pose.from_data(data['center'], f'{where}.center'),
+                position_tolerance_m=tuple(finite_array(
+                    data.get('position_tolerance', [0.02] * 3), f'{where}.position_tolerance', 3,
+                    nonneg=True).tolist()),
+                orientation_tolerance_rad=tuple(finite_array(
+                    data.get('orientation_tolerance', [0.1] * 3), f'{where}.orientation_tolerance',
+                    3, nonneg=True).tolist()),
+                link=link,
+                tool_offset=Pose.from_data(data.get('tool_offset'), f'{where}.tool_offset'),
+                seed_joints=seed_joints, seeds=seeds)
+        try:
+            return cls(**fields)
+        except SceneError as exc:  # __post_init__'s checks know no file
+            raise SceneError(f'{where}: {exc}') from None
 
     def to_data(self) -> dict:
         data = {'link': self.link, 'center': self.center.to_data(),

@@ -28,11 +28,11 @@ from typing import Any
 import numpy as np
 import pinocchio as pin
 
-from advocc_ros.model.mbm_fields import (_DIMS, _OK_OPERATIONS, _PRIMITIVES,  # noqa: F401
-                                         _WORLD_FRAMES, _floats, _joint_state, _list, _mapping,
-                                         _numbers, _pose, _primitive, _virtual_joint, base_frame)
-from advocc_ros.model.mbm_request import (GoalTolerance, MbmRequest, goal_region_at,  # noqa: F401
-                                          load_request, parse_goal_tolerance)
+from advocc_ros.model.mbm_fields import (ADD_OPERATIONS, WORLD_FRAMES, as_list, as_mapping,
+                                         base_frame, joint_state, numbers, pose_se3,
+                                         primitive_shape, virtual_joint)
+from advocc_ros.model.mbm_request import (GoalTolerance, goal_region_at, load_request,
+                                          parse_goal_tolerance)
 from advocc_ros.model.robot import RobotSpec, load_robot
 from advocc_ros.model.scene import (Pose, Scene, SceneError, SceneObject, Shape, make_mesh_shape,
                                     read_yaml)
@@ -52,21 +52,21 @@ def _frame_of(obj: dict, where: str, base_frame: str, T_base_world: pin.SE3) -> 
     header = obj.get('header')
     if header is None:
         return T_base_world
-    frame = _mapping(header, f'{where}.header').get('frame_id', '')
+    frame = as_mapping(header, f'{where}.header').get('frame_id', '')
     if frame in (base_frame, '/' + base_frame):
         return pin.SE3.Identity()
-    if frame not in _WORLD_FRAMES:
+    if frame not in WORLD_FRAMES:
         raise SceneError(f'{where}.header.frame_id: {frame!r} is not the robot base frame '
                          f'({base_frame!r}) or "world"; transform the scene first')
     return T_base_world
 
 
 def _mesh(mesh: Any, where: str, pose: pin.SE3) -> Shape:
-    mesh = _mapping(mesh, where)
-    vertices = np.array([_numbers(v, f'{where}.vertices[{k}]', 'xyz')
-                         for k, v in enumerate(_list(mesh.get('vertices'), f'{where}.vertices'))])
+    mesh = as_mapping(mesh, where)
+    rows = as_list(mesh.get('vertices'), f'{where}.vertices')
+    vertices = np.array([numbers(v, f'{where}.vertices[{k}]', 'xyz') for k, v in enumerate(rows)])
     faces = []
-    for k, tri in enumerate(_list(mesh.get('triangles'), f'{where}.triangles')):
+    for k, tri in enumerate(as_list(mesh.get('triangles'), f'{where}.triangles')):
         idx = tri.get('vertex_indices') if isinstance(tri, dict) else tri
         if not (isinstance(idx, list) and len(idx) == 3 and all(isinstance(i, int) for i in idx)):
             raise SceneError(f'{where}.triangles[{k}]: expected 3 vertex indices, got {tri!r}')
@@ -78,11 +78,11 @@ def _mesh(mesh: Any, where: str, pose: pin.SE3) -> Shape:
 def _posed_parts(obj: dict, where: str, T_obj: pin.SE3, items: str, poses: str
                  ) -> list[tuple[Any, str, pin.SE3]]:
     """(part, where, ``T_base_part``) of each primitive or mesh with its pose."""
-    parts = _list(obj.get(items), f'{where}.{items}')
-    part_poses = _list(obj.get(poses), f'{where}.{poses}')
+    parts = as_list(obj.get(items), f'{where}.{items}')
+    part_poses = as_list(obj.get(poses), f'{where}.{poses}')
     if len(part_poses) != len(parts):
         raise SceneError(f'{where}.{poses}: {len(part_poses)} poses for {len(parts)} {items}')
-    return [(p, f'{where}.{items}[{k}]', T_obj * _pose(part_poses[k], f'{where}.{poses}[{k}]'))
+    return [(p, f'{where}.{items}[{k}]', T_obj * pose_se3(part_poses[k], f'{where}.{poses}[{k}]'))
             for k, p in enumerate(parts)]
 
 
@@ -93,30 +93,31 @@ def objects_from_planning_scene(data: Any, where: str, base_frame: str = 'panda_
 
     ``T_world_base``: where the base is in the world (MoveIt's ``virtual_joint``; default: the
     scene's own ``robot_state.multi_dof_joint_state``, else identity)."""
-    data = _mapping(data, where)
+    data = as_mapping(data, where)
     world = data.get('world')
     if world is None:
         return ()
     if T_world_base is None:
-        T_world_base = _virtual_joint(data.get('robot_state'), f'{where}: robot_state')
+        T_world_base = virtual_joint(data.get('robot_state'), f'{where}: robot_state')
     T_base_world = T_world_base.inverse()
-    world = _mapping(world, f'{where}: world')
+    world = as_mapping(world, f'{where}: world')
     objects, seen = [], set()
-    entries = _list(world.get('collision_objects'), f'{where}: world.collision_objects')
+    entries = as_list(world.get('collision_objects'), f'{where}: world.collision_objects')
     for i, obj in enumerate(entries):
         w = f'{where}: world.collision_objects[{i}]'
-        obj = _mapping(obj, w)
+        obj = as_mapping(obj, w)
         obj_id = obj.get('id')
         if not isinstance(obj_id, str) or not obj_id:
             raise SceneError(f'{w}.id: expected a non-empty string, got {obj_id!r}')
         if obj_id in seen:
             raise SceneError(f'{w}.id: duplicate id {obj_id!r}')
         seen.add(obj_id)
-        if obj.get('operation') not in _OK_OPERATIONS:
+        if obj.get('operation') not in ADD_OPERATIONS:
             raise SceneError(f'{w}.operation: a scene dump holds ADD/APPEND objects, got '
                              f'{obj.get("operation")!r}')
-        T_obj = _frame_of(obj, w, base_frame, T_base_world) * _pose(obj.get('pose'), f'{w}.pose')
-        shapes = [_primitive(*part)
+        T_obj = (_frame_of(obj, w, base_frame, T_base_world)
+                 * pose_se3(obj.get('pose'), f'{w}.pose'))
+        shapes = [primitive_shape(*part)
                   for part in _posed_parts(obj, w, T_obj, 'primitives', 'primitive_poses')]
         shapes += [_mesh(*part) for part in _posed_parts(obj, w, T_obj, 'meshes', 'mesh_poses')]
         if obj.get('planes'):
@@ -150,15 +151,15 @@ def load_mbm_scene(scene_path: str | pathlib.Path,
     """
     path = pathlib.Path(scene_path)
     where = str(path)
-    data = _mapping(read_yaml(path), where)
+    data = as_mapping(read_yaml(path), where)
     model = load_robot(robot)
     frame = base_frame(model)
     start, T_world_base = None, pin.SE3.Identity()
     if data.get('robot_state') is not None:
-        state = _mapping(data['robot_state'], f'{where}: robot_state')
+        state = as_mapping(data['robot_state'], f'{where}: robot_state')
         if state.get('joint_state') is not None:
-            start = _joint_state(state['joint_state'], f'{where}: robot_state.joint_state', model)
-        T_world_base = _virtual_joint(state, f'{where}: robot_state')
+            start = joint_state(state['joint_state'], f'{where}: robot_state.joint_state', model)
+        T_world_base = virtual_joint(state, f'{where}: robot_state')
     objects = objects_from_planning_scene(data, where, frame, T_world_base)
     name = data.get('name')  # MoveIt dumps often say "(noname)+": use the file name then
     if not isinstance(name, str) or not name or name.startswith('('):

@@ -32,8 +32,9 @@ from typing import Any
 import numpy as np
 import pinocchio as pin
 
-from advocc_ros.model.mbm_fields import (_WORLD_FRAMES, _joint_state, _list, _mapping, _numbers,
-                                         _pose, _primitive, _virtual_joint, base_frame)
+from advocc_ros.model.mbm_fields import (WORLD_FRAMES, as_list, as_mapping, base_frame,
+                                         joint_state, numbers, pose_se3, primitive_shape,
+                                         virtual_joint)
 from advocc_ros.model.robot import RobotModel
 from advocc_ros.model.scene import GoalRegion, Pose, SceneError, read_yaml
 
@@ -87,7 +88,7 @@ class MbmRequest:
 def _joint_goal(constraints: list, w: str, robot: RobotModel) -> dict[str, float]:
     names, positions = [], []
     for k, jc in enumerate(constraints):
-        jc = _mapping(jc, f'{w}.joint_constraints[{k}]')
+        jc = as_mapping(jc, f'{w}.joint_constraints[{k}]')
         name = jc.get('joint_name')
         if not isinstance(name, str) or not name:
             raise SceneError(f'{w}.joint_constraints[{k}].joint_name: expected a joint name, '
@@ -95,19 +96,19 @@ def _joint_goal(constraints: list, w: str, robot: RobotModel) -> dict[str, float
         if jc.get('position') is None:
             raise SceneError(f'{w}.joint_constraints[{k}].position: missing')
         names.append(name)
-        positions.append(float(_numbers([jc.get('position')],
-                                        f'{w}.joint_constraints[{k}].position', 'p')[0]))
-    state = _joint_state({'name': names, 'position': positions}, f'{w}.joint_constraints', robot)
+        positions.append(float(numbers([jc.get('position')],
+                                       f'{w}.joint_constraints[{k}].position', 'p')[0]))
+    state = joint_state({'name': names, 'position': positions}, f'{w}.joint_constraints', robot)
     return {j: state[j] for j in robot.joint_names}
 
 
 def _frame_transform(entry: dict, where: str, frame: str, T_base_world: pin.SE3) -> pin.SE3:
     """``T_base_frame`` of a constraint's ``header.frame_id`` (the base or the world)."""
     header = entry.get('header')
-    name = '' if header is None else _mapping(header, f'{where}.header').get('frame_id', '')
+    name = '' if header is None else as_mapping(header, f'{where}.header').get('frame_id', '')
     if name in (frame, '/' + frame):
         return pin.SE3.Identity()
-    if name in _WORLD_FRAMES:
+    if name in WORLD_FRAMES:
         return T_base_world
     raise SceneError(f'{where}.header.frame_id: {name!r} is not the robot base frame '
                      f'({frame!r}) or "world"')
@@ -116,7 +117,7 @@ def _frame_transform(entry: dict, where: str, frame: str, T_base_world: pin.SE3)
 def _inner_half_extents(prim: Any, where: str, R_region: np.ndarray, R_goal: np.ndarray
                         ) -> tuple[float, float, float]:
     """Half-extents of a box, in the goal orientation's frame, that lies inside the region."""
-    shape = _primitive(prim, where, pin.SE3.Identity())
+    shape = primitive_shape(prim, where, pin.SE3.Identity())
     if shape.kind == 'box' and np.allclose(R_region.T @ R_goal, np.eye(3), atol=1e-6):
         return tuple(0.5 * d for d in shape.dims)
     radius = {'box': lambda d: 0.5 * min(d), 'sphere': lambda d: d[0],
@@ -129,39 +130,39 @@ def _inner_half_extents(prim: Any, where: str, R_region: np.ndarray, R_goal: np.
 def _pose_goal(goal: dict, w: str, robot: RobotModel, T_base_world: pin.SE3) -> GoalRegion:
     """The goal region of MoveIt position + orientation constraints (see the module doc)."""
     frame = base_frame(robot)
-    positions = _list(goal.get('position_constraints'), f'{w}.position_constraints')
-    orientations = _list(goal.get('orientation_constraints'), f'{w}.orientation_constraints')
+    positions = as_list(goal.get('position_constraints'), f'{w}.position_constraints')
+    orientations = as_list(goal.get('orientation_constraints'), f'{w}.orientation_constraints')
     if not positions:
         raise SceneError(f'{w}: no joint_constraints and no position_constraints (a joint or a '
                          'pose goal is needed)')
     pw = f'{w}.position_constraints[0]'
-    pc = _mapping(positions[0], pw)
+    pc = as_mapping(positions[0], pw)
     link = pc.get('link_name')
     if not isinstance(link, str) or not robot.model.existFrame(link):
         raise SceneError(f'{pw}.link_name: {link!r} is not a link of the robot')
     offset = pc.get('target_point_offset') or {'x': 0.0, 'y': 0.0, 'z': 0.0}
-    offset = _numbers(offset, f'{pw}.target_point_offset', 'xyz')
-    region = _mapping(pc.get('constraint_region'), f'{pw}.constraint_region')
-    prims = _list(region.get('primitives'), f'{pw}.constraint_region.primitives')
-    poses = _list(region.get('primitive_poses'), f'{pw}.constraint_region.primitive_poses')
+    offset = numbers(offset, f'{pw}.target_point_offset', 'xyz')
+    region = as_mapping(pc.get('constraint_region'), f'{pw}.constraint_region')
+    prims = as_list(region.get('primitives'), f'{pw}.constraint_region.primitives')
+    poses = as_list(region.get('primitive_poses'), f'{pw}.constraint_region.primitive_poses')
     if not prims or len(poses) != len(prims):
         raise SceneError(f'{pw}.constraint_region: expected primitives with one primitive_pose '
                          f'each, got {len(prims)} primitives and {len(poses)} poses')
     if len(prims) > 1:
         log.warning('%s: %d region primitives; only the first is used', pw, len(prims))
-    T_region = _frame_transform(pc, pw, frame, T_base_world) * _pose(
+    T_region = _frame_transform(pc, pw, frame, T_base_world) * pose_se3(
         poses[0], f'{pw}.constraint_region.primitive_poses[0]')
     R_goal, rot_tol = T_region.rotation, (math.pi,) * 3
     if orientations:
         ow = f'{w}.orientation_constraints[0]'
-        oc = _mapping(orientations[0], ow)
+        oc = as_mapping(orientations[0], ow)
         if oc.get('link_name') != link:
             raise SceneError(f'{ow}.link_name: {oc.get("link_name")!r}, but the position '
                              f'constraint is on {link!r}')
-        R_goal = (_frame_transform(oc, ow, frame, T_base_world) * _pose(
+        R_goal = (_frame_transform(oc, ow, frame, T_base_world) * pose_se3(
             {'orientation': oc.get('orientation', [0, 0, 0, 1])}, ow)).rotation
-        rot_tol = tuple(float(_numbers([oc.get(f'absolute_{a}_axis_tolerance', 0.0)],
-                                       f'{ow}.absolute_{a}_axis_tolerance', 'v')[0])
+        rot_tol = tuple(float(numbers([oc.get(f'absolute_{a}_axis_tolerance', 0.0)],
+                                      f'{ow}.absolute_{a}_axis_tolerance', 'v')[0])
                         for a in 'xyz')
         if min(rot_tol) < 0:
             raise SceneError(f'{ow}: axis tolerances must be >= 0, got {rot_tol}')
@@ -196,22 +197,22 @@ def load_request(path: str | pathlib.Path, robot: RobotModel,
     """
     path = pathlib.Path(path)
     where = str(path)
-    data = _mapping(read_yaml(path), where)
+    data = as_mapping(read_yaml(path), where)
     start = None
     T_world_base = T_world_base if T_world_base is not None else pin.SE3.Identity()
     if data.get('start_state') is not None:
-        state = _mapping(data['start_state'], f'{where}: start_state')
+        state = as_mapping(data['start_state'], f'{where}: start_state')
         if state.get('joint_state') is not None:
-            start = _joint_state(state['joint_state'], f'{where}: start_state.joint_state', robot)
+            start = joint_state(state['joint_state'], f'{where}: start_state.joint_state', robot)
         mdof = state.get('multi_dof_joint_state')
         if isinstance(mdof, dict) and mdof.get('joint_names'):
-            T_world_base = _virtual_joint(state, f'{where}: start_state')
-    goals = _list(data.get('goal_constraints'), f'{where}: goal_constraints')
+            T_world_base = virtual_joint(state, f'{where}: start_state')
+    goals = as_list(data.get('goal_constraints'), f'{where}: goal_constraints')
     if not goals:
         raise SceneError(f'{where}: goal_constraints: missing or empty (a joint goal is needed)')
     w = f'{where}: goal_constraints[0]'
-    goal = _mapping(goals[0], w)
-    constraints = _list(goal.get('joint_constraints'), f'{w}.joint_constraints')
+    goal = as_mapping(goals[0], w)
+    constraints = as_list(goal.get('joint_constraints'), f'{w}.joint_constraints')
     if constraints:
         return MbmRequest(start, _joint_goal(constraints, w, robot))
     if not goal.get('position_constraints'):

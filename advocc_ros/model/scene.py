@@ -17,7 +17,7 @@ import numpy as np
 import yaml
 
 from advocc_ros.limits import (MAX_FILE_BYTES, MAX_MESH_TRIANGLES, MAX_MESH_VERTICES,  # noqa: F401
-                               MAX_OBJECTS, yaml_size)  # MAX_*: re-exported
+                               MAX_OBJECTS, yaml_flow_depth, yaml_size)  # MAX_*: re-exported
 from advocc_ros.model.cloud import cloud_shape_from_data, cloud_to_data
 from advocc_ros.model.goal import GoalRegion  # noqa: F401 (re-exported)
 from advocc_ros.model.robot import RobotSpec, with_state
@@ -170,8 +170,13 @@ def _start_from_data(data: Any, where: str) -> dict[str, float]:
     return out
 
 
+_YAML_LOADER = getattr(yaml, 'CSafeLoader', yaml.SafeLoader)
+"""The safe constructor either way: plain data only, no Python tags."""
+
+
 def read_yaml(path: str | pathlib.Path) -> Any:
-    """``yaml.safe_load`` of a file, with errors that name the file.
+    """A YAML file through the safe loader (libyaml's parser when present: seconds, not
+    minutes, for a file at ``MAX_FILE_BYTES``), with errors that name the file.
 
     Bounded: files over ``MAX_FILE_BYTES``, documents whose aliases expand past
     ``MAX_YAML_NODES`` values, recursive aliases and absurd nesting are refused here, before
@@ -182,15 +187,26 @@ def read_yaml(path: str | pathlib.Path) -> Any:
         size = path.stat().st_size
         if size > MAX_FILE_BYTES:
             raise SceneError(f'{path}: {size} bytes, limit {MAX_FILE_BYTES} (MAX_FILE_BYTES)')
-        text = path.read_text()
+        raw = path.read_bytes()
+        text = raw.decode()
+        yaml_flow_depth(raw)
     except (OSError, UnicodeDecodeError) as exc:
         raise SceneError(f'{path}: cannot read ({exc})') from exc
+    except ValueError as exc:
+        raise SceneError(f'{path}: {exc}') from None
+    loader = _YAML_LOADER(text)  # what yaml.safe_load does, with libyaml's parser
     try:
-        data = yaml.safe_load(text)
+        data = loader.get_single_data()
     except yaml.YAMLError as exc:
         raise SceneError(f'{path}: malformed YAML ({exc})') from exc
     except RecursionError:
         raise SceneError(f'{path}: malformed YAML (nested too deeply)') from None
+    except (ValueError, TypeError, AttributeError) as exc:  # PyYAML's constructors on odd
+        # scalars, e.g. a !!timestamp that is not one (AttributeError on a failed match)
+        raise SceneError(f'{path}: malformed YAML (a tagged or complex value that cannot be '
+                         f'built: {type(exc).__name__}: {exc})') from None
+    finally:
+        loader.dispose()
     try:
         yaml_size(data)
     except ValueError as exc:

@@ -39,15 +39,18 @@ def points_from_cloud_msg(msg: PointCloud2, where: str = 'cloud') -> np.ndarray:
     if n == 0:
         return np.zeros((0, 3))
     order = '>' if msg.is_bigendian else '<'
+    step = int(msg.point_step)
     names, formats, offsets = [], [], []
     for axis in 'xyz':
         f = fields[axis]
         if f.datatype not in _NUMPY or f.count != 1:
             raise SceneError(f'{where}: field {axis} must be one float32/float64')
+        if f.offset + np.dtype(_NUMPY[f.datatype]).itemsize > step:
+            raise SceneError(f'{where}: field {axis} at byte {f.offset} does not fit in a point '
+                             f'of {step} bytes (point_step)')
         names.append(axis)
         formats.append(order + _NUMPY[f.datatype])
         offsets.append(f.offset)
-    step = int(msg.point_step)
     if int(msg.row_step) < step * int(msg.width) or len(msg.data) < int(msg.row_step) * \
             (int(msg.height) - 1) + step * int(msg.width):
         raise SceneError(f'{where}: {len(msg.data)} data bytes do not hold {msg.height} x '
