@@ -32,7 +32,7 @@ from typing import Sequence
 import numpy as np
 
 from advocc_ros.model.goal import GoalRegion
-from advocc_ros.model.mbm_fields import _floats, _list, _mapping, base_frame
+from advocc_ros.model.mbm_fields import as_list, as_mapping, base_frame, floats
 from advocc_ros.model.pose import Pose, SceneError
 from advocc_ros.model.robot import RobotModel, RobotSpec
 from advocc_ros.model.scene import Scene, SceneObject, read_yaml, save_yaml_atomic
@@ -220,19 +220,19 @@ def trajectory_data(joint_names: Sequence[str], waypoints: np.ndarray,
 def load_trajectory(path: str | pathlib.Path) -> tuple[tuple[str, ...], np.ndarray]:
     """(joint names, (N, nq) positions) of a ``RobotTrajectory`` YAML file."""
     where = str(path)
-    data = _mapping(read_yaml(path), where)
-    traj = _mapping(data.get('joint_trajectory'), f'{where}: joint_trajectory')
-    names = _list(traj.get('joint_names'), f'{where}: joint_trajectory.joint_names')
+    data = as_mapping(read_yaml(path), where)
+    traj = as_mapping(data.get('joint_trajectory'), f'{where}: joint_trajectory')
+    names = as_list(traj.get('joint_names'), f'{where}: joint_trajectory.joint_names')
     if not names or not all(isinstance(n, str) and n for n in names):
         raise SceneError(f'{where}: joint_trajectory.joint_names: expected joint names, got '
                          f'{names!r}')
-    points = _list(traj.get('points'), f'{where}: joint_trajectory.points')
+    points = as_list(traj.get('points'), f'{where}: joint_trajectory.points')
     if not points:
         raise SceneError(f'{where}: joint_trajectory.points: no points')
     rows = []
     for k, point in enumerate(points):
         w = f'{where}: joint_trajectory.points[{k}]'
-        row = _floats(_mapping(point, w).get('positions'), f'{w}.positions')
+        row = floats(as_mapping(point, w).get('positions'), f'{w}.positions')
         if len(row) != len(names):
             raise SceneError(f'{w}.positions: {len(row)} values for {len(names)} joints')
         rows.append(row)

@@ -179,7 +179,8 @@ def _seed_goals(entries: list, where: str, robot: RobotModel) -> tuple[tuple[flo
     seeds = []
     for k, entry in enumerate(entries, 1):
         w = f'{where}: goal_constraints[{k}]'
-        constraints = _list(_mapping(entry, w).get('joint_constraints'), f'{w}.joint_constraints')
+        constraints = as_list(as_mapping(entry, w).get('joint_constraints'),
+                              f'{w}.joint_constraints')
         if constraints:
             seeds.append(tuple(_joint_goal(constraints, w, robot).values()))
     return tuple(seeds)
