@@ -158,6 +158,7 @@ def attack(heatmap: Heatmap, robot: RobotModel, objects: tuple[SceneObject, ...]
         np.array([o.shapes[0].pose.position_m for o in obstacles]), s)
     stats['goal_check_ms'] = round((time.perf_counter() - t1) * 1e3, 3)
     stats['goal_samples'] = len(samples.Q)
+    stats['goal_samples_time_cap_hit'] = samples.time_cap_hit
     solvable = None
     if certify:
         if witness is None:

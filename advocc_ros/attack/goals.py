@@ -46,8 +46,10 @@ _CACHE_LOCK = threading.Lock()
 class GoalSamples:
     """A fixed set of valid goal configurations and exact box checks against their bodies."""
 
-    def __init__(self, world: CollisionWorld, Q: np.ndarray):
+    def __init__(self, world: CollisionWorld, Q: np.ndarray, time_cap_hit: bool = False):
         self.Q = Q
+        self.time_cap_hit = time_cap_hit
+        """Whether ``goal_set``'s safety cap cut the sampling short (then machine-dependent)."""
         self.links = [g.geometry for g in world.geom_model.geometryObjects[:world.n_links]]
         self.tfs, centres, radii = [], [], []
         for q in Q:
@@ -120,8 +122,10 @@ def goal_samples(robot: RobotModel, objects: tuple[SceneObject, ...], goal: Goal
             _CACHE.move_to_end(key)
             return _CACHE[key]
     world = world or CollisionWorld(robot, [sh for o in objects for sh in o.shapes])
-    Q = goal_set(robot, world.collisions_batch, world.in_collision, goal, n, VALIDATION_SEED)
-    samples = GoalSamples(world, Q)
+    sampling: dict = {}
+    Q = goal_set(robot, world.collisions_batch, world.in_collision, goal, n, VALIDATION_SEED,
+                 stats=sampling)
+    samples = GoalSamples(world, Q, sampling['goal_time_cap_hit'])
     with _CACHE_LOCK:
         samples = _CACHE.setdefault(key, samples)
         _CACHE.move_to_end(key)

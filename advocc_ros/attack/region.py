@@ -182,7 +182,7 @@ def search_region(heatmap: Heatmap, robot: RobotModel, objects: tuple[SceneObjec
                     cfg.d_safe_m, f'hand {world.geom_model.geometryObjects[i].name} at goal')
                    for i in hand]
         stats['q_goal'] = np.round(q_goal, 4).tolist()
-    else:
+    elif cfg.protect_goal_hand:
         log.info('goal IK did not converge: only the goal box is kept clear')
     if cfg.d_safe_m > 0:
         cand[crop] &= box_distance(protected, grid.voxel_m, half, cfg.d_safe_m, crop) \

@@ -44,7 +44,7 @@ from advocc_ros.attack.solvable import WitnessGuard
 from advocc_ros.attack.types import AttackConfig
 from advocc_ros.heatmap import HeatmapConfig, placement_arrays, sample_weights
 from advocc_ros.model.collision import CollisionWorld, shared_world
-from advocc_ros.model.ik import goal_set
+from advocc_ros.model.ik import GOAL_SET_CAP_S, goal_set
 
 
 @dataclasses.dataclass(frozen=True)
@@ -59,8 +59,10 @@ class TaskOptions:
     """Approach paths per goal through a perturbed midpoint, besides the straight one."""
     detour_rad: float = 0.4
     """Standard deviation of the midpoint perturbation per joint [rad]."""
-    sampling_time_s: float = 1.0
-    """Cap on goal IK sampling time [s]."""
+    sampling_cap_s: float = GOAL_SET_CAP_S
+    """Safety cap on goal IK sampling time [s]; iteration budgets decide the samples, so a
+    seed gives the same boxes on a loaded machine (``task_goal_time_cap_hit`` says when the cap
+    cut sampling short)."""
     tube_samples: int = 256
     """Under the ``solvable`` policy: configurations drawn around the witness path and covered
     like approaches, so the boxes close the alternatives and leave a narrow passage."""
@@ -71,10 +73,10 @@ class TaskOptions:
         if self.goal_samples < 1 or self.approach_points < 0 or self.detours < 0:
             raise ValueError('task options: goal_samples >= 1, approach_points and detours '
                              '>= 0')
-        if not (self.detour_rad >= 0 and self.sampling_time_s > 0 and self.tube_rad >= 0
+        if not (self.detour_rad >= 0 and self.sampling_cap_s > 0 and self.tube_rad >= 0
                 and self.tube_samples >= 0):
             raise ValueError('task options: detour_rad, tube_rad, tube_samples >= 0 and '
-                             'sampling_time_s > 0')
+                             'sampling_cap_s > 0')
 
 
 THREADS = 2
@@ -130,8 +132,9 @@ def _select_task(region: SearchRegion, budget: int, seed: int, cfg: AttackConfig
     robot = context.robot
     t0 = time.perf_counter()
     world = shared_world(robot, [sh for o in context.objects for sh in o.shapes])
+    sampling: dict = {}
     Q_goal = goal_set(robot, world.collisions_batch, world.in_collision, context.goal,
-                      opts.goal_samples, seed, opts.sampling_time_s)
+                      opts.goal_samples, seed, opts.sampling_cap_s, stats=sampling)
     rng = np.random.default_rng(seed)
     Q_app = approach_samples(world, context.q_init, Q_goal, opts.approach_points, opts.detours,
                              opts.detour_rad, rng)
@@ -182,6 +185,7 @@ def _select_task(region: SearchRegion, budget: int, seed: int, cfg: AttackConfig
         'task_goal_samples': n_goal, 'task_approach_samples': len(Q_app),
         'task_goal_covered': int(covered[:n_goal].sum()),
         'task_approach_covered': int(covered[cover.shape[0] - len(Q_app):].sum()),
+        'task_goal_time_cap_hit': sampling['goal_time_cap_hit'],
         'task_sampling_ms': round((t_sample - t0) * 1e3, 1),
         'task_cover_ms': round((t_cover - t_sample) * 1e3, 1)})
     if len(picks) < budget and len(picks) and not rejected > cfg.max_rejections:
