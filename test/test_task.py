@@ -102,7 +102,7 @@ def test_cover_matrix_matches_a_direct_rasterization(panda, heatmap, task):
     k = region.k
     for row, qs in zip(cover, Q):
         occ = robot_occupancy(panda, world.link_placements(qs), region.grid, region.lo,
-                              region.hi)
+                              region.hi, region.lut_pitch_m)
         padded = np.pad(occ, k)
         expected = np.array([padded[c[0]:c[0] + 2 * k + 1, c[1]:c[1] + 2 * k + 1,
                                     c[2]:c[2] + 2 * k + 1].any() for c in cand])

@@ -102,7 +102,7 @@ def attack(heatmap: Heatmap, robot: RobotModel, objects: tuple[SceneObject, ...]
     ``goal_policy``: ``paper``, ``reachable`` or ``solvable`` (None or '': ``cfg.goal_policy``);
     ``certify``: also say whether the task keeps a solution (``result.solvable``; finds the
     task's witness once, see ``attack.solvable``)."""
-    link_tables(robot, heatmap.grid.voxel_m / 4)  # model loading (~1 s once), not attack time
+    link_tables(robot, heatmap.lut_pitch_m)  # model loading (~1 s once), not attack time
     t0 = time.perf_counter()
     s = cfg.box_size_m if box_size_m is None or box_size_m == 0 else float(box_size_m)
     policy = goal_policy or cfg.goal_policy
@@ -128,7 +128,7 @@ def attack(heatmap: Heatmap, robot: RobotModel, objects: tuple[SceneObject, ...]
             witness = _witness(robot, objects, q_init, goal, region.stats)
             t0 += region.stats['witness_search_ms'] / 1e3  # reported apart, not attack time
             region.guard = WitnessGuard(witness_bodies(robot, shared_world(robot), witness), s)
-            region.guard.prune(region, heatmap.grid.voxel_m / 4)
+            region.guard.prune(region, heatmap.lut_pitch_m)
         extra = {}
         if method in CONTEXT_METHODS:
             extra['context'] = MethodContext(robot, objects, q_init, goal, method_options)

@@ -30,7 +30,7 @@ from typing import Callable
 import numba
 import numpy as np
 
-from advocc_ros.heatmap.store import Heatmap
+from advocc_ros.heatmap.store import DEFAULT_LUT_PITCH_FRACTION, Heatmap
 from advocc_ros.model.collision import CollisionWorld
 from advocc_ros.model.robot import RobotModel, load_robot
 from advocc_ros.model.scene import Scene
@@ -60,7 +60,7 @@ class HeatmapConfig:
     """Padding around the robot's swept-volume bounding box [m]."""
     robot_only: bool = False
     """Ignore the scene offline (E empty); the online phase masks the current scene."""
-    lut_pitch_fraction: float = 0.25
+    lut_pitch_fraction: float = DEFAULT_LUT_PITCH_FRACTION
     """Link look-up-table pitch as a fraction of the voxel edge."""
 
     def __post_init__(self):

@@ -147,7 +147,7 @@ class HeatmapServer(Node):
         self.robot = load_robot(self._spec)
         check_robot(self.heatmap, self.robot.hash, path)
         self.cfg = self._config()
-        link_tables(self.robot, self.heatmap.grid.voxel_m / 4)  # warm the cache: ~1 s once
+        link_tables(self.robot, self.heatmap.lut_pitch_m)  # warm the cache: ~1 s once
         self._path = path
         self._served = 0
         summary = self.heatmap.summary()
