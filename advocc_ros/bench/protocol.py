@@ -28,8 +28,6 @@ log = logging.getLogger(__name__)
 
 BASELINE = 'none'
 """Method name of the unattacked baseline (budget 0)."""
-THRESHOLDS = (80, 60, 40, 20, 0)
-"""Table II: PSR thresholds [%]."""
 METHOD_LABELS = {name: spec.label for name, spec in REGISTRY.items()} | {BASELINE: 'None'}
 PLANNER_LABELS = {'rrtconnect': 'RRT', 'prmstar': 'PRM*', 'bkpiece1': 'BKPIECE'}
 MAX_BUDGET = 90
