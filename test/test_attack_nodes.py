@@ -10,8 +10,6 @@ import time
 import numpy as np
 import pytest
 
-from conftest import REPO
-
 
 @pytest.fixture(scope='module')
 def heatmap_file(tmp_path_factory, table_scene):
@@ -273,21 +271,6 @@ def test_server_refuses_a_corrupted_heatmap(ros_env, tmp_path):
             proc.wait(5)
     assert proc.returncode == 1
     assert 'cannot start' in out and 'not a readable heatmap file' in out and str(path) in out
-
-
-def test_config_files_match_the_core_defaults():
-    import yaml
-
-    from advocc_ros.attack import AttackConfig
-    server = yaml.safe_load((REPO / 'config' / 'heatmap_server.yaml').read_text())
-    params = server['/heatmap_server']['ros__parameters']
-    for field in dataclasses.fields(AttackConfig):
-        assert params[field.name] == getattr(AttackConfig(), field.name), field.name
-    attacker = yaml.safe_load((REPO / 'config' / 'attacker.yaml').read_text())
-    from advocc_ros.ros.clouds import CLOUD_PARAMS
-    assert attacker['/attacker']['ros__parameters'] == {
-        'server': '/heatmap_server', 'budget': 3, 'method': 'ours', 'box_size_m': 0.0,
-        'seed': 0, 'goal_policy': '', 'timeout_s': 60.0, 'bag': '', **CLOUD_PARAMS}
 
 
 def test_run_attack_nodes_for_the_demo(ros_env, monkeypatch, heatmap_file, table_scene,

@@ -40,7 +40,8 @@ from advocc_ros.attack.goals import POLICIES, GoalGuard, goal_samples
 from advocc_ros.attack.solvable import WitnessGuard, assess, witness_bodies
 from advocc_ros.attack.methods import CONTEXT_METHODS, METHODS, MethodContext, load_method
 from advocc_ros.attack.region import search_region
-from advocc_ros.attack.types import AttackConfig, AttackError, AttackResult, AttackStatus
+from advocc_ros.attack.types import (DEFAULT_METHOD, AttackConfig, AttackError, AttackResult,
+                                     AttackStatus)
 from advocc_ros.heatmap import Heatmap, link_tables
 from advocc_ros.model.collision import shared_world
 from advocc_ros.model.robot import RobotError, RobotModel
@@ -92,7 +93,7 @@ def validate_request(heatmap: Heatmap, robot: RobotModel, objects: tuple[SceneOb
 
 
 def attack(heatmap: Heatmap, robot: RobotModel, objects: tuple[SceneObject, ...] | list,
-           q_init: np.ndarray, goal: GoalRegion, budget: int, method: str = 'ours',
+           q_init: np.ndarray, goal: GoalRegion, budget: int, method: str = DEFAULT_METHOD,
            cfg: AttackConfig = AttackConfig(), box_size_m: float | None = None,
            seed: int = 0, method_options: Any = None, goal_policy: str | None = None,
            certify: bool = True) -> AttackResult:

@@ -13,6 +13,8 @@ from advocc_ros.model.scene import SceneObject, objects_to_data
 
 POLICIES = ('paper', 'reachable', 'solvable')
 """Goal policies (``advocc_ros.attack.goals``): the one list of their names."""
+DEFAULT_METHOD = 'ours'
+"""The attack method of a request that names none: the paper's."""
 
 
 @dataclasses.dataclass(frozen=True)
