@@ -1,4 +1,4 @@
-"""Online phase: adversarial occupancy maximization (paper §IV-B, Algorithm 1; SPEC §3).
+"""Online phase: adversarial occupancy maximization (paper §IV-B, Algorithm 1; docs/design.md).
 
 Given a heatmap H, the scene E, the start ``q_init`` and a goal region G, place at most M
 axis-aligned boxes of edge s that cover as much heatmap mass as possible.
@@ -10,18 +10,20 @@ centres, ``U(c)`` = voxels whose centres lie in the closed box):
   goal-region centre; ``H(c) > 0``; ``c`` in V_free (V_free of the file AND not inside the
   current scene: robot-only heatmaps need this, scene-conditioned ones get it for free);
 - the box fits: no occupied (non-free) voxel centre inside the box, i.e. ``U(c)`` is in V_free;
-- clearance ``d_safe`` from the robot body at ``q_init``, from G's position box, and from the
-  hand (every link on the end-effector's joint) at one goal configuration found by a
-  deterministic damped-least-squares IK from ``q_init`` to the goal centre (skipped, and
-  reported, when the IK does not converge). Protecting the hand at the goal, not the whole arm,
-  keeps the goal itself reachable (no trivial infeasibility) while the approach stays open to
-  attack.
+- clearance ``d_safe`` from the robot body at ``q_init`` and from G's position box (the
+  paper's C3). With ``AttackConfig.protect_goal_hand`` (off by default), also from the hand
+  (every link on the end-effector's joint) at one goal configuration found by a deterministic
+  damped-least-squares IK from ``q_init`` to the goal centre (skipped, and reported as
+  ``stats['goal_ik']``, when the IK does not converge). By default nothing keeps a goal pose
+  free: boxes may block every goal configuration, which ``goal_valid_fraction`` reports and
+  the goal policy ``reachable`` prevents.
 
 The voxel tests use an exact lattice "box distance transform" (distance from each candidate's
 box to the nearest protected voxel centre), which can only over-estimate true clearances, so
 it never drops a valid candidate; every box a method picks is then checked exactly with coal
 (scene: no contact; robot at ``q_init``, goal box, hand at goal: distance >= d_safe) and a
-failing candidate is discarded and the method picks again ("lazy" verification).
+failing candidate is discarded and the method picks again ("lazy" verification). What the
+greedy then guarantees is stated and proved in ``docs/greedy.md``.
 
 Greedy: box sums of the uncovered mass by separable shift-adds over a window around the
 corridor; after each pick only the sums within 2k voxels of it change and are recomputed

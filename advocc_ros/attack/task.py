@@ -1,4 +1,5 @@
-"""Method ``task``: task-conditioned coverage (SPEC §3b), the attack that makes planners fail.
+"""Method ``task``: task-conditioned coverage (docs/design.md), the attack that makes planners
+fail.
 
 The paper's objective (``ours``) covers heatmap *voxel* mass; H peaks where every
 configuration's base and upper arm pass, so its boxes land beside the shoulder, where no plan
@@ -12,8 +13,8 @@ by the paper's w(q):
   from ``q_init`` to each goal solution (the straight segment, and ``detours`` paths through a
   perturbed midpoint). The first half lies near q_init, where C3 forbids boxes anyway.
 
-Objective, lexicographic through its weights (still one weighted coverage, so submodular, and
-the greedy keeps its (1 - 1/e) guarantee):
+Objective, lexicographic through its weights (still one weighted coverage, monotone and
+submodular, so the greedy's guarantees of ``docs/greedy.md`` apply to the weighted objective):
 1. goal configurations (every plan ends in Q_G; an approach matters only while its goals are
    open);
 2. goal configurations whose body reaches one voxel deep into the box: among boxes that cover
