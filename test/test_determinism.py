@@ -42,11 +42,11 @@ def _answer(result: dict) -> dict:
                         stats['goal_samples']]}
 
 
-def test_task_attack_is_the_same_alone_and_beside_two_cpu_hogs(tmp_path):
+def test_task_attack_is_the_same_alone_and_beside_two_cpu_hogs(tmp_path, table_scene):
+    from advocc_ros.heatmap import HeatmapConfig, build_heatmap, save_heatmap
+
     heatmap = tmp_path / 'h.npz'
-    subprocess.run(CLI + ['heatmap', 'build', '--scene', 'table_pick', '--samples', '300',
-                          '--seed', '1', '--workers', '1', '--out', str(heatmap)],
-                   check=True, capture_output=True, timeout=120, env=_env())
+    save_heatmap(build_heatmap(table_scene, HeatmapConfig(samples=300), seed=1), heatmap)
     alone = _attack(heatmap, tmp_path / 'alone.yaml')
     hogs = [subprocess.Popen([sys.executable, '-c', 'while True: pass']) for _ in range(2)]
     try:
