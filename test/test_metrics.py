@@ -1,4 +1,4 @@
-"""Metrics equal hand-computed values on fixed paths (SPEC §4)."""
+"""Metrics equal hand-computed values on fixed paths (docs/metrics.md)."""
 
 import numpy as np
 import pytest

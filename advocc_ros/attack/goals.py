@@ -5,7 +5,7 @@ that are valid without the boxes, the fraction still valid with them (coal, exac
 how a planner will fail: at 0 every goal pose is blocked (the planner reports
 GOAL_IN_COLLISION); above 0 the boxes must occlude the paths.
 
-Goal policies (SPEC §3b):
+Goal policies (docs/design.md):
 
 - ``paper``: the paper's C3 only (d_safe from the robot at q_init and from G's position box);
   boxes may block every goal pose;

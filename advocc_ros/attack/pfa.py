@@ -1,4 +1,4 @@
-"""Planner-in-the-loop baselines PFA and PFA++ (paper §V-A "Baselines", SPEC §4).
+"""Planner-in-the-loop baselines PFA and PFA++ (paper §V-A "Baselines"; docs/design.md).
 
 PFA (Wu et al., ICRA 2024) optimises where to put M obstacles by querying a motion planner and
 keeping the placements that make it fail. Their text is not available here, so this module

@@ -19,7 +19,7 @@ DEFAULT_METHOD = 'ours'
 
 @dataclasses.dataclass(frozen=True)
 class AttackConfig:
-    """Online parameters; defaults from the paper (§V-A) and SPEC §3."""
+    """Online parameters; defaults from the paper (§V-A) and docs/design.md."""
 
     box_size_m: float = 0.05
     """s: edge of every adversarial box [m]."""

@@ -1,4 +1,4 @@
-"""Benchmark bookkeeping (paper §V, SPEC §4/§7): protocol, run plan, records, tables. No ROS.
+"""Benchmark bookkeeping (paper §V; docs/metrics.md): protocol, run plan, records, tables. No ROS.
 
 The orchestrator (``advocc_ros.orchestrator``) drives real nodes; everything it needs to decide
 *what* to run and to turn results into the paper's tables lives here, so it can be tested on

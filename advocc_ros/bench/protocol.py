@@ -1,4 +1,4 @@
-"""The benchmark's protocol and run plan (paper §V, SPEC §4/§7); see ``advocc_ros.bench``.
+"""The benchmark's protocol and run plan (paper §V; docs/metrics.md); see ``advocc_ros.bench``.
 
 - ``BenchConfig``: one protocol (a profile of ``config/bench.yaml`` plus command-line overrides).
 - ``plan_units``: the run plan. A *unit* is one planning scene to inject (an attack, or none for

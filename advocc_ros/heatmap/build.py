@@ -1,4 +1,4 @@
-"""Offline phase: the kinematic occupancy heatmap H (paper §IV-A, SPEC §2).
+"""Offline phase: the kinematic occupancy heatmap H (paper §IV-A; docs/design.md).
 
 For ``samples`` valid configurations q (joint limits, no self collision per SRDF, no collision
 with the scene E), every free voxel whose centre lies inside one of the robot's link solids at q
@@ -44,7 +44,7 @@ _GRID_SEED = 20240521  # fixed: the grid depends on robot, voxel and margin only
 
 @dataclasses.dataclass(frozen=True)
 class HeatmapConfig:
-    """Offline parameters, defaults from the paper (§V-A) and SPEC §2."""
+    """Offline parameters, defaults from the paper (§V-A) and docs/design.md."""
 
     samples: int = 15_000
     """N_off: number of *valid* configurations."""

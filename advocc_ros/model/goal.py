@@ -1,4 +1,4 @@
-"""Goal regions: a tolerance box around an end-effector pose (paper §III-A, SPEC §1)."""
+"""Goal regions: a tolerance box around an end-effector pose (paper §III-A; docs/design.md)."""
 
 from __future__ import annotations
 
@@ -18,7 +18,7 @@ def _rotation_error(R_center: np.ndarray, R: np.ndarray) -> np.ndarray:
 
 @dataclasses.dataclass(frozen=True)
 class GoalRegion:
-    """Tolerance box around an end-effector pose (paper §III-A, SPEC §1).
+    """Tolerance box around an end-effector pose (paper §III-A; docs/design.md).
 
     A pose ``T_base_tool`` is inside when its position, expressed in the centre's frame, lies in
     the box ``|p| <= position_tolerance_m`` and the rotation vector of ``R_center^T R`` lies

@@ -4,7 +4,8 @@ MotionBenchMaker (Chamzas et al., RA-L 2022) ships each problem as a scene file 
 ``PlanningScene`` dump, ``sceneNNNN.yaml``) and a request file (``requestNNNN.yaml``, read by
 ``mbm_request``) whose goal is a joint configuration or a pose constraint. The robot state of the
 task (the request's ``start_state``, else the scene's ``robot_state``) carries every joint: the
-ones outside the planning group (the Panda's fingers) lock the robot's (SPEC §4b).
+ones outside the planning group (the Panda's fingers) lock the robot's (docs/design.md, "The
+robot state that comes with a task").
 
 Accepted forms (both the robowflex/MotionBenchMaker flavour and the ROS-message flavour):
 - ``position: [x, y, z]`` or ``{x: .., y: .., z: ..}``; ``orientation: [x, y, z, w]`` or

@@ -46,7 +46,7 @@ class Scene:
     objects: tuple[SceneObject, ...] = ()
     start: dict[str, float] | None = None
     """Start joint values by joint name (``None``: no start given). Values of joints outside the
-    planning group (fingers) lock those joints: ``robot`` is derived from them (SPEC §4b)."""
+    planning group (fingers) lock those joints: ``robot`` is derived from them (docs/design.md)."""
     goal: GoalRegion | None = None
     robot: RobotSpec = RobotSpec()
     name: str = 'scene'

@@ -1,4 +1,4 @@
-"""orchestrator: runs the paper's benchmark through real nodes (SPEC §6, issue 6).
+"""orchestrator: runs the paper's benchmark through real nodes (docs/design.md).
 
 A plain Python program (there is no ``launch`` wheel) that, per scene,
 

@@ -1,4 +1,4 @@
-"""The online attack through the ROS graph, for ``advocc demo`` (issue 3, "done when").
+"""The online attack through the ROS graph, for ``advocc demo``.
 
 :func:`run_attack_nodes` starts ``heatmap_server`` and ``attacker`` as child processes on a
 private ROS domain, publishes the scene and goal region on their latched topics, collects the
