@@ -11,14 +11,6 @@ import numpy as np
 import pytest
 
 
-@pytest.fixture(scope='module')
-def heatmap_file(tmp_path_factory, table_scene):
-    from advocc_ros.heatmap import HeatmapConfig, build_heatmap, save_heatmap
-    path = tmp_path_factory.mktemp('heatmap') / 'h500.npz'
-    save_heatmap(build_heatmap(table_scene, HeatmapConfig(samples=500), seed=2), path)
-    return path
-
-
 def _start(module, env, *params):
     args = [sys.executable, '-m', f'advocc_ros.nodes.{module}', '--ros-args']
     for p in params:
@@ -37,31 +29,6 @@ def _stop(proc, timeout_s=15.0):
         proc.kill()
         proc.wait(5)
         pytest.fail(f'{proc.args[2]} ignored SIGINT for {timeout_s} s')
-
-
-@pytest.fixture
-def ros(ros_env, monkeypatch):
-    """rclpy in this process on the children's domain; children are always killed."""
-    import rclpy
-
-    for key in ('ROS_DOMAIN_ID', 'ROS_LOCALHOST_ONLY'):
-        monkeypatch.setenv(key, ros_env[key])
-    context = rclpy.Context()
-    rclpy.init(context=context, domain_id=int(ros_env['ROS_DOMAIN_ID']))
-    node = rclpy.create_node('attack_test_client', context=context)
-    executor = rclpy.executors.SingleThreadedExecutor(context=context)
-    executor.add_node(node)
-    children = []
-    try:
-        yield node, executor, children
-    finally:
-        for proc in children:
-            if proc.poll() is None:
-                proc.kill()
-            proc.wait(10)
-        executor.shutdown()
-        node.destroy_node()
-        rclpy.try_shutdown(context=context)
 
 
 def _wait_service(executor, client, proc, timeout_s=60):

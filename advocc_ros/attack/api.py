@@ -38,12 +38,12 @@ from typing import Any
 
 import numpy as np
 
-from advocc_ros.attack.goals import POLICIES, GoalGuard, goal_samples
+from advocc_ros.attack.goals import GoalGuard, goal_samples
 from advocc_ros.attack.solvable import WitnessGuard, assess, witness_bodies
 from advocc_ros.attack.methods import CONTEXT_METHODS, METHODS, MethodContext, load_method
 from advocc_ros.attack.region import search_region
-from advocc_ros.attack.types import (DEFAULT_METHOD, AttackConfig, AttackError, AttackResult,
-                                     AttackStatus)
+from advocc_ros.attack.types import (DEFAULT_METHOD, POLICIES, AttackConfig, AttackError,
+                                     AttackResult, AttackStatus)
 from advocc_ros.heatmap import Heatmap, link_tables
 from advocc_ros.model.collision import shared_world
 from advocc_ros.model.robot import RobotError, RobotModel

@@ -27,7 +27,6 @@ import threading
 import coal
 import numpy as np
 
-from advocc_ros.attack.types import POLICIES  # noqa: F401 (re-exported)
 from advocc_ros.model.collision import CollisionWorld
 from advocc_ros.model.ik import goal_set
 from advocc_ros.model.robot import RobotModel
@@ -159,5 +158,5 @@ class GoalGuard:
         return True
 
 
-__all__ = ['GoalGuard', 'GoalSamples', 'POLICIES', 'VALIDATION_SAMPLES', 'clear_cache',
+__all__ = ['GoalGuard', 'GoalSamples', 'VALIDATION_SAMPLES', 'clear_cache',
            'goal_samples']

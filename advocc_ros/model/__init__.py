@@ -6,11 +6,13 @@ from advocc_ros.model.robot import (RobotError, RobotModel, RobotSpec, example_r
                                     load_robot, resolve_path)
 from advocc_ros.model.scene import (GoalRegion, Operation, Pose, SHAPES, Scene, SceneError,
                                     SceneObject, Shape, apply_operation, finite_array, load_scene,
-                                    make_box, make_mesh_shape, objects_from_data, objects_to_data,
-                                    read_yaml, save_yaml_atomic, scene_from_data)
-from advocc_ros.model.mbm import (GoalTolerance, MbmRequest, apply_request, base_frame,
-                                  goal_region_at, is_mbm_scene, load_any_scene, load_mbm_scene,
-                                  load_request, objects_from_planning_scene, parse_goal_tolerance)
+                                    make_box, objects_from_data, objects_to_data, read_yaml,
+                                    save_yaml_atomic, scene_from_data)
+from advocc_ros.model.shapes import make_mesh_shape
+from advocc_ros.model.mbm import (apply_request, base_frame, is_mbm_scene, load_any_scene,
+                                  load_mbm_scene, objects_from_planning_scene)
+from advocc_ros.model.mbm_request import (GoalTolerance, MbmRequest, goal_region_at,
+                                          load_request, parse_goal_tolerance)
 from advocc_ros.model.collision import CollisionWorld, coal_geometry
 from advocc_ros.model.voxels import SolidLUT, VoxelGrid, occupied_mask, points_in_shape
 from advocc_ros.model.ik import (GoalSampler, IkConfig, dls_ik, goal_configuration, goal_set,

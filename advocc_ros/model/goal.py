@@ -116,12 +116,5 @@ class GoalRegion:
                     and np.all(np.abs(r_err) <= np.asarray(self.orientation_tolerance_rad)
                                + slack))
 
-    def box_corners_m(self) -> np.ndarray:
-        """(8, 3) corners of the position box in the base frame."""
-        T_c = self.center.to_se3()
-        signs = np.array([[i, j, k] for i in (-1, 1) for j in (-1, 1) for k in (-1, 1)], float)
-        local = signs * np.asarray(self.position_tolerance_m)
-        return local @ T_c.rotation.T + T_c.translation
-
 
 __all__ = ['GoalRegion']

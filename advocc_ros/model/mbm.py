@@ -29,14 +29,14 @@ from typing import Any
 import numpy as np
 import pinocchio as pin
 
-from advocc_ros.model.mbm_fields import (_DIMS, _OK_OPERATIONS, _PRIMITIVES,  # noqa: F401
-                                         _WORLD_FRAMES, _floats, _joint_state, _list, _mapping,
-                                         _numbers, _pose, _primitive, _virtual_joint, base_frame)
-from advocc_ros.model.mbm_request import (GoalTolerance, MbmRequest, goal_region_at,  # noqa: F401
-                                          load_request, parse_goal_tolerance)
+from advocc_ros.model.mbm_fields import (_OK_OPERATIONS, _WORLD_FRAMES, _joint_state, _list,
+                                         _mapping, _numbers, _pose, _primitive, _virtual_joint,
+                                         base_frame)
+from advocc_ros.model.mbm_request import (GoalTolerance, goal_region_at, load_request,
+                                          parse_goal_tolerance)
 from advocc_ros.model.robot import RobotSpec, load_robot
-from advocc_ros.model.scene import (Pose, Scene, SceneError, SceneObject, Shape, make_mesh_shape,
-                                    read_yaml)
+from advocc_ros.model.scene import Pose, Scene, SceneError, SceneObject, Shape, read_yaml
+from advocc_ros.model.shapes import make_mesh_shape
 
 
 def is_mbm_scene(data: Any) -> bool:

@@ -169,12 +169,6 @@ def scene_markers(objects, frame: str, ns: str, start_id: int = 0) -> list[Marke
     return markers
 
 
-def delete_all_marker(frame: str) -> Marker:
-    m = Marker(action=Marker.DELETEALL)
-    m.header.frame_id = frame
-    return m
-
-
 def markers_with_scene(boxes: MarkerArray, objects: tuple[SceneObject, ...], frame: str,
                        ns: str) -> MarkerArray:
     """``boxes`` (starting with a DELETEALL) followed by the scene's object markers."""

@@ -23,7 +23,8 @@ from advocc_ros.limits import (MAX_JOINTS, MAX_MESH_TRIANGLES, MAX_MESH_VERTICES
                                MAX_SCENE_VERTICES, MAX_SHAPES)
 from advocc_ros.model.robot import RobotError, RobotModel
 from advocc_ros.model.scene import (GoalRegion, Operation, Pose, Scene, SceneError, SceneObject,
-                                    Shape, make_box, make_mesh_shape, objects_to_data)
+                                    Shape, make_box, objects_to_data)
+from advocc_ros.model.shapes import make_mesh_shape
 from advocc_ros.ros.clouds import cloud_msg, scene_cloud, without_clouds
 from advocc_ros.ros.errors import code_name
 
