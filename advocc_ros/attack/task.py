@@ -96,7 +96,7 @@ def approach_samples(world: CollisionWorld, q_init: np.ndarray, Q_goal: np.ndarr
     starts = [np.broadcast_to(q_init, Q_goal.shape)]
     for _ in range(detours):
         mid = q_init + 0.5 * (Q_goal - q_init) + rng.normal(0.0, detour_rad, Q_goal.shape)
-        starts.append(2 * mid - q_init)  # the path's t = 0.5 is the midpoint
+        starts.append(2 * mid - Q_goal)  # the path's t = 0.5 is the midpoint
     Q = np.concatenate([(q0[:, None] + t * (Q_goal - q0)[:, None]).reshape(-1, nq)
                         for q0 in starts])
     Q = Q[np.all((Q >= world.robot.lower) & (Q <= world.robot.upper), axis=1)]
@@ -113,6 +113,24 @@ def tube_samples(world: CollisionWorld, states: np.ndarray, n: int, sigma_rad: f
     Q = base + rng.normal(0.0, sigma_rad, base.shape)
     Q = Q[np.all((Q >= world.robot.lower) & (Q <= world.robot.upper), axis=1)]
     return Q[~world.collisions_batch(Q, THREADS)] if len(Q) else Q
+
+
+WEIGHT_FLOOR = 1e-3
+"""Smallest goal weight w(q) the lexicographic scaling is exact for (see
+:func:`lexicographic_weights`)."""
+
+
+def lexicographic_weights(w_goal: np.ndarray, w_app: np.ndarray) -> np.ndarray:
+    """Weights of the three tiers (goal, deep goal, approach rows), scaled so that one goal
+    configuration outweighs every deep and approach row together, and one deep row every
+    approach row: the greedy then ranks candidates tier by tier. Exact when every goal weight is
+    at least :data:`WEIGHT_FLOOR`; below it the scale is capped (larger factors would round the
+    lower tiers out of the scores), and a tier-2 row of such a tiny weight may weigh less than
+    the approaches."""
+    unit = 1.0 / max(float(w_goal.min(initial=1.0)), WEIGHT_FLOOR)
+    w_deep = w_goal * (1.0 + w_app.sum()) * unit
+    scaled_goal = w_goal * (2.0 + w_app.sum() + w_deep.sum()) * unit
+    return np.concatenate([scaled_goal, w_deep, w_app])
 
 
 def _goal_filter(guard: GoalGuard, sample_cover: sparse.csr_matrix):
@@ -155,11 +173,8 @@ def _select_task(region: SearchRegion, budget: int, seed: int, cfg: AttackConfig
         deep = cover_matrix(robot, world, Q_goal, region, shrink=1,
                             placements=(R[:n_goal], t[:n_goal]))
         w_app = w[n_goal:]
-        unit = 1.0 / max(float(w[:n_goal].min(initial=1.0)), 1e-3)
-        w_deep = w[:n_goal] * (1.0 + w_app.sum()) * unit
-        w_goal = w[:n_goal] * (2.0 + w_app.sum() + w_deep.sum()) * unit
         cover = sparse.vstack([cover[:n_goal], deep, cover[n_goal:]], format='csr')
-        weights = np.concatenate([w_goal, w_deep, w_app])
+        weights = lexicographic_weights(w[:n_goal], w_app)
         w = np.concatenate([w[:n_goal], np.zeros(n_goal), w_app])  # reported mass: once each
     else:  # reachable: approaches only, and skip picks that would block too many goals
         weights = w.copy()
@@ -198,4 +213,4 @@ def _select_task(region: SearchRegion, budget: int, seed: int, cfg: AttackConfig
 
 register_method('task', _select_task)
 
-__all__ = ['TaskOptions', 'approach_samples']
+__all__ = ['TaskOptions', 'WEIGHT_FLOOR', 'approach_samples', 'lexicographic_weights']
