@@ -101,3 +101,17 @@ def test_goal_sampler_is_seeded_when_its_deadline_is_not_hit(table):
                         np.random.default_rng(11)).sample(5, float('inf')) for _ in range(2)]
     assert len(runs[0]) == 5
     np.testing.assert_array_equal(np.array(runs[0]), np.array(runs[1]))
+
+
+def test_negative_message_seeds_are_seeds_too(table_scene, panda):
+    """Attack.srv's seed is int64: a negative one is a seed, not an internal error."""
+    from advocc_ros.attack import AttackStatus, attack
+    from advocc_ros.heatmap import HeatmapConfig, build_heatmap
+
+    heatmap = build_heatmap(table_scene, HeatmapConfig(samples=200), seed=1)
+    q = start_configuration(table_scene, panda)
+    for method in ('random', 'task'):
+        runs = [attack(heatmap, panda, table_scene.objects, q, table_scene.goal, 2, method,
+                       seed=-5, certify=False) for _ in range(2)]
+        assert runs[0].status == AttackStatus.SUCCESS, runs[0].message
+        assert runs[0].centers_m.tolist() == runs[1].centers_m.tolist()

@@ -135,7 +135,8 @@ def attack(heatmap: Heatmap, robot: RobotModel, objects: tuple[SceneObject, ...]
         extra = {}
         if method in CONTEXT_METHODS:
             extra['context'] = MethodContext(robot, objects, q_init, goal, method_options)
-        picks, rejected = METHODS[method](region, int(budget), int(seed), cfg, **extra)
+        seed = int(seed) % 2 ** 64  # message seeds are int64 and may be < 0; numpy's are not
+        picks, rejected = METHODS[method](region, int(budget), seed, cfg, **extra)
     except AttackError as exc:
         return AttackResult(exc.status, str(exc), compute_s=time.perf_counter() - t0, **base)
     except (SceneError, RobotError) as exc:
