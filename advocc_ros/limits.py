@@ -3,7 +3,7 @@
 Each limit is enforced where the input enters (file loader or message conversion), before the
 expensive work, and the error names the limit. Per-request budgets that users tune live in the
 node configs instead (``AttackConfig.max_budget``, ``max_box_m``,
-``PlanningConfig.max_time_budget_s``); their defaults are listed in :data:`TABLE`.
+``PlanningConfig.max_time_budget_s``).
 """
 
 from __future__ import annotations
@@ -46,29 +46,6 @@ MAX_GOAL_DISTANCE_M = 100.0
 towards 1e308 m spends every budget it has (a minute per attack request) on overflow."""
 MAX_PLANNER_QUERIES = 10_000
 """Planner queries of one planner-in-the-loop attack (PFA, PFA++)."""
-
-TABLE = [
-    ('scene/request/obstacles/mesh file size', f'{MAX_FILE_BYTES >> 20} MiB',
-     'limits.MAX_FILE_BYTES'),
-    ('YAML values after alias expansion', f'{MAX_YAML_NODES:,}', 'limits.MAX_YAML_NODES'),
-    ('YAML open brackets at one point', f'{MAX_YAML_FLOW_DEPTH:,}', 'limits.MAX_YAML_FLOW_DEPTH'),
-    ('collision objects per scene/request', f'{MAX_OBJECTS:,}', 'limits.MAX_OBJECTS'),
-    ('shapes (primitives + meshes) per scene/request', f'{MAX_SHAPES:,}', 'limits.MAX_SHAPES'),
-    ('vertices per mesh', f'{MAX_MESH_VERTICES:,}', 'limits.MAX_MESH_VERTICES'),
-    ('triangles per mesh', f'{MAX_MESH_TRIANGLES:,}', 'limits.MAX_MESH_TRIANGLES'),
-    ('mesh vertices per scene/request', f'{MAX_SCENE_VERTICES:,}', 'limits.MAX_SCENE_VERTICES'),
-    ('points per sensed cloud', f'{MAX_CLOUD_POINTS:,}', 'limits.MAX_CLOUD_POINTS'),
-    ('cloud octree resolution', f'{MIN_CLOUD_RESOLUTION_M}-{MAX_CLOUD_RESOLUTION_M} m',
-     'limits.MIN/MAX_CLOUD_RESOLUTION_M'),
-    ('joint names per joint state', f'{MAX_JOINTS:,}', 'limits.MAX_JOINTS'),
-    ('heatmap voxels', f'{MAX_HEATMAP_VOXELS:,}', 'limits.MAX_HEATMAP_VOXELS'),
-    ('attack budget M', '100', 'heatmap_server max_budget'),
-    ('attack box edge', '0.5 m', 'heatmap_server max_box_m'),
-    ('plan time budget', '600 s', 'planner_shim max_time_budget_s'),
-    ('trials per cell', f'{MAX_TRIALS:,}', 'limits.MAX_TRIALS'),
-    ('planner queries per PFA attack', f'{MAX_PLANNER_QUERIES:,}', 'limits.MAX_PLANNER_QUERIES'),
-]
-"""(what, limit, where it is set) rows for the README."""
 
 
 def yaml_flow_depth(raw: bytes, limit: int = MAX_YAML_FLOW_DEPTH) -> None:

@@ -43,7 +43,7 @@ class LineProgress:
         if time.monotonic() - self._last >= self.interval_s:
             self._line()
 
-    def set_postfix(self, ordered_dict=None, refresh: bool = True, **kwargs) -> None:
+    def set_postfix(self, ordered_dict=None, **kwargs) -> None:
         items = dict(ordered_dict or {}, **kwargs)
         self.postfix = ', '.join(f'{k}={v}' for k, v in items.items())
 

@@ -1,4 +1,5 @@
-"""Shared fixtures: seeded RNGs, the Panda model, a small scene, a unique ROS domain per test."""
+"""Shared fixtures: seeded RNGs, the Panda model, a small scene and its heatmap file, a unique
+ROS domain per test and an rclpy client on it."""
 
 import os
 import pathlib
@@ -40,3 +41,36 @@ def ros_env():
     env['ROS_LOCALHOST_ONLY'] = '1'
     env['PYTHONUNBUFFERED'] = '1'
     return env
+
+
+@pytest.fixture(scope='module')
+def heatmap_file(tmp_path_factory, table_scene):
+    from advocc_ros.heatmap import HeatmapConfig, build_heatmap, save_heatmap
+    path = tmp_path_factory.mktemp('heatmap') / 'h500.npz'
+    save_heatmap(build_heatmap(table_scene, HeatmapConfig(samples=500), seed=2), path)
+    return path
+
+
+@pytest.fixture
+def ros(ros_env, monkeypatch):
+    """rclpy in this process on the children's domain; children are always killed."""
+    import rclpy
+
+    for key in ('ROS_DOMAIN_ID', 'ROS_LOCALHOST_ONLY'):
+        monkeypatch.setenv(key, ros_env[key])
+    context = rclpy.Context()
+    rclpy.init(context=context, domain_id=int(ros_env['ROS_DOMAIN_ID']))
+    node = rclpy.create_node('attack_test_client', context=context)
+    executor = rclpy.executors.SingleThreadedExecutor(context=context)
+    executor.add_node(node)
+    children = []
+    try:
+        yield node, executor, children
+    finally:
+        for proc in children:
+            if proc.poll() is None:
+                proc.kill()
+            proc.wait(10)
+        executor.shutdown()
+        node.destroy_node()
+        rclpy.try_shutdown(context=context)

@@ -1,5 +1,5 @@
 """heatmap_server for other robots: a UR5 attack round trip, and a Panda heatmap built with open
-fingers served with open fingers (the locked joints come from the heatmap file, SPEC §4b)."""
+fingers served with open fingers (the locked joints come from the heatmap file, docs/design.md)."""
 
 import dataclasses
 import json

@@ -10,16 +10,6 @@ import time
 import numpy as np
 import pytest
 
-from conftest import REPO
-
-
-@pytest.fixture(scope='module')
-def heatmap_file(tmp_path_factory, table_scene):
-    from advocc_ros.heatmap import HeatmapConfig, build_heatmap, save_heatmap
-    path = tmp_path_factory.mktemp('heatmap') / 'h500.npz'
-    save_heatmap(build_heatmap(table_scene, HeatmapConfig(samples=500), seed=2), path)
-    return path
-
 
 def _start(module, env, *params):
     args = [sys.executable, '-m', f'advocc_ros.nodes.{module}', '--ros-args']
@@ -39,31 +29,6 @@ def _stop(proc, timeout_s=15.0):
         proc.kill()
         proc.wait(5)
         pytest.fail(f'{proc.args[2]} ignored SIGINT for {timeout_s} s')
-
-
-@pytest.fixture
-def ros(ros_env, monkeypatch):
-    """rclpy in this process on the children's domain; children are always killed."""
-    import rclpy
-
-    for key in ('ROS_DOMAIN_ID', 'ROS_LOCALHOST_ONLY'):
-        monkeypatch.setenv(key, ros_env[key])
-    context = rclpy.Context()
-    rclpy.init(context=context, domain_id=int(ros_env['ROS_DOMAIN_ID']))
-    node = rclpy.create_node('attack_test_client', context=context)
-    executor = rclpy.executors.SingleThreadedExecutor(context=context)
-    executor.add_node(node)
-    children = []
-    try:
-        yield node, executor, children
-    finally:
-        for proc in children:
-            if proc.poll() is None:
-                proc.kill()
-            proc.wait(10)
-        executor.shutdown()
-        node.destroy_node()
-        rclpy.try_shutdown(context=context)
 
 
 def _wait_service(executor, client, proc, timeout_s=60):
@@ -273,21 +238,6 @@ def test_server_refuses_a_corrupted_heatmap(ros_env, tmp_path):
             proc.wait(5)
     assert proc.returncode == 1
     assert 'cannot start' in out and 'not a readable heatmap file' in out and str(path) in out
-
-
-def test_config_files_match_the_core_defaults():
-    import yaml
-
-    from advocc_ros.attack import AttackConfig
-    server = yaml.safe_load((REPO / 'config' / 'heatmap_server.yaml').read_text())
-    params = server['/heatmap_server']['ros__parameters']
-    for field in dataclasses.fields(AttackConfig):
-        assert params[field.name] == getattr(AttackConfig(), field.name), field.name
-    attacker = yaml.safe_load((REPO / 'config' / 'attacker.yaml').read_text())
-    from advocc_ros.ros.clouds import CLOUD_PARAMS
-    assert attacker['/attacker']['ros__parameters'] == {
-        'server': '/heatmap_server', 'budget': 3, 'method': 'ours', 'box_size_m': 0.0,
-        'seed': 0, 'goal_policy': '', 'timeout_s': 60.0, 'bag': '', **CLOUD_PARAMS}
 
 
 def test_run_attack_nodes_for_the_demo(ros_env, monkeypatch, heatmap_file, table_scene,

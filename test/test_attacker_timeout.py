@@ -4,7 +4,7 @@ late answer to the abandoned request is ignored."""
 
 import time
 
-from test_attack_nodes import _start, _stop, ros  # noqa: F401
+from test_attack_nodes import _start, _stop
 
 
 def test_a_server_that_never_answers_times_out_and_is_asked_again(

@@ -216,6 +216,8 @@ def test_table2_minimal_budgets_and_variations():
     # 80 %: 2 and 1 -> 1.5; 60 %: 2, 1 -> 1.5; 40 %: 3, 1 -> 2; 20 %: 3, 1 -> 2; 0 %: 3 only
     assert cells[-5:] == ['1.5', '1.5', '2', '2', '3 (1/2) |']
     assert text.split('\n')[1] == 'table_pick,rrtconnect,task,"0,1,2,3",2,3,1.5,1.5,2,2,3'
+    assert md.split('\n')[0].endswith('| 80% | 60% | 40% | 20% | 0% |')
+    assert text.split('\n')[0].endswith('psr_le_80,psr_le_60,psr_le_40,psr_le_20,psr_le_0')
     alone, _ = table2(rows, cfg)
     assert alone.strip().split('\n')[-1].split(' | ')[-5:] == ['2', '2', '3', '3', '3 |']
 

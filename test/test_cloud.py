@@ -37,7 +37,8 @@ def test_ply_and_pcd_files_round_trip(tmp_path, sensed_table):
     assert loaded.objects_hash() != '' and loaded.shapes[0].kind == 'cloud'
     np.testing.assert_allclose(loaded.shapes[0].vertices, sensed_table.shapes[0].vertices,
                                atol=1e-6)
-    pypcd4 = pytest.importorskip('pypcd4')
+    import pypcd4
+
     pcd = tmp_path / 'c.pcd'
     pts = sensed_table.shapes[0].vertices[:500].astype(np.float32)
     pypcd4.PointCloud.from_xyz_points(pts).save(str(pcd))

@@ -6,7 +6,7 @@ import time
 import numpy as np
 import pytest
 
-from test_attack_nodes import _call, _start, _stop, _wait_service, heatmap_file, ros  # noqa: F401
+from test_attack_nodes import _call, _start, _stop, _wait_service
 
 
 @pytest.fixture(scope='module')

@@ -3,7 +3,7 @@
 ``CollisionWorld.in_collision`` (broad phase, used for every state OMPL samples),
 ``collisions_batch`` and ``first_collision`` (the motion validator) against pinocchio's
 all-pairs ``computeCollisions`` over the same geometry model and SRDF pairs, on 100,000 random
-configurations per shipped scene (issue 14). And the motion validator against OMPL's own
+configurations per shipped scene. And the motion validator against OMPL's own
 ``DiscreteMotionValidator`` on random motions.
 """
 

@@ -145,8 +145,8 @@ def test_scene_file_bytes(data, tmp_path):
     with _Timer():
         try:
             load_scene(path)
-        except SceneError:
-            pass
+        except SceneError as exc:
+            assert str(path) in str(exc), exc  # the error names the file
 
 
 def _yaml_bomb(levels=9):

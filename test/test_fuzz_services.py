@@ -407,6 +407,7 @@ def test_bad_parameters_stop_the_node_cleanly(ros_module):
 
 
 def test_zzz_case_count(capsys):
+    """How many requests the live nodes survived; all of them, when the module ran whole."""
     total = sum(CASES.values())
     with capsys.disabled():
         print(f'\nfuzz service requests: {total} {json.dumps(CASES, sort_keys=True)}')
@@ -416,3 +417,6 @@ def test_zzz_case_count(capsys):
         counts = json.loads(path.read_text()) if path.exists() else {}
         counts['services'] = CASES
         path.write_text(json.dumps(counts, indent=1))
+    if len(CASES) > 1:  # the whole module ran, not one selected test
+        assert CASES.get('attack', 0) >= 80 and CASES.get('plan', 0) >= 40, CASES
+        assert CASES.get('parameters', 0) >= 1, CASES

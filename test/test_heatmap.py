@@ -1,5 +1,6 @@
 """Offline heatmap: voxelization, weights, scene masking, determinism, shards, file safety."""
 
+import dataclasses
 import json
 import pathlib
 import zipfile
@@ -191,3 +192,27 @@ def test_config_rejects_nonsense():
                 dict(kappa=0), dict(d_safe_m=-1)):
         with pytest.raises(ValueError):
             HeatmapConfig(**bad)
+
+
+def test_lut_pitch_comes_from_the_file(small_table_heatmap, table_scene, tmp_path, panda):
+    """The attack rasterizes the robot with the tables the build used, not a guessed pitch."""
+    from advocc_ros.attack import search_region
+    from advocc_ros.heatmap import save_heatmap
+    from advocc_ros.model.ik import start_configuration
+
+    coarse = build_heatmap(table_scene, HeatmapConfig(samples=50, lut_pitch_fraction=0.5),
+                           seed=3)
+    save_heatmap(coarse, tmp_path / 'coarse.npz')
+    loaded = load_heatmap(tmp_path / 'coarse.npz')
+    assert loaded.lut_pitch_m == pytest.approx(0.5 * loaded.grid.voxel_m)
+    region = search_region(loaded, panda, table_scene.objects,
+                           start_configuration(table_scene, panda), table_scene.goal)
+    assert region.lut_pitch_m == pytest.approx(0.01)
+    # a file written before the pitch was recorded reads at the documented default
+    old = dict(small_table_heatmap.meta, params={})
+    save_heatmap(dataclasses.replace(small_table_heatmap, meta=old), tmp_path / 'old.npz')
+    assert load_heatmap(tmp_path / 'old.npz').lut_pitch_m == pytest.approx(0.25 * 0.02)
+    bad = dict(small_table_heatmap.meta, params={'lut_pitch_fraction': 'a quarter'})
+    save_heatmap(dataclasses.replace(small_table_heatmap, meta=bad), tmp_path / 'bad.npz')
+    with pytest.raises(HeatmapError, match='lut_pitch_fraction'):
+        load_heatmap(tmp_path / 'bad.npz')

@@ -45,8 +45,31 @@ def test_interfaces_have_moveit_fields_and_codes():
     assert ErrorCodes.TIMED_OUT == -6 and ErrorCodes.NO_IK_SOLUTION == -31
     assert len(GoalRegion().position_tolerance) == 3
     assert hasattr(Obstacle(), 'covered_mass')
-    for srv in (Attack, Plan, GetInfo):
-        assert srv.Request() is not None and srv.Response() is not None
+    fields = {
+        Attack.Request: {'scene': 'sequence<advocc_msgs/CollisionObject>',
+                         'cloud': 'sensor_msgs/PointCloud2', 'cloud_resolution': 'double',
+                         'start_state': 'sensor_msgs/JointState',
+                         'goal_region': 'advocc_msgs/GoalRegion', 'budget': 'int32',
+                         'method': 'string', 'box_size': 'double', 'seed': 'int64',
+                         'goal_policy': 'string'},
+        Attack.Response: {'error_code': 'advocc_msgs/ErrorCodes', 'message': 'string',
+                          'obstacles': 'sequence<advocc_msgs/Obstacle>',
+                          'total_mass': 'double', 'compute_time_s': 'double',
+                          'goal_valid_fraction': 'double'},
+        Plan.Request: {'start_state': 'sensor_msgs/JointState',
+                       'goal_region': 'advocc_msgs/GoalRegion', 'planner_id': 'string',
+                       'time_budget_s': 'double', 'seed': 'int64'},
+        Plan.Response: {'error_code': 'advocc_msgs/ErrorCodes', 'message': 'string',
+                        'trajectory': 'trajectory_msgs/JointTrajectory',
+                        'planning_time_s': 'double'},
+        GetInfo.Response: {'success': 'boolean', 'message': 'string', 'info_json': 'string'},
+    }
+    for cls, expected in fields.items():
+        got = cls.get_fields_and_field_types()
+        assert {k: got.get(k) for k in expected} == expected, cls
+    assert GetInfo.Request.get_fields_and_field_types() == {}
+    request = Attack.Request()
+    assert (request.budget, request.method, request.box_size, request.seed) == (0, '', 0.0, 0)
 
 
 def test_service_round_trip_between_two_processes(ros_env):

@@ -5,6 +5,7 @@ and every goal configuration passes the wrist through it, so a box over the open
 task (goal configurations in collision) while most boxes of the search region do not.
 """
 
+import dataclasses
 import itertools
 import threading
 
@@ -199,3 +200,20 @@ def test_pfa_pp_queries_the_victim_with_the_goal_region(panda, bin_task, planner
     assert counting.calls == stats['queries'] <= 8
     assert len(res.obstacles) == 2 and len(res.masses) == 2
     _assert_constraints(res, panda, heatmap, scene.objects, q, scene.goal, CFG)
+
+
+def test_pfa_stops_when_the_planner_refuses_the_goal(panda, bin_task, planners):
+    """A refused query (here: a goal link the robot lacks) is a broken request, not a planner
+    failure the optimiser may count as an attack win; the benchmark stops on the same set."""
+    scene, heatmap = bin_task
+    q = start_configuration(scene, panda)
+
+    def wrong_link(q_init, obstacles, goal, planner_id, time_s, seed):
+        return planners(q_init, obstacles, dataclasses.replace(goal, link='no_such_link'),
+                        planner_id, time_s, seed)
+    wrong_link.workers = planners.workers
+    pcfg = PfaConfig(queries=4, queries_per_placement=2, query_time_s=0.5)
+    res = attack(heatmap, panda, scene.objects, q, scene.goal, 1, 'pfa++', CFG, seed=1,
+                 method_options=PfaOptions(wrong_link, pcfg))
+    assert res.status == AttackStatus.INVALID_REQUEST
+    assert 'PFA query refused' in res.message and 'no_such_link' in res.message

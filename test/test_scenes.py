@@ -74,7 +74,7 @@ def test_mbm_scene_objects_poses_and_start(panda):
     np.testing.assert_allclose(hi - lo, [0.3, 0.02, 0.4], atol=1e-9)
     ball = _shape(scene, 'ball')
     assert ball.kind == 'sphere' and ball.dims == pytest.approx((0.04,))
-    # start from robot_state, fingers included: they lock the fingers (SPEC §4b)
+    # start from robot_state, fingers included: they lock the fingers (docs/design.md)
     assert [scene.start[j] for j in panda.joint_names] == pytest.approx(READY)
     assert scene.start['panda_finger_joint1'] == pytest.approx(0.035)
     assert dict(scene.robot.locked) == pytest.approx({'panda_finger_joint1': 0.035,

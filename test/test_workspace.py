@@ -13,7 +13,7 @@ import time
 import pytest
 
 from conftest import REPO
-from test_attack_nodes import _call, _request, _stop, heatmap_file, ros  # noqa: F401
+from test_attack_nodes import _call, _request, _stop
 
 pytestmark = pytest.mark.slow  # one colcon build of both packages: ~1 min of C/C++ on 2 cores
 

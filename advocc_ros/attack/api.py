@@ -1,4 +1,4 @@
-"""Online phase: adversarial occupancy maximization (paper §IV-B, Algorithm 1; SPEC §3).
+"""Online phase: adversarial occupancy maximization (paper §IV-B, Algorithm 1; docs/design.md).
 
 Given a heatmap H, the scene E, the start ``q_init`` and a goal region G, place at most M
 axis-aligned boxes of edge s that cover as much heatmap mass as possible.
@@ -10,18 +10,20 @@ centres, ``U(c)`` = voxels whose centres lie in the closed box):
   goal-region centre; ``H(c) > 0``; ``c`` in V_free (V_free of the file AND not inside the
   current scene: robot-only heatmaps need this, scene-conditioned ones get it for free);
 - the box fits: no occupied (non-free) voxel centre inside the box, i.e. ``U(c)`` is in V_free;
-- clearance ``d_safe`` from the robot body at ``q_init``, from G's position box, and from the
-  hand (every link on the end-effector's joint) at one goal configuration found by a
-  deterministic damped-least-squares IK from ``q_init`` to the goal centre (skipped, and
-  reported, when the IK does not converge). Protecting the hand at the goal, not the whole arm,
-  keeps the goal itself reachable (no trivial infeasibility) while the approach stays open to
-  attack.
+- clearance ``d_safe`` from the robot body at ``q_init`` and from G's position box (the
+  paper's C3). With ``AttackConfig.protect_goal_hand`` (off by default), also from the hand
+  (every link on the end-effector's joint) at one goal configuration found by a deterministic
+  damped-least-squares IK from ``q_init`` to the goal centre (skipped, and reported as
+  ``stats['goal_ik']``, when the IK does not converge). By default nothing keeps a goal pose
+  free: boxes may block every goal configuration, which ``goal_valid_fraction`` reports and
+  the goal policy ``reachable`` prevents.
 
 The voxel tests use an exact lattice "box distance transform" (distance from each candidate's
 box to the nearest protected voxel centre), which can only over-estimate true clearances, so
 it never drops a valid candidate; every box a method picks is then checked exactly with coal
 (scene: no contact; robot at ``q_init``, goal box, hand at goal: distance >= d_safe) and a
-failing candidate is discarded and the method picks again ("lazy" verification).
+failing candidate is discarded and the method picks again ("lazy" verification). What the
+greedy then guarantees is stated and proved in ``docs/greedy.md``.
 
 Greedy: box sums of the uncovered mass by separable shift-adds over a window around the
 corridor; after each pick only the sums within 2k voxels of it change and are recomputed
@@ -36,11 +38,12 @@ from typing import Any
 
 import numpy as np
 
-from advocc_ros.attack.goals import POLICIES, GoalGuard, goal_samples
+from advocc_ros.attack.goals import GoalGuard, goal_samples
 from advocc_ros.attack.solvable import WitnessGuard, assess, witness_bodies
 from advocc_ros.attack.methods import CONTEXT_METHODS, METHODS, MethodContext, load_method
 from advocc_ros.attack.region import search_region
-from advocc_ros.attack.types import AttackConfig, AttackError, AttackResult, AttackStatus
+from advocc_ros.attack.types import (DEFAULT_METHOD, POLICIES, AttackConfig, AttackError,
+                                     AttackResult, AttackStatus)
 from advocc_ros.heatmap import Heatmap, link_tables
 from advocc_ros.model.collision import shared_world
 from advocc_ros.model.robot import RobotError, RobotModel
@@ -92,7 +95,7 @@ def validate_request(heatmap: Heatmap, robot: RobotModel, objects: tuple[SceneOb
 
 
 def attack(heatmap: Heatmap, robot: RobotModel, objects: tuple[SceneObject, ...] | list,
-           q_init: np.ndarray, goal: GoalRegion, budget: int, method: str = 'ours',
+           q_init: np.ndarray, goal: GoalRegion, budget: int, method: str = DEFAULT_METHOD,
            cfg: AttackConfig = AttackConfig(), box_size_m: float | None = None,
            seed: int = 0, method_options: Any = None, goal_policy: str | None = None,
            certify: bool = True) -> AttackResult:
@@ -102,7 +105,7 @@ def attack(heatmap: Heatmap, robot: RobotModel, objects: tuple[SceneObject, ...]
     ``goal_policy``: ``paper``, ``reachable`` or ``solvable`` (None or '': ``cfg.goal_policy``);
     ``certify``: also say whether the task keeps a solution (``result.solvable``; finds the
     task's witness once, see ``attack.solvable``)."""
-    link_tables(robot, heatmap.grid.voxel_m / 4)  # model loading (~1 s once), not attack time
+    link_tables(robot, heatmap.lut_pitch_m)  # model loading (~1 s once), not attack time
     t0 = time.perf_counter()
     s = cfg.box_size_m if box_size_m is None or box_size_m == 0 else float(box_size_m)
     policy = goal_policy or cfg.goal_policy
@@ -128,11 +131,12 @@ def attack(heatmap: Heatmap, robot: RobotModel, objects: tuple[SceneObject, ...]
             witness = _witness(robot, objects, q_init, goal, region.stats)
             t0 += region.stats['witness_search_ms'] / 1e3  # reported apart, not attack time
             region.guard = WitnessGuard(witness_bodies(robot, shared_world(robot), witness), s)
-            region.guard.prune(region, heatmap.grid.voxel_m / 4)
+            region.guard.prune(region, heatmap.lut_pitch_m)
         extra = {}
         if method in CONTEXT_METHODS:
             extra['context'] = MethodContext(robot, objects, q_init, goal, method_options)
-        picks, rejected = METHODS[method](region, int(budget), int(seed), cfg, **extra)
+        seed = int(seed) % 2 ** 64  # message seeds are int64 and may be < 0; numpy's are not
+        picks, rejected = METHODS[method](region, int(budget), seed, cfg, **extra)
     except AttackError as exc:
         return AttackResult(exc.status, str(exc), compute_s=time.perf_counter() - t0, **base)
     except (SceneError, RobotError) as exc:
@@ -158,6 +162,7 @@ def attack(heatmap: Heatmap, robot: RobotModel, objects: tuple[SceneObject, ...]
         np.array([o.shapes[0].pose.position_m for o in obstacles]), s)
     stats['goal_check_ms'] = round((time.perf_counter() - t1) * 1e3, 3)
     stats['goal_samples'] = len(samples.Q)
+    stats['goal_samples_time_cap_hit'] = samples.time_cap_hit
     solvable = None
     if certify:
         if witness is None:  # none found: the verdict says so (never raise after placing)

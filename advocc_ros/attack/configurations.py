@@ -73,7 +73,7 @@ def cover_matrix(robot: RobotModel, world: CollisionWorld, Q: np.ndarray,
     cand_id[tuple(cand.T)] = np.arange(len(cand))
     dense = np.zeros((len(Q), len(cand)), dtype=np.bool_)
     grid = region.grid
-    tables = link_tables(robot, grid.voxel_m / 4)
+    tables = link_tables(robot, region.lut_pitch_m)
     R, t = placement_arrays(world, Q) if placements is None else placements
     origin = np.asarray(grid.origin_m) + np.asarray(region.lo) * grid.voxel_m
     k = max(region.k - shrink, 0)

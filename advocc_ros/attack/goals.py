@@ -5,7 +5,7 @@ that are valid without the boxes, the fraction still valid with them (coal, exac
 how a planner will fail: at 0 every goal pose is blocked (the planner reports
 GOAL_IN_COLLISION); above 0 the boxes must occlude the paths.
 
-Goal policies (SPEC §3b):
+Goal policies (docs/design.md):
 
 - ``paper``: the paper's C3 only (d_safe from the robot at q_init and from G's position box);
   boxes may block every goal pose;
@@ -27,7 +27,6 @@ import threading
 import coal
 import numpy as np
 
-from advocc_ros.attack.types import POLICIES  # noqa: F401 (re-exported)
 from advocc_ros.model.collision import CollisionWorld
 from advocc_ros.model.ik import goal_set
 from advocc_ros.model.robot import RobotModel
@@ -46,8 +45,10 @@ _CACHE_LOCK = threading.Lock()
 class GoalSamples:
     """A fixed set of valid goal configurations and exact box checks against their bodies."""
 
-    def __init__(self, world: CollisionWorld, Q: np.ndarray):
+    def __init__(self, world: CollisionWorld, Q: np.ndarray, time_cap_hit: bool = False):
         self.Q = Q
+        self.time_cap_hit = time_cap_hit
+        """Whether ``goal_set``'s safety cap cut the sampling short (then machine-dependent)."""
         self.links = [g.geometry for g in world.geom_model.geometryObjects[:world.n_links]]
         self.tfs, centres, radii = [], [], []
         for q in Q:
@@ -120,8 +121,10 @@ def goal_samples(robot: RobotModel, objects: tuple[SceneObject, ...], goal: Goal
             _CACHE.move_to_end(key)
             return _CACHE[key]
     world = world or CollisionWorld(robot, [sh for o in objects for sh in o.shapes])
-    Q = goal_set(robot, world.collisions_batch, world.in_collision, goal, n, VALIDATION_SEED)
-    samples = GoalSamples(world, Q)
+    sampling: dict = {}
+    Q = goal_set(robot, world.collisions_batch, world.in_collision, goal, n, VALIDATION_SEED,
+                 stats=sampling)
+    samples = GoalSamples(world, Q, sampling['goal_time_cap_hit'])
     with _CACHE_LOCK:
         samples = _CACHE.setdefault(key, samples)
         _CACHE.move_to_end(key)
@@ -155,5 +158,5 @@ class GoalGuard:
         return True
 
 
-__all__ = ['GoalGuard', 'GoalSamples', 'POLICIES', 'VALIDATION_SAMPLES', 'clear_cache',
+__all__ = ['GoalGuard', 'GoalSamples', 'VALIDATION_SAMPLES', 'clear_cache',
            'goal_samples']

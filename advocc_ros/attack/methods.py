@@ -78,6 +78,8 @@ REGISTRY: dict[str, MethodSpec] = {
 A new method adds one line here and calls :func:`register_method` in its module."""
 
 KNOWN_METHODS = tuple(REGISTRY)
+SERVER_METHODS = tuple(name for name, spec in REGISTRY.items() if not spec.queries_planner)
+"""Methods a heatmap server runs on its own (no planner queries): the attacker node's choices."""
 
 METHODS: dict[str, Selector] = {}
 """Selectors of the methods whose module is loaded (see :func:`load_method`)."""

@@ -1,4 +1,4 @@
-"""Planner-in-the-loop baselines PFA and PFA++ (paper §V-A "Baselines", SPEC §4).
+"""Planner-in-the-loop baselines PFA and PFA++ (paper §V-A "Baselines"; docs/design.md).
 
 PFA (Wu et al., ICRA 2024) optimises where to put M obstacles by querying a motion planner and
 keeping the placements that make it fail. Their text is not available here, so this module
@@ -83,7 +83,7 @@ from advocc_ros.attack.region import SearchRegion
 from advocc_ros.attack.types import AttackConfig, AttackError, AttackStatus
 from advocc_ros.limits import MAX_PLANNER_QUERIES
 from advocc_ros.model.scene import GoalRegion, SceneObject, make_box
-from advocc_ros.planning import PlanResult, planner_class_name
+from advocc_ros.planning import REQUEST_ERRORS, PlanResult, planner_class_name
 
 log = logging.getLogger(__name__)
 
@@ -380,8 +380,7 @@ class _PlannerObjective:
         self.used += len(jobs)
         results = [f.result() for f in jobs]
         for r in results:
-            if r.status.name in ('INVALID_REQUEST', 'UNKNOWN_METHOD', 'INVALID_ROBOT_STATE',
-                                 'START_STATE_IN_COLLISION'):
+            if r.status in REQUEST_ERRORS:
                 raise AttackError(AttackStatus.INVALID_REQUEST, f'PFA query refused: {r.message}')
         return [results[i * K:(i + 1) * K] for i in range(len(obstacle_sets))]
 

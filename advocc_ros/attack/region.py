@@ -31,15 +31,15 @@ _CONTACT_TOL_M = 1e-6
 # The task-level search region
 
 def robot_occupancy(robot: RobotModel, placements: list[pin.SE3], grid: VoxelGrid,
-                    lo: np.ndarray, hi: np.ndarray, links: list[int] | None = None
-                    ) -> np.ndarray:
+                    lo: np.ndarray, hi: np.ndarray, lut_pitch_m: float,
+                    links: list[int] | None = None) -> np.ndarray:
     """bool mask of the window ``[lo, hi)`` of ``grid``: voxel centres inside the robot's
     link solids at ``placements`` (``T_base_geom`` per collision geometry), rasterized with
-    the heatmap's link tables."""
+    the heatmap's link tables (``Heatmap.lut_pitch_m``)."""
     R = np.array([T.rotation for T in placements])
     t = np.array([T.translation for T in placements])
     origin = np.asarray(grid.origin_m) + np.asarray(lo) * grid.voxel_m
-    return link_tables(robot, grid.voxel_m / 4).rasterize(
+    return link_tables(robot, lut_pitch_m).rasterize(
         np.zeros(tuple(hi - lo), dtype=bool), origin, grid.voxel_m, R, t, links)
 
 
@@ -61,6 +61,8 @@ class SearchRegion:
     checks: list[tuple[coal.CollisionGeometry, coal.Transform3s, float, str]]
     """Exact tests: (geometry, placement, minimum distance [m], what) a box must keep."""
     stats: dict
+    lut_pitch_m: float
+    """Pitch of the heatmap's link look-up tables [m]: rasterize the robot as the build did."""
     guard: Any = None
     """The goal policy's guard (set by ``attack``): ``GoalGuard`` (``reachable``, commits the
     boxes it accepts) or ``WitnessGuard`` (``solvable``); ``admit(center_m)`` and ``reason``."""
@@ -147,7 +149,7 @@ def search_region(heatmap: Heatmap, robot: RobotModel, objects: tuple[SceneObjec
         empty = np.zeros((0, 0, 0))
         stats['candidates'] = 0
         return SearchRegion(grid, lo, lo, empty, empty.astype(bool), k, s, cfg.d_min_m, [],
-                            stats)
+                            stats, heatmap.lut_pitch_m)
     win = tuple(slice(lo[a], hi[a]) for a in range(3))
     sub = VoxelGrid(tuple(grid.centers(lo) - grid.voxel_m / 2), grid.voxel_m, tuple(hi - lo))
 
@@ -167,7 +169,7 @@ def search_region(heatmap: Heatmap, robot: RobotModel, objects: tuple[SceneObjec
     # Clearance from the robot at q_init (+ the hand at a goal configuration).
     world = shared_world(robot)
     placements = [pin.SE3(T) for T in world.link_placements(q_init)]
-    protected = robot_occupancy(robot, placements, grid, lo, hi)
+    protected = robot_occupancy(robot, placements, grid, lo, hi, heatmap.lut_pitch_m)
     checks = [(g.geometry, _tf(T), cfg.d_safe_m, f'robot link {g.name} at q_init')
               for g, T in zip(world.geom_model.geometryObjects[:world.n_links], placements)]
     q_goal = goal_configuration(robot, goal, q_init) if cfg.protect_goal_hand else None
@@ -177,12 +179,13 @@ def search_region(heatmap: Heatmap, robot: RobotModel, objects: tuple[SceneObjec
         hand = [i for i, g in enumerate(world.geom_model.geometryObjects[:world.n_links])
                 if g.parentJoint == joint]
         goal_placements = [pin.SE3(T) for T in world.link_placements(q_goal)]
-        protected |= robot_occupancy(robot, goal_placements, grid, lo, hi, hand)
+        protected |= robot_occupancy(robot, goal_placements, grid, lo, hi,
+                                     heatmap.lut_pitch_m, hand)
         checks += [(world.geom_model.geometryObjects[i].geometry, _tf(goal_placements[i]),
                     cfg.d_safe_m, f'hand {world.geom_model.geometryObjects[i].name} at goal')
                    for i in hand]
         stats['q_goal'] = np.round(q_goal, 4).tolist()
-    else:
+    elif cfg.protect_goal_hand:
         log.info('goal IK did not converge: only the goal box is kept clear')
     if cfg.d_safe_m > 0:
         cand[crop] &= box_distance(protected, grid.voxel_m, half, cfg.d_safe_m, crop) \
@@ -204,7 +207,8 @@ def search_region(heatmap: Heatmap, robot: RobotModel, objects: tuple[SceneObjec
     checks += [(coal_geometry(sh), _tf(sh.pose.to_se3()), _CONTACT_TOL_M,
                 f'scene object {o.id}') for o in objects for sh in o.shapes]
     stats['candidates'] = int(cand.sum())
-    return SearchRegion(grid, lo, hi, weights, cand, k, s, cfg.d_min_m, checks, stats)
+    return SearchRegion(grid, lo, hi, weights, cand, k, s, cfg.d_min_m, checks, stats,
+                        heatmap.lut_pitch_m)
 
 
 def _near_box(grid: VoxelGrid, T_c: pin.SE3, half_m: np.ndarray, within_m: float

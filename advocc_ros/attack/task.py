@@ -1,4 +1,5 @@
-"""Method ``task``: task-conditioned coverage (SPEC §3b), the attack that makes planners fail.
+"""Method ``task``: task-conditioned coverage (docs/design.md), the attack that makes planners
+fail.
 
 The paper's objective (``ours``) covers heatmap *voxel* mass; H peaks where every
 configuration's base and upper arm pass, so its boxes land beside the shoulder, where no plan
@@ -12,8 +13,8 @@ by the paper's w(q):
   from ``q_init`` to each goal solution (the straight segment, and ``detours`` paths through a
   perturbed midpoint). The first half lies near q_init, where C3 forbids boxes anyway.
 
-Objective, lexicographic through its weights (still one weighted coverage, so submodular, and
-the greedy keeps its (1 - 1/e) guarantee):
+Objective, lexicographic through its weights (still one weighted coverage, monotone and
+submodular, so the greedy's guarantees of ``docs/greedy.md`` apply to the weighted objective):
 1. goal configurations (every plan ends in Q_G; an approach matters only while its goals are
    open);
 2. goal configurations whose body reaches one voxel deep into the box: among boxes that cover
@@ -44,7 +45,7 @@ from advocc_ros.attack.solvable import WitnessGuard
 from advocc_ros.attack.types import AttackConfig
 from advocc_ros.heatmap import HeatmapConfig, placement_arrays, sample_weights
 from advocc_ros.model.collision import CollisionWorld, shared_world
-from advocc_ros.model.ik import goal_set
+from advocc_ros.model.ik import GOAL_SET_CAP_S, goal_set
 
 
 @dataclasses.dataclass(frozen=True)
@@ -59,8 +60,10 @@ class TaskOptions:
     """Approach paths per goal through a perturbed midpoint, besides the straight one."""
     detour_rad: float = 0.4
     """Standard deviation of the midpoint perturbation per joint [rad]."""
-    sampling_time_s: float = 1.0
-    """Cap on goal IK sampling time [s]."""
+    sampling_cap_s: float = GOAL_SET_CAP_S
+    """Safety cap on goal IK sampling time [s]; iteration budgets decide the samples, so a
+    seed gives the same boxes on a loaded machine (``task_goal_time_cap_hit`` says when the cap
+    cut sampling short)."""
     tube_samples: int = 256
     """Under the ``solvable`` policy: configurations drawn around the witness path and covered
     like approaches, so the boxes close the alternatives and leave a narrow passage."""
@@ -71,10 +74,10 @@ class TaskOptions:
         if self.goal_samples < 1 or self.approach_points < 0 or self.detours < 0:
             raise ValueError('task options: goal_samples >= 1, approach_points and detours '
                              '>= 0')
-        if not (self.detour_rad >= 0 and self.sampling_time_s > 0 and self.tube_rad >= 0
+        if not (self.detour_rad >= 0 and self.sampling_cap_s > 0 and self.tube_rad >= 0
                 and self.tube_samples >= 0):
             raise ValueError('task options: detour_rad, tube_rad, tube_samples >= 0 and '
-                             'sampling_time_s > 0')
+                             'sampling_cap_s > 0')
 
 
 THREADS = 2
@@ -93,7 +96,7 @@ def approach_samples(world: CollisionWorld, q_init: np.ndarray, Q_goal: np.ndarr
     starts = [np.broadcast_to(q_init, Q_goal.shape)]
     for _ in range(detours):
         mid = q_init + 0.5 * (Q_goal - q_init) + rng.normal(0.0, detour_rad, Q_goal.shape)
-        starts.append(2 * mid - q_init)  # the path's t = 0.5 is the midpoint
+        starts.append(2 * mid - Q_goal)  # the path's t = 0.5 is the midpoint
     Q = np.concatenate([(q0[:, None] + t * (Q_goal - q0)[:, None]).reshape(-1, nq)
                         for q0 in starts])
     Q = Q[np.all((Q >= world.robot.lower) & (Q <= world.robot.upper), axis=1)]
@@ -110,6 +113,24 @@ def tube_samples(world: CollisionWorld, states: np.ndarray, n: int, sigma_rad: f
     Q = base + rng.normal(0.0, sigma_rad, base.shape)
     Q = Q[np.all((Q >= world.robot.lower) & (Q <= world.robot.upper), axis=1)]
     return Q[~world.collisions_batch(Q, THREADS)] if len(Q) else Q
+
+
+WEIGHT_FLOOR = 1e-3
+"""Smallest goal weight w(q) the lexicographic scaling is exact for (see
+:func:`lexicographic_weights`)."""
+
+
+def lexicographic_weights(w_goal: np.ndarray, w_app: np.ndarray) -> np.ndarray:
+    """Weights of the three tiers (goal, deep goal, approach rows), scaled so that one goal
+    configuration outweighs every deep and approach row together, and one deep row every
+    approach row: the greedy then ranks candidates tier by tier. Exact when every goal weight is
+    at least :data:`WEIGHT_FLOOR`; below it the scale is capped (larger factors would round the
+    lower tiers out of the scores), and a tier-2 row of such a tiny weight may weigh less than
+    the approaches."""
+    unit = 1.0 / max(float(w_goal.min(initial=1.0)), WEIGHT_FLOOR)
+    w_deep = w_goal * (1.0 + w_app.sum()) * unit
+    scaled_goal = w_goal * (2.0 + w_app.sum() + w_deep.sum()) * unit
+    return np.concatenate([scaled_goal, w_deep, w_app])
 
 
 def _goal_filter(guard: GoalGuard, sample_cover: sparse.csr_matrix):
@@ -130,8 +151,9 @@ def _select_task(region: SearchRegion, budget: int, seed: int, cfg: AttackConfig
     robot = context.robot
     t0 = time.perf_counter()
     world = shared_world(robot, [sh for o in context.objects for sh in o.shapes])
+    sampling: dict = {}
     Q_goal = goal_set(robot, world.collisions_batch, world.in_collision, context.goal,
-                      opts.goal_samples, seed, opts.sampling_time_s)
+                      opts.goal_samples, seed, opts.sampling_cap_s, stats=sampling)
     rng = np.random.default_rng(seed)
     Q_app = approach_samples(world, context.q_init, Q_goal, opts.approach_points, opts.detours,
                              opts.detour_rad, rng)
@@ -151,11 +173,8 @@ def _select_task(region: SearchRegion, budget: int, seed: int, cfg: AttackConfig
         deep = cover_matrix(robot, world, Q_goal, region, shrink=1,
                             placements=(R[:n_goal], t[:n_goal]))
         w_app = w[n_goal:]
-        unit = 1.0 / max(float(w[:n_goal].min(initial=1.0)), 1e-3)
-        w_deep = w[:n_goal] * (1.0 + w_app.sum()) * unit
-        w_goal = w[:n_goal] * (2.0 + w_app.sum() + w_deep.sum()) * unit
         cover = sparse.vstack([cover[:n_goal], deep, cover[n_goal:]], format='csr')
-        weights = np.concatenate([w_goal, w_deep, w_app])
+        weights = lexicographic_weights(w[:n_goal], w_app)
         w = np.concatenate([w[:n_goal], np.zeros(n_goal), w_app])  # reported mass: once each
     else:  # reachable: approaches only, and skip picks that would block too many goals
         weights = w.copy()
@@ -182,6 +201,7 @@ def _select_task(region: SearchRegion, budget: int, seed: int, cfg: AttackConfig
         'task_goal_samples': n_goal, 'task_approach_samples': len(Q_app),
         'task_goal_covered': int(covered[:n_goal].sum()),
         'task_approach_covered': int(covered[cover.shape[0] - len(Q_app):].sum()),
+        'task_goal_time_cap_hit': sampling['goal_time_cap_hit'],
         'task_sampling_ms': round((t_sample - t0) * 1e3, 1),
         'task_cover_ms': round((t_cover - t_sample) * 1e3, 1)})
     if len(picks) < budget and len(picks) and not rejected > cfg.max_rejections:
@@ -193,4 +213,4 @@ def _select_task(region: SearchRegion, budget: int, seed: int, cfg: AttackConfig
 
 register_method('task', _select_task)
 
-__all__ = ['TaskOptions', 'approach_samples']
+__all__ = ['TaskOptions', 'WEIGHT_FLOOR', 'approach_samples', 'lexicographic_weights']

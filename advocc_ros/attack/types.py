@@ -13,11 +13,13 @@ from advocc_ros.model.scene import SceneObject, objects_to_data
 
 POLICIES = ('paper', 'reachable', 'solvable')
 """Goal policies (``advocc_ros.attack.goals``): the one list of their names."""
+DEFAULT_METHOD = 'ours'
+"""The attack method of a request that names none: the paper's."""
 
 
 @dataclasses.dataclass(frozen=True)
 class AttackConfig:
-    """Online parameters; defaults from the paper (§V-A) and SPEC §3."""
+    """Online parameters; defaults from the paper (§V-A) and docs/design.md."""
 
     box_size_m: float = 0.05
     """s: edge of every adversarial box [m]."""

@@ -1,4 +1,4 @@
-"""Benchmark bookkeeping (paper §V, SPEC §4/§7): protocol, run plan, records, tables. No ROS.
+"""Benchmark bookkeeping (paper §V; docs/metrics.md): protocol, run plan, records, tables. No ROS.
 
 The orchestrator (``advocc_ros.orchestrator``) drives real nodes; everything it needs to decide
 *what* to run and to turn results into the paper's tables lives here, so it can be tested on
@@ -19,7 +19,7 @@ hand-made records:
 
 from advocc_ros.bench.protocol import (AttackSpec, BASELINE, BenchConfig, BenchError,
                                        IDENTITY_FIELDS, MAX_BUDGET, METHOD_LABELS, PLANNER_LABELS,
-                                       THRESHOLDS, Trial, Unit, load_profile, plan_units,
+                                       Trial, Unit, load_profile, plan_units,
                                        scene_label, trial_key, variation_scenes)
 from advocc_ros.bench.records import RecordStore, check_run_config, progress_summary, run_lock
 from advocc_ros.bench.tables import baseline_table, cell_rows, table1, table2, table4
@@ -27,7 +27,7 @@ from advocc_ros.bench.report import write_report
 
 __all__ = [
     'AttackSpec', 'BASELINE', 'BenchConfig', 'BenchError', 'IDENTITY_FIELDS', 'MAX_BUDGET',
-    'METHOD_LABELS', 'PLANNER_LABELS', 'RecordStore', 'THRESHOLDS', 'Trial', 'Unit',
+    'METHOD_LABELS', 'PLANNER_LABELS', 'RecordStore', 'Trial', 'Unit',
     'baseline_table', 'cell_rows', 'check_run_config', 'load_profile',
     'plan_units', 'progress_summary', 'run_lock', 'scene_label', 'table1', 'table2', 'table4',
     'trial_key', 'variation_scenes', 'write_report']

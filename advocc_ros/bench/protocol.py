@@ -1,4 +1,4 @@
-"""The benchmark's protocol and run plan (paper §V, SPEC §4/§7); see ``advocc_ros.bench``.
+"""The benchmark's protocol and run plan (paper §V; docs/metrics.md); see ``advocc_ros.bench``.
 
 - ``BenchConfig``: one protocol (a profile of ``config/bench.yaml`` plus command-line overrides).
 - ``plan_units``: the run plan. A *unit* is one planning scene to inject (an attack, or none for
@@ -28,8 +28,6 @@ log = logging.getLogger(__name__)
 
 BASELINE = 'none'
 """Method name of the unattacked baseline (budget 0)."""
-THRESHOLDS = (80, 60, 40, 20, 0)
-"""Table II: PSR thresholds [%]."""
 METHOD_LABELS = {name: spec.label for name, spec in REGISTRY.items()} | {BASELINE: 'None'}
 PLANNER_LABELS = {'rrtconnect': 'RRT', 'prmstar': 'PRM*', 'bkpiece1': 'BKPIECE'}
 MAX_BUDGET = 90

@@ -8,9 +8,9 @@ import pathlib
 from typing import Iterable
 
 from advocc_ros.attack.methods import KNOWN_METHODS
-from advocc_ros.bench.protocol import (BASELINE, METHOD_LABELS, PLANNER_LABELS, THRESHOLDS,
+from advocc_ros.bench.protocol import (BASELINE, METHOD_LABELS, PLANNER_LABELS,
                                        BenchConfig, scene_label)
-from advocc_ros.evaluation.budgets import minimal_budgets
+from advocc_ros.evaluation.budgets import THRESHOLDS, minimal_budgets
 from advocc_ros.evaluation.hardness import PSR_TIMES_S, pt_ratio, time_key
 from advocc_ros.evaluation.metrics import aggregate
 from advocc_ros.evaluation.outcomes import FAILURE_MODES
@@ -130,12 +130,16 @@ def _csv_num(value: float | None) -> str:
     return 'N/A' if value is None else f'{value:.6g}'
 
 
-def _minimal(psr: dict[int, float], threshold_percent: float) -> int | None:
-    """Smallest measured budget whose PSR is <= the threshold (``minimal_budgets``, the audit's
-    prefix rule, over the measured budgets); None if none reaches it."""
+def _minimal(psr: dict[int, float], threshold: float) -> int | None:
+    """Smallest measured budget whose PSR (a fraction) is <= ``threshold`` (a fraction;
+    ``minimal_budgets``, the audit's prefix rule, over the measured budgets); None if none
+    reaches it."""
     curve = [psr.get(m) for m in range(max(psr) + 1)] if psr else []
-    return minimal_budgets({'p': curve}, (threshold_percent / 100,))[
-        str(threshold_percent / 100)]['p']
+    return minimal_budgets({'p': curve}, (threshold,))[str(threshold)]['p']
+
+
+def _percent(threshold: float) -> str:
+    return f'{threshold * 100:.0f}'
 
 
 def table2(rows: dict[tuple, dict], cfg: BenchConfig,
@@ -149,12 +153,12 @@ def table2(rows: dict[tuple, dict], cfg: BenchConfig,
     Greedy picks are nested, so budgets 1..K of one seed are the prefixes of one attack.
     """
     md = ['| Scene | Planner | Method | Budgets | Tasks | '
-          + ' | '.join(f'{t}%' for t in THRESHOLDS) + ' |',
+          + ' | '.join(f'{_percent(t)}%' for t in THRESHOLDS) + ' |',
           '|' + '---|' * (5 + len(THRESHOLDS))]
     out = io.StringIO()
     writer = csv.writer(out, lineterminator='\n')
     writer.writerow(['scene', 'planner', 'method', 'budgets', 'tasks', 'max_budget',
-                     *[f'psr_le_{t}' for t in THRESHOLDS]])
+                     *[f'psr_le_{_percent(t)}' for t in THRESHOLDS]])
     for scene in cfg.scenes:
         members = [scene, *(families or {}).get(scene, [])]
         for planner in cfg.planners:

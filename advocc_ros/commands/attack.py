@@ -8,7 +8,7 @@ import sys
 
 from advocc_ros.attack import (KNOWN_METHODS, AttackConfig, AttackStatus, attack, load_method,
                                obstacles_data, save_obstacles)
-from advocc_ros.attack.types import POLICIES
+from advocc_ros.attack.types import DEFAULT_METHOD, POLICIES
 from advocc_ros.cli import UserError
 from advocc_ros.commands.common import add_bag_arg, check_bag_arg
 from advocc_ros.heatmap import HeatmapError, load_heatmap
@@ -27,7 +27,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                    'with start and goal')
     p.add_argument('--budget', type=int, required=True, help='M, number of boxes')
     # pfa / pfa++ are planner-in-the-loop baselines provided by advocc_ros.attack.pfa when present.
-    p.add_argument('--method', default='ours', choices=KNOWN_METHODS,
+    p.add_argument('--method', default=DEFAULT_METHOD, choices=KNOWN_METHODS,
                    help='task: coverage of the task\'s goal and approach configurations (makes '
                    'planners fail); ours: the paper\'s heatmap coverage (default)')
     p.add_argument('--policy', default=defaults.goal_policy, choices=POLICIES,

@@ -27,7 +27,7 @@ HEATMAP_SAMPLES = 15000
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    from advocc_ros.attack.goals import POLICIES
+    from advocc_ros.attack.types import POLICIES
     from advocc_ros.attack.methods import KNOWN_METHODS
 
     p = sub.add_parser('audit', help='how few boxes make each planner fail this task',

@@ -9,6 +9,8 @@ import time
 
 from advocc_ros.cli import UserError
 from advocc_ros.commands.common import add_scene_args, scene_from_args
+from advocc_ros.attack.methods import SERVER_METHODS
+from advocc_ros.attack.types import DEFAULT_METHOD
 from advocc_ros.model.scene import SceneError
 
 
@@ -19,7 +21,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p = csub.add_parser('attack', help='heatmap_server ~/attack for a scene\'s task')
     add_scene_args(p)
     p.add_argument('--budget', type=int, required=True, help='M, number of boxes')
-    p.add_argument('--method', default='ours', help='ours | random | pfa | pfa++')
+    p.add_argument('--method', default=DEFAULT_METHOD, choices=SERVER_METHODS,
+                   help='attack method (default %(default)s)')
     p.add_argument('--size', type=float, default=0.0, help='box edge [m]; 0: server default')
     p.add_argument('--seed', type=int, default=0)
     p.add_argument('--server', default='/heatmap_server', help='node name (default %(default)s)')

@@ -26,7 +26,7 @@ from advocc_ros.commands.common import add_scene_args, scene_from_args
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    from advocc_ros.attack.goals import POLICIES
+    from advocc_ros.attack.types import POLICIES
 
     parser = sub.add_parser('demo', help='heatmap, attack and evaluation on the default scene')
     add_scene_args(parser, required=False)

@@ -14,7 +14,7 @@ import time
 
 import numpy as np
 
-from advocc_ros.attack.types import POLICIES
+from advocc_ros.attack.types import DEFAULT_METHOD, POLICIES
 from advocc_ros.cli import UserError
 from advocc_ros.commands.common import add_scene_args
 from advocc_ros.ros.spawn import start_node, stop
@@ -31,7 +31,7 @@ def register_attack(sub: argparse._SubParsersAction) -> None:
     p.add_argument('--samples', type=int, default=3000,
                    help='samples of the heatmap built when --heatmap is not given')
     p.add_argument('--budgets', default='1,3,5', help='comma-separated budgets')
-    p.add_argument('--method', default='ours', help='attack method (default %(default)s)')
+    p.add_argument('--method', default=DEFAULT_METHOD, help='attack method (default %(default)s)')
     p.add_argument('--policy', default='paper', choices=POLICIES,
                    help='goal policy (default %(default)s)')
     p.add_argument('--repeats', type=int, default=30, help='core runs per budget')

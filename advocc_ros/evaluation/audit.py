@@ -1,4 +1,4 @@
-"""The audit: how few boxes make a planner fail one task, and where do they go.
+"""The audit: how few boxes make a planner fail one task, and where do they go (docs/design.md).
 
 It answers the honest question twice: how few boxes make the pick impossible (every goal
 configuration blocked, from a paper-policy attack), and how few make each planner fail while

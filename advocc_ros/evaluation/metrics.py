@@ -1,4 +1,4 @@
-"""The paper's victim metrics (§V, SPEC §4): PSR, SMR, CMR, JDS, PT, and their aggregation.
+"""The paper's victim metrics (§V; docs/metrics.md): PSR, SMR, CMR, JDS, PT, and their aggregation.
 
 Per trial (``TrialRecord``), on a successful trajectory ``path`` (N, nq) from ``q_init``:
 

@@ -1,4 +1,4 @@
-"""Offline phase: the kinematic occupancy heatmap H (paper §IV-A, SPEC §2).
+"""Offline phase: the kinematic occupancy heatmap H (paper §IV-A; docs/design.md).
 
 For ``samples`` valid configurations q (joint limits, no self collision per SRDF, no collision
 with the scene E), every free voxel whose centre lies inside one of the robot's link solids at q
@@ -30,7 +30,7 @@ from typing import Callable
 import numba
 import numpy as np
 
-from advocc_ros.heatmap.store import Heatmap
+from advocc_ros.heatmap.store import DEFAULT_LUT_PITCH_FRACTION, Heatmap
 from advocc_ros.model.collision import CollisionWorld
 from advocc_ros.model.robot import RobotModel, load_robot
 from advocc_ros.model.scene import Scene
@@ -44,7 +44,7 @@ _GRID_SEED = 20240521  # fixed: the grid depends on robot, voxel and margin only
 
 @dataclasses.dataclass(frozen=True)
 class HeatmapConfig:
-    """Offline parameters, defaults from the paper (§V-A) and SPEC §2."""
+    """Offline parameters, defaults from the paper (§V-A) and docs/design.md."""
 
     samples: int = 15_000
     """N_off: number of *valid* configurations."""
@@ -60,7 +60,7 @@ class HeatmapConfig:
     """Padding around the robot's swept-volume bounding box [m]."""
     robot_only: bool = False
     """Ignore the scene offline (E empty); the online phase masks the current scene."""
-    lut_pitch_fraction: float = 0.25
+    lut_pitch_fraction: float = DEFAULT_LUT_PITCH_FRACTION
     """Link look-up-table pitch as a fraction of the voxel edge."""
 
     def __post_init__(self):

@@ -3,7 +3,10 @@
 File format (``.npz``, no pickle): ``format_version``, ``origin_m``, ``voxel_m``, ``shape``,
 ``values`` (float64 H), ``free`` (bool V_free) and ``meta_json`` (UTF-8 JSON: robot and scene
 hashes, parameters, seed(s), sample counts, build time). Shards built with different seeds over
-the same robot, scene and grid merge by summing.
+the same robot, scene and grid merge by summing. ``params.lut_pitch_fraction`` is the pitch of
+the link look-up tables the build rasterized with, as a fraction of the voxel edge; the attack
+rasterizes with the same tables. Files without it were built at
+:data:`DEFAULT_LUT_PITCH_FRACTION`. The full description is in ``docs/formats.md``.
 """
 
 from __future__ import annotations
@@ -24,6 +27,8 @@ from advocc_ros.limits import MAX_HEATMAP_BYTES, MAX_HEATMAP_VOXELS
 from advocc_ros.model.voxels import VoxelGrid
 
 FORMAT_VERSION = 1
+DEFAULT_LUT_PITCH_FRACTION = 0.25
+"""Link look-up-table pitch / voxel edge of builds that do not record it (all builds used it)."""
 
 
 class HeatmapError(ValueError):
@@ -40,6 +45,18 @@ class Heatmap:
     free: np.ndarray
     """(nx, ny, nz) bool V_free (voxels not inside scene objects at build time)."""
     meta: dict
+
+    @property
+    def lut_pitch_m(self) -> float:
+        """Pitch of the link look-up tables H was rasterized with [m]."""
+        params = self.meta.get('params')
+        fraction = (params.get('lut_pitch_fraction', DEFAULT_LUT_PITCH_FRACTION)
+                    if isinstance(params, dict) else DEFAULT_LUT_PITCH_FRACTION)
+        if isinstance(fraction, bool) or not isinstance(fraction, (int, float)) \
+                or not 0 < fraction <= 1:
+            raise HeatmapError(f'params.lut_pitch_fraction must be a number in (0, 1], got '
+                               f'{fraction!r}')
+        return self.grid.voxel_m * float(fraction)
 
     @property
     def robot_only(self) -> bool:
@@ -146,6 +163,10 @@ def load_heatmap(path: str | pathlib.Path, robot_hash: str | None = None) -> Hea
     if not isinstance(meta, dict):
         raise HeatmapError(f'{path}: metadata is not a mapping')
     heatmap = Heatmap(grid, values, free, meta)
+    try:
+        heatmap.lut_pitch_m
+    except HeatmapError as exc:
+        raise HeatmapError(f'{path}: {exc}') from None
     if robot_hash is not None:
         check_robot(heatmap, robot_hash, path)
     return heatmap

@@ -6,8 +6,9 @@ from advocc_ros.model.robot import (RobotError, RobotModel, RobotSpec, example_r
                                     load_robot, resolve_path)
 from advocc_ros.model.scene import (GoalRegion, Operation, Pose, SHAPES, Scene, SceneError,
                                     SceneObject, Shape, apply_operation, finite_array, load_scene,
-                                    make_box, make_mesh_shape, objects_from_data, objects_to_data,
-                                    read_yaml, save_yaml_atomic, scene_from_data)
+                                    make_box, objects_from_data, objects_to_data, read_yaml,
+                                    save_yaml_atomic, scene_from_data)
+from advocc_ros.model.shapes import make_mesh_shape
 from advocc_ros.model.mbm import (apply_request, is_mbm_scene, load_any_scene, load_mbm_scene,
                                   objects_from_planning_scene)
 from advocc_ros.model.mbm_fields import base_frame

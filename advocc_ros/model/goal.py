@@ -1,4 +1,4 @@
-"""Goal regions: a tolerance box around an end-effector pose (paper §III-A, SPEC §1)."""
+"""Goal regions: a tolerance box around an end-effector pose (paper §III-A; docs/design.md)."""
 
 from __future__ import annotations
 
@@ -19,7 +19,7 @@ def _rotation_error(R_center: np.ndarray, R: np.ndarray) -> np.ndarray:
 
 @dataclasses.dataclass(frozen=True)
 class GoalRegion:
-    """Tolerance box around an end-effector pose (paper §III-A, SPEC §1).
+    """Tolerance box around an end-effector pose (paper §III-A; docs/design.md).
 
     A pose ``T_base_tool`` is inside when its position, expressed in the centre's frame, lies in
     the box ``|p| <= position_tolerance_m`` and the rotation vector of ``R_center^T R`` lies
@@ -125,13 +125,6 @@ class GoalRegion:
         return bool(np.all(np.abs(p_err) <= np.asarray(self.position_tolerance_m) + slack)
                     and np.all(np.abs(r_err) <= np.asarray(self.orientation_tolerance_rad)
                                + slack))
-
-    def box_corners_m(self) -> np.ndarray:
-        """(8, 3) corners of the position box in the base frame."""
-        T_c = self.center.to_se3()
-        signs = np.array([[i, j, k] for i in (-1, 1) for j in (-1, 1) for k in (-1, 1)], float)
-        local = signs * np.asarray(self.position_tolerance_m)
-        return local @ T_c.rotation.T + T_c.translation
 
 
 __all__ = ['GoalRegion']

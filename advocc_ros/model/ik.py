@@ -1,7 +1,7 @@
 """Inverse kinematics to goal regions: one damped-least-squares solver and its two uses.
 
 - :func:`goal_configuration`: one deterministic solution from ``q_init`` to the goal centre
-  (the attack keeps the hand clear there);
+  (with ``AttackConfig.protect_goal_hand`` the attack keeps the hand clear there);
 - :class:`GoalSampler`: collision-free configurations anywhere in a goal region (the planners'
   goal set, scene checks), the region's seeds first (a request's joint goal);
 - :func:`goal_set`: many goal configurations fast (the ``task`` attack, goal checks).
@@ -200,7 +200,12 @@ class GoalSampler:
         return q if reached else None
 
     def sample(self, n: int, deadline: float) -> list[np.ndarray]:
-        """Up to ``n`` valid goal configurations found before ``deadline`` (monotonic time)."""
+        """Up to ``n`` valid goal configurations found before ``deadline`` (monotonic time).
+
+        The attempts follow ``self.rng`` alone, so a seeded sampler that finds its ``n`` before
+        the deadline returns the same configurations on any machine; only a sampling cut short
+        by the deadline (a plan's IK share of its time budget) depends on the machine's speed.
+        """
         out = []
         while len(out) < n and time.monotonic() < deadline:
             q = self.attempt()
@@ -209,10 +214,15 @@ class GoalSampler:
         return out
 
 
+GOAL_SET_CAP_S = 30.0
+"""Safety cap on :func:`goal_set`'s wall-clock time [s]; its iteration budgets decide the
+result (~0.1 s for 64 samples on the Panda), so the cap is hit only when something is wrong."""
+
+
 def goal_set(robot: RobotModel, collisions_batch: Callable[[np.ndarray], np.ndarray],
              in_collision: Callable[[np.ndarray], bool], goal: GoalRegion, n: int, seed: int,
-             time_s: float = 1.0, anchors: int = 6, walk_rad: float = 0.3,
-             walk_iterations: int = 12) -> np.ndarray:
+             cap_s: float = GOAL_SET_CAP_S, anchors: int = 6, walk_rad: float = 0.3,
+             walk_iterations: int = 12, stats: dict | None = None) -> np.ndarray:
     """Up to ``n`` collision-free configurations inside G, (k, nq), from ``seed``.
 
     A few IK solutions from random seeds (``anchors``: they find the distinct IK branches,
@@ -220,20 +230,33 @@ def goal_set(robot: RobotModel, collisions_batch: Callable[[np.ndarray], np.ndar
     joint and pull it back into G with at most ``walk_iterations`` DLS steps toward a random
     pose of G (~0.3 ms each, collisions checked in batches). This explores the self-motion
     manifold and the tolerances at a tenth of the cost of a random-seed IK per sample.
+
+    Iteration budgets (``40 * anchors`` IK attempts, ``20 * n`` walks) decide the result, so a
+    seed gives the same set on an idle and on a loaded machine. ``cap_s`` is only a safety
+    limit: when it cuts sampling short the result depends on the machine, which is logged as a
+    warning and reported as ``stats['goal_time_cap_hit']`` (``stats``, when given, also gets
+    the attempts and walks used).
     """
     rng = np.random.default_rng(seed)
     sampler = GoalSampler(robot, in_collision, goal, rng)
-    deadline = time.monotonic() + time_s
+    deadline = time.monotonic() + cap_s
+    capped = False
     found: list[np.ndarray] = []
     tries = 0
-    while len(found) < min(anchors, n) and time.monotonic() < deadline and tries < 40 * anchors:
+    while len(found) < min(anchors, n) and tries < 40 * anchors:
+        if time.monotonic() >= deadline:
+            capped = True
+            break
         tries += 1
         q = sampler.attempt()
         if q is not None:
             found.append(q)
     pending: list[np.ndarray] = []
     walks = 0
-    while found and len(found) < n and time.monotonic() < deadline and walks < 20 * n:
+    while found and len(found) < n and walks < 20 * n and not capped:
+        if time.monotonic() >= deadline:
+            capped = True
+            break
         walks += 1
         q = sampler.pull(found[int(rng.integers(len(found)))]
                          + rng.normal(0.0, walk_rad, robot.nq), walk_iterations)
@@ -243,6 +266,15 @@ def goal_set(robot: RobotModel, collisions_batch: Callable[[np.ndarray], np.ndar
             P = np.array(pending)
             found.extend(P[~collisions_batch(P)])
             pending = []
+    if pending:
+        P = np.array(pending)
+        found.extend(P[~collisions_batch(P)])
+    if capped:
+        log.warning('goal sampling stopped at its %.1f s safety cap after %d IK attempts and %d '
+                    'walks: %d of %d goal samples, not reproducible from the seed alone',
+                    cap_s, tries, walks, min(len(found), n), n)
+    if stats is not None:
+        stats.update(goal_ik_attempts=tries, goal_walks=walks, goal_time_cap_hit=capped)
     return np.array(found[:n]).reshape(-1, robot.nq)
 
 
@@ -254,5 +286,5 @@ def start_configuration(scene: Scene, robot: RobotModel) -> np.ndarray:
                               f'{scene.name}.start')
 
 
-__all__ = ['GoalSampler', 'IkConfig', 'dls_ik', 'goal_configuration', 'goal_set',
+__all__ = ['GOAL_SET_CAP_S', 'GoalSampler', 'IkConfig', 'dls_ik', 'goal_configuration', 'goal_set',
            'seed_configurations', 'start_configuration']

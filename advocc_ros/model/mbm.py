@@ -4,7 +4,8 @@ MotionBenchMaker (Chamzas et al., RA-L 2022) ships each problem as a scene file 
 ``PlanningScene`` dump, ``sceneNNNN.yaml``) and a request file (``requestNNNN.yaml``, read by
 ``mbm_request``) whose goal is a joint configuration or a pose constraint. The robot state of the
 task (the request's ``start_state``, else the scene's ``robot_state``) carries every joint: the
-ones outside the planning group (the Panda's fingers) lock the robot's (SPEC §4b).
+ones outside the planning group (the Panda's fingers) lock the robot's (docs/design.md, "The
+robot state that comes with a task").
 
 Accepted forms (both the robowflex/MotionBenchMaker flavour and the ROS-message flavour):
 - ``position: [x, y, z]`` or ``{x: .., y: .., z: ..}``; ``orientation: [x, y, z, w]`` or
@@ -34,8 +35,8 @@ from advocc_ros.model.mbm_fields import (ADD_OPERATIONS, WORLD_FRAMES, as_list, 
 from advocc_ros.model.mbm_request import (GoalTolerance, goal_region_at, load_request,
                                           parse_goal_tolerance)
 from advocc_ros.model.robot import RobotSpec, load_robot
-from advocc_ros.model.scene import (Pose, Scene, SceneError, SceneObject, Shape, make_mesh_shape,
-                                    read_yaml)
+from advocc_ros.model.scene import Pose, Scene, SceneError, SceneObject, Shape, read_yaml
+from advocc_ros.model.shapes import make_mesh_shape
 
 
 def is_mbm_scene(data: Any) -> bool:

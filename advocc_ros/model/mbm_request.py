@@ -1,7 +1,8 @@
 """MotionBenchMaker requests: MoveIt ``MotionPlanRequest`` YAML files (``requestNNNN.yaml``).
 
-What we use of a request: its ``start_state`` (every joint, fingers included: they lock the joints
-outside the planning group, SPEC §4b) and its first ``goal_constraints`` entry, which is either
+What we use of a request: its ``start_state`` (every joint, fingers included: they lock the
+joints outside the planning group, docs/design.md) and its first ``goal_constraints`` entry,
+which is either
 
 - a joint goal (``joint_constraints[]{joint_name, position, ...}`` covering every planned joint):
   the goal region is built around the goal configuration's end-effector pose with tolerances the

@@ -35,7 +35,6 @@ class RobotError(ValueError):
 
 def example_robot_data_share() -> pathlib.Path:
     """Directory that holds ``example-robot-data/robots`` (installed by the PyPI package)."""
-    import cmeel  # noqa: F401  (example-robot-data installs into cmeel's prefix)
     import site
 
     for base in site.getsitepackages():

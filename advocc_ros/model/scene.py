@@ -16,13 +16,12 @@ from typing import Any
 import numpy as np
 import yaml
 
-from advocc_ros.limits import (MAX_FILE_BYTES, MAX_MESH_TRIANGLES, MAX_MESH_VERTICES,  # noqa: F401
-                               MAX_OBJECTS, yaml_flow_depth, yaml_size)  # MAX_*: re-exported
+from advocc_ros.limits import MAX_FILE_BYTES, MAX_OBJECTS, yaml_flow_depth, yaml_size
 from advocc_ros.model.cloud import cloud_shape_from_data, cloud_to_data
-from advocc_ros.model.goal import GoalRegion  # noqa: F401 (re-exported)
+from advocc_ros.model.goal import GoalRegion
 from advocc_ros.model.robot import RobotSpec, with_state
-from advocc_ros.model.shapes import (SHAPES, Pose, SceneError, Shape,  # noqa: F401 (re-exported)
-                                     finite_array, make_mesh_shape, mesh_shape_from_data)
+from advocc_ros.model.shapes import (SHAPES, Pose, SceneError, Shape, finite_array,
+                                     mesh_shape_from_data)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -46,7 +45,7 @@ class Scene:
     objects: tuple[SceneObject, ...] = ()
     start: dict[str, float] | None = None
     """Start joint values by joint name (``None``: no start given). Values of joints outside the
-    planning group (fingers) lock those joints: ``robot`` is derived from them (SPEC §4b)."""
+    planning group (fingers) lock those joints: ``robot`` is derived from them (docs/design.md)."""
     goal: GoalRegion | None = None
     robot: RobotSpec = RobotSpec()
     name: str = 'scene'

@@ -14,7 +14,7 @@ import numpy as np
 import trimesh
 
 from advocc_ros.limits import MAX_FILE_BYTES, MAX_MESH_TRIANGLES, MAX_MESH_VERTICES
-from advocc_ros.model.pose import Pose, SceneError, finite_array  # noqa: F401 (re-exported)
+from advocc_ros.model.pose import Pose, SceneError, finite_array
 
 SHAPES = ('box', 'sphere', 'cylinder', 'mesh', 'cloud')
 

@@ -54,15 +54,6 @@ class VoxelGrid:
         """Integer index (..., 3) of the voxel containing each point (may be out of range)."""
         return np.floor((np.asarray(points_m) - self.origin_m) / self.voxel_m).astype(np.int64)
 
-    def in_bounds(self, index: np.ndarray) -> np.ndarray:
-        return np.all((index >= 0) & (index < np.asarray(self.shape)), axis=-1)
-
-    def all_centers(self) -> np.ndarray:
-        """Centres of every voxel, shape (*shape, 3)."""
-        axes = [self.origin_m[a] + (np.arange(self.shape[a]) + 0.5) * self.voxel_m
-                for a in range(3)]
-        return np.stack(np.meshgrid(*axes, indexing='ij'), axis=-1)
-
     def to_data(self) -> dict:
         return {'origin_m': list(self.origin_m), 'voxel_m': self.voxel_m,
                 'shape': list(self.shape)}
@@ -77,10 +68,6 @@ class SolidLUT:
     pitch_m: float
     filled: np.ndarray
     """(nx, ny, nz) bool."""
-    half_diagonal_m: float
-    """Radius of a sphere around ``center_m`` containing the solid."""
-    center_m: np.ndarray
-    """(3,) centre of the solid's bounding box, in its own frame."""
 
     @classmethod
     def from_mesh(cls, mesh: trimesh.Trimesh, pitch_m: float) -> 'SolidLUT':
@@ -106,7 +93,7 @@ class SolidLUT:
             # off.
             origin = np.asarray(vox.transform[:3, 3]) - 0.5 * pitch_m
             filled = np.asarray(vox.matrix, dtype=bool)
-        return cls(origin, pitch_m, filled, float(np.linalg.norm(hi - lo) / 2), (lo + hi) / 2)
+        return cls(origin, pitch_m, filled)
 
     def contains(self, points_local: np.ndarray) -> np.ndarray:
         idx = np.floor((points_local - self.origin_m) / self.pitch_m).astype(np.int64)

@@ -7,14 +7,16 @@ def run(node_class, name: str, args=None, startup_errors: tuple = (), threads: i
     """Spin one node the ros2/demos way and always shut down cleanly.
 
     An exception of ``startup_errors`` raised while constructing the node (a bad file or
-    parameter) is logged as ``cannot start: ...`` and gives exit code 1; Ctrl-C and an external
-    shutdown give 0. ``threads > 1`` spins a ``MultiThreadedExecutor`` (callbacks in reentrant
-    groups can then run while another one waits).
+    parameter), or a parameter override that its descriptor or on-set check refuses, is logged
+    as ``cannot start: ...`` and gives exit code 1; Ctrl-C and an external shutdown give 0.
+    ``threads > 1`` spins a ``MultiThreadedExecutor`` (callbacks in reentrant groups can then
+    run while another one waits).
     """
     from advocc_ros.ros.spawn import die_with_parent
 
     die_with_parent()  # before rclpy starts its threads
     import rclpy
+    from rclpy.exceptions import ParameterException
     from rclpy.executors import (ExternalShutdownException, MultiThreadedExecutor,
                                  SingleThreadedExecutor)
 
@@ -23,7 +25,7 @@ def run(node_class, name: str, args=None, startup_errors: tuple = (), threads: i
     try:
         try:
             node = node_class()
-        except startup_errors as exc:
+        except (ParameterException, *startup_errors) as exc:
             rclpy.logging.get_logger(name).fatal(f'cannot start: {exc}')
             return 1
         executor = MultiThreadedExecutor(num_threads=threads) if threads > 1 \

@@ -16,10 +16,10 @@ in the robot base frame): cropped to ``cloud_crop_min/max`` and sent with every 
 octree of ``cloud_resolution``, as MoveIt's occupancy-map updater feeds its octomap.
 
 A failed attack (error code) or a timeout removes the previous boxes, which no longer match the
-task. Parameters: ``server``, ``budget``, ``method``, ``box_size_m`` (0: server default),
-``seed``, ``goal_policy`` ('': the server's), ``timeout_s``, ``bag`` (a ``.mcap`` file: each
-attack's scene, goal region, boxes, markers and the server's heatmap cloud are recorded there as
-a ROS 2 bag, replacing the last one; empty: none) (defaults in ``config/attacker.yaml``).
+task. Parameters: :data:`PARAMETERS` (``ros2 param describe /attacker <name>``; the same
+defaults in ``config/attacker.yaml``); with ``bag`` (a ``.mcap`` file) each attack's scene, goal
+region, boxes, markers and the server's heatmap cloud are recorded there as a ROS 2 bag,
+replacing the last one.
 """
 
 from __future__ import annotations
@@ -34,17 +34,35 @@ from rclpy.node import Node
 from sensor_msgs.msg import PointCloud2
 from visualization_msgs.msg import MarkerArray
 
-from advocc_ros.attack import AttackConfig
+from advocc_ros.attack.methods import SERVER_METHODS
+from advocc_ros.attack.types import DEFAULT_METHOD, POLICIES, AttackConfig
 from advocc_ros.model.scene import Operation, SceneError, SceneObject
 from advocc_ros.nodes import run
-from advocc_ros.ros.clouds import (CLOUD_TOPIC, cloud_msg, cloud_shape_from_node_params,
-                                   declare_cloud_parameters, markers_with_scene)
+from advocc_ros.ros.clouds import (CLOUD_PARAMETERS, CLOUD_TOPIC, cloud_msg,
+                                   cloud_shape_from_node_params, markers_with_scene)
 from advocc_ros.ros.conversions import (attack_request_from_msgs, box_markers,
                                         collision_object_to_msg, obstacles_from_msgs,
                                         scene_from_msgs)
+from advocc_ros.ros.params import INT_MAX, Param, declare
 from advocc_ros.ros.qos import COLLISION_OBJECT_TOPIC, GOAL_REGION_TOPIC, LATCHED_QOS, SCENE_TOPIC
 
 MARKER_NS = 'advocc_attack'
+PARAMETERS = (
+    Param('server', '/heatmap_server', 'heatmap_server node whose ~/attack is called',
+          read_only=True),
+    Param('budget', 3, 'M, boxes per attack', low=1, high=AttackConfig.max_budget),
+    Param('method', DEFAULT_METHOD, 'attack method', constraints=f'one of {list(SERVER_METHODS)} '
+          '(the methods a heatmap server runs without planner queries)'),
+    Param('box_size_m', 0.0, "box edge [m]; 0: the server's default",
+          low=0.0, high=AttackConfig.max_box_m),
+    Param('seed', 0, 'seed of the seeded methods (random, task)', low=-INT_MAX, high=INT_MAX),
+    Param('goal_policy', '', "goal policy of the requests; '': the server's default",
+          constraints=f"one of {list(POLICIES)} or ''"),
+    Param('timeout_s', 60.0, 'a request without answer after this is dropped [s] (the first '
+          "attack of a task includes its witness search, up to 30 s)", low=0.0, high=3600.0),
+    Param('bag', '', "a .mcap file each attack is recorded to as a ROS 2 bag ('': none)"),
+    *CLOUD_PARAMETERS)
+"""The attacker's parameters: what ``config/attacker.yaml`` sets, with their descriptors."""
 
 
 class Attacker(Node):
@@ -52,16 +70,11 @@ class Attacker(Node):
 
     def __init__(self):
         super().__init__('attacker')
-        self.declare_parameter('server', '/heatmap_server')
-        self.declare_parameter('budget', 3)
-        self.declare_parameter('method', 'ours')
-        self.declare_parameter('box_size_m', 0.0)
-        self.declare_parameter('seed', 0)
-        self.declare_parameter('goal_policy', '')
-        self.declare_parameter('timeout_s', 60.0)
-        self.declare_parameter('bag', '')
-        declare_cloud_parameters(self)
-        self.add_on_set_parameters_callback(self._check_parameters)
+        self._scene: Scene | None = None
+        self._goal: GoalRegion | None = None
+        self._dirty = False          # the task changed since the last request was sent
+        self.add_on_set_parameters_callback(self._check_parameters)  # checks overrides too
+        declare(self, PARAMETERS)
 
         server = self.get_parameter('server').value.rstrip('/')
         self._client = self.create_client(Attack, f'{server}/attack')
@@ -75,9 +88,6 @@ class Attacker(Node):
         self.create_subscription(PointCloud2, f'{server}/heatmap',
                                  lambda msg: setattr(self, '_heatmap_msg', msg), LATCHED_QOS)
         self._cloud: SceneObject | None = None  # the sensed part of the scene
-        self._scene: Scene | None = None
-        self._goal: GoalRegion | None = None
-        self._dirty = False          # the task changed since the last request was sent
         self._future = None          # request in flight
         self._sent_at = 0.0
         self._placed: list[str] = []  # ids of our boxes in the planning scene
@@ -88,17 +98,16 @@ class Attacker(Node):
         self.create_timer(0.1, self._tick)
 
     def _check_parameters(self, params) -> SetParametersResult:
+        """The method's name (ranges and read-only are the descriptors', checked by rclpy)."""
         for p in params:
-            if p.name == 'budget' and not (isinstance(p.value, int)
-                                           and 1 <= p.value <= AttackConfig.max_budget):
+            if p.name == 'method' and p.value not in SERVER_METHODS:
                 return SetParametersResult(
-                    successful=False, reason=f'budget must be in 1..{AttackConfig.max_budget}')
-            if p.name in ('box_size_m', 'timeout_s') and not (
-                    isinstance(p.value, float) and p.value >= 0):
-                return SetParametersResult(successful=False, reason=f'{p.name} must be >= 0')
-            if p.name == 'server' and hasattr(self, '_client'):
-                return SetParametersResult(successful=False,
-                                           reason='server is read at start-up only')
+                    successful=False, reason=f'method {p.value!r}: expected one of '
+                    f'{list(SERVER_METHODS)} (the methods a heatmap server runs)')
+            if p.name == 'goal_policy' and p.value not in ('', *POLICIES):
+                return SetParametersResult(
+                    successful=False, reason=f'goal_policy {p.value!r}: expected one of '
+                    f"{list(POLICIES)} or '' (the server's default)")
         if any(p.name in ('budget', 'method', 'box_size_m', 'seed', 'goal_policy')
                for p in params):
             self._dirty = self._scene is not None and self._goal is not None

@@ -1,12 +1,13 @@
 """heatmap_server: answers online attack requests from a heatmap loaded at start-up.
 
-Parameters (defaults = ``advocc_ros.attack.api.AttackConfig`` and ``RobotSpec``; see
-``config/heatmap_server.yaml``): ``heatmap_file`` (required), the attack parameters, the robot
-description and ``base_frame``. The values of joints outside the planning group (SPEC §4b) come
-from ``robot_locked`` (``['joint=value', ...]``) or else from the heatmap file, which records the
-robot it was built for (a heatmap of a Panda with open fingers serves with open fingers). A
-heatmap that cannot be loaded, or was built for another robot, stops the node at start-up with a
-clear message and exit code 1.
+Parameters: :data:`PARAMETERS` (defaults = ``advocc_ros.attack.AttackConfig`` and
+``RobotSpec``, the same in ``config/heatmap_server.yaml``; ``ros2 param describe``):
+``heatmap_file`` (required), the attack parameters, the robot description and ``base_frame``.
+The values of joints outside the planning group (locked at the task's robot state, see
+``docs/design.md``) come from ``robot_locked`` (``['joint=value', ...]``) or else from the
+heatmap file, which records the robot it was built for (a heatmap of a Panda with open fingers
+serves with open fingers). A heatmap that cannot be loaded, or was built for another robot,
+stops the node at start-up with a clear message and exit code 1.
 
 Services:
 - ``~/attack`` (advocc_msgs/srv/Attack): scene objects, start state, goal region, budget,
@@ -36,6 +37,7 @@ from rclpy.node import Node
 from sensor_msgs.msg import PointCloud2
 
 from advocc_ros.attack import AttackConfig, AttackStatus, attack, available_methods
+from advocc_ros.attack.types import DEFAULT_METHOD, POLICIES
 from advocc_ros.ros.conversions import (goal_region_from_msg, obstacle_to_msg, q_from_joint_state,
                                         scene_from_msgs)
 from advocc_ros.heatmap import HeatmapError, hottest_voxels, link_tables, load_heatmap
@@ -46,12 +48,56 @@ from advocc_ros.model.robot import RobotError, RobotSpec, load_robot, resolve_pa
 from advocc_ros.model.cloud import DEFAULT_RESOLUTION_M
 from advocc_ros.model.scene import SceneError, SceneObject
 from advocc_ros.ros.clouds import cloud_msg, cloud_shape_from_msg
+from advocc_ros.ros.params import INT_MAX, Param, declare
 from advocc_ros.ros.qos import LATCHED_QOS
 
 # AttackConfig fields exposed as parameters (same names, same defaults).
 _CONFIG_PARAMS = tuple(f.name for f in dataclasses.fields(AttackConfig))
 _ROBOT_PARAMS = {'robot_urdf': 'urdf', 'robot_srdf': 'srdf', 'robot_group': 'group',
                  'robot_ee_link': 'ee_link'}
+_INF = float('inf')
+_CONFIG_DOC = {  # description, then (low, high) or constraints AttackConfig checks itself
+    'box_size_m': ("s: box edge when a request's box_size is 0 [m]", 'in (0, max_box_m]'),
+    'corridor_radius_m': ('r_corr: candidate centres within this distance of the start-goal '
+                          'segment [m]', '> 0'),
+    'd_safe_m': ('clearance of every box from the robot at start and from the goal region [m]',
+                 (0.0, _INF)),
+    'd_min_m': ('minimum distance between box centres [m]', (0.0, _INF)),
+    'max_budget': ('larger budgets are rejected', (1, INT_MAX)),
+    'max_box_m': ('larger boxes are rejected [m]', '> 0'),
+    'protect_goal_hand': ('also keep d_safe from the hand at one goal IK solution (not in the '
+                          'paper)', ''),
+    'goal_policy': ('goal policy of requests that name none', f'one of {list(POLICIES)}'),
+    'reachable_fraction': ('under the reachable policy: share of the fixed goal samples that '
+                           'must stay valid', (0.0, 1.0)),
+    'max_rejections': ('picks failing the exact check before a method gives up',
+                       (0, INT_MAX)),
+}
+
+
+def _config_param(name: str) -> Param:
+    description, limits = _CONFIG_DOC.get(name, (f'AttackConfig.{name}', ''))
+    default = getattr(AttackConfig, name)
+    if isinstance(limits, tuple):
+        return Param(name, default, description, low=limits[0], high=limits[1])
+    return Param(name, default, description, constraints=limits)
+
+
+PARAMETERS = (
+    Param('heatmap_file', '', 'heatmap .npz (required; `advocc heatmap build`)',
+          read_only=True),
+    *(_config_param(name) for name in _CONFIG_PARAMS),
+    *(Param(param, getattr(RobotSpec(), field), f'robot description: RobotSpec.{field}',
+            read_only=True) for param, field in _ROBOT_PARAMS.items()),
+    Param('robot_locked', [''], "joint=value of the joints outside the group (['']: the "
+          "heatmap file's values)", read_only=True),
+    Param('base_frame', 'panda_link0', "frame of every request's poses (no tf here)",
+          read_only=True),
+    Param('allowed_dirs', [''], "directories the node may read files from (['']: the "
+          'defaults, see README "Security")', read_only=True),
+    Param('heatmap_percentile', 80.0, '~/heatmap publishes the voxels with H at or above this '
+          'percentile of the non-zero H', read_only=True, low=0.0, high=100.0))
+"""The server's parameters, with their descriptors."""
 
 STATUS_CODES = {
     AttackStatus.SUCCESS: ErrorCodes.SUCCESS,
@@ -116,16 +162,7 @@ class HeatmapServer(Node):
 
     def __init__(self):
         super().__init__('heatmap_server')
-        self.declare_parameter('heatmap_file', '')
-        for name in _CONFIG_PARAMS:
-            self.declare_parameter(name, getattr(AttackConfig, name))
-        spec = RobotSpec()
-        for param, field in _ROBOT_PARAMS.items():
-            self.declare_parameter(param, getattr(spec, field))
-        self.declare_parameter('robot_locked', [''])  # ['']: the heatmap file's values
-        self.declare_parameter('base_frame', 'panda_link0')
-        self.declare_parameter('allowed_dirs', [''])  # ['']: the defaults, see paths.py
-        self.declare_parameter('heatmap_percentile', 80.0)
+        declare(self, PARAMETERS)
         self.add_on_set_parameters_callback(self._check_parameters)
 
         path = self.get_parameter('heatmap_file').value
@@ -147,7 +184,7 @@ class HeatmapServer(Node):
         self.robot = load_robot(self._spec)
         check_robot(self.heatmap, self.robot.hash, path)
         self.cfg = self._config()
-        link_tables(self.robot, self.heatmap.grid.voxel_m / 4)  # warm the cache: ~1 s once
+        link_tables(self.robot, self.heatmap.lut_pitch_m)  # warm the cache: ~1 s once
         self._path = path
         self._served = 0
         summary = self.heatmap.summary()
@@ -174,15 +211,10 @@ class HeatmapServer(Node):
         return AttackConfig(**{name: self.get_parameter(name).value for name in _CONFIG_PARAMS})
 
     def _check_parameters(self, params) -> SetParametersResult:
-        if not hasattr(self, 'cfg'):  # start-up: validated when the config is built
-            return SetParametersResult(successful=True)
-        fixed = {'heatmap_file', 'base_frame', 'allowed_dirs', 'heatmap_percentile',
-                 'robot_locked', *_ROBOT_PARAMS}
+        """The attack settings together, as ``AttackConfig`` checks them (ranges and read-only
+        are the descriptors', checked by rclpy before this)."""
         values = dataclasses.asdict(self.cfg)
         for p in params:
-            if p.name in fixed:
-                return SetParametersResult(successful=False,
-                                           reason=f'{p.name} is read at start-up only')
             if p.name in values:
                 values[p.name] = p.value
         try:
@@ -220,7 +252,7 @@ class HeatmapServer(Node):
         bad = non_finite_field(request)
         if bad:
             return fail(ErrorCodes.INVALID_REQUEST, f'{bad}: non-finite number (NaN or inf)')
-        method = request.method or 'ours'
+        method = request.method or DEFAULT_METHOD
         base = self.get_parameter('base_frame').value
         frames = {(o.header.frame_id, f'scene[{i}] {o.id!r}')
                   for i, o in enumerate(request.scene)}

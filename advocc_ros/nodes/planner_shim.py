@@ -17,6 +17,9 @@ Services:
   budget + ``watchdog_margin_s``; bad requests get an error code and the node keeps serving.
 - ``~/get_info`` (advocc_msgs/srv/GetInfo): what is loaded, as JSON.
 
+Parameters: :data:`PARAMETERS` (the same defaults in ``config/planner_shim.yaml``;
+``ros2 param describe``).
+
 The plan service has its own callback group and the node spins a MultiThreadedExecutor, so
 collision objects keep arriving while a request is being planned (the next request sees them).
 """
@@ -39,8 +42,8 @@ from sensor_msgs.msg import PointCloud2
 from advocc_ros.ros.conversions import (collision_object_from_msg, goal_region_from_msg,
                                         q_from_joint_state, trajectory_to_msg)
 from advocc_ros.nodes import run
-from advocc_ros.ros.clouds import (CLOUD_TOPIC, cloud_shape_from_node_params,
-                                   declare_cloud_parameters)
+from advocc_ros.ros.clouds import CLOUD_PARAMETERS, CLOUD_TOPIC, cloud_shape_from_node_params
+from advocc_ros.ros.params import INT_MAX, Param, declare
 from advocc_ros.ros.qos import COLLISION_OBJECT_TOPIC, LATCHED_QOS
 from advocc_ros.paths import allowed_dirs, confine, scene_path
 from advocc_ros.planning import PLANNERS, Planner, PlanningConfig, PlanStatus
@@ -48,10 +51,45 @@ from advocc_ros.model.robot import RobotError, resolve_path
 from advocc_ros.model.scene import (Scene, SceneError, SceneObject, apply_operation, load_scene,
                                     referenced_files)
 
-# Parameters that map onto PlanningConfig fields (defaults come from the dataclass).
-_CONFIG_PARAMS = ('time_budget_s', 'max_time_budget_s', 'motion_step_rad', 'ik_goals',
-                  'max_goals', 'simplify', 'interpolate', 'waypoint_step_rad',
-                  'stop_at_first_solution', 'watchdog_margin_s')
+# Parameters that map onto PlanningConfig fields (defaults come from the dataclass): their
+# description, and the closed range when PlanningConfig's check is one.
+_CONFIG_DOC = {
+    'time_budget_s': ("used when a request's time_budget_s is 0 [s]; <= max_time_budget_s",
+                      None),
+    'max_time_budget_s': ('larger budgets are rejected [s]', None),
+    'motion_step_rad': ('joint-space distance between validity checks [rad]', None),
+    'ik_goals': ('goal configurations sampled by IK before planning', (1, INT_MAX)),
+    'max_goals': ('cap on goal configurations, lazily sampled ones included', (1, INT_MAX)),
+    'simplify': ('MoveIt-style shortcut + smoothing', None),
+    'interpolate': ('waypoints at most waypoint_step_rad apart', None),
+    'waypoint_step_rad': ('largest joint-space distance between returned waypoints [rad]',
+                          None),
+    'stop_at_first_solution': ('PRM*/RRT*: return the first solution instead of optimizing '
+                               'until the budget ends', None),
+    'watchdog_margin_s': ('the planning worker is killed after budget + margin [s]', None),
+}
+_CONFIG_PARAMS = tuple(_CONFIG_DOC)
+
+
+def _config_param(name: str) -> Param:
+    description, limits = _CONFIG_DOC[name]
+    default = getattr(PlanningConfig(), name)
+    if limits is None:
+        return Param(name, default, description,
+                     constraints='> 0' if isinstance(default, float) else '')
+    return Param(name, default, description, low=limits[0], high=limits[1])
+
+
+PARAMETERS = (
+    Param('scene_file', 'table_pick', 'static scene: a scene YAML path or a shipped scene name',
+          read_only=True),
+    Param('default_planner', 'rrtconnect', "used when a request's planner_id is empty",
+          constraints='an OMPL geometric planner id (advocc_ros.planning.PLANNERS)'),
+    Param('allowed_dirs', [''], "directories the node may read files from (['']: the "
+          'defaults, see README "Security")', read_only=True),
+    *CLOUD_PARAMETERS,
+    *(_config_param(name) for name in _CONFIG_PARAMS))
+"""The shim's parameters, with their descriptors."""
 
 
 class PlannerShim(Node):
@@ -59,14 +97,8 @@ class PlannerShim(Node):
 
     def __init__(self):
         super().__init__('planner_shim')
-        defaults = PlanningConfig()
-        self.declare_parameter('scene_file', 'table_pick')
-        self.declare_parameter('default_planner', 'rrtconnect')
-        self.declare_parameter('allowed_dirs', [''])  # ['']: the defaults, see paths.py
-        declare_cloud_parameters(self)
-        for name in _CONFIG_PARAMS:
-            self.declare_parameter(name, getattr(defaults, name))
-        self.add_on_set_parameters_callback(self._check_parameters)
+        self.add_on_set_parameters_callback(self._check_parameters)  # checks overrides too
+        declare(self, PARAMETERS)
 
         scene_arg = self.get_parameter('scene_file').value
         allowed = allowed_dirs(self.get_parameter('allowed_dirs').value)
@@ -108,19 +140,19 @@ class PlannerShim(Node):
         return dataclasses.replace(PlanningConfig(), **values)
 
     def _check_parameters(self, params) -> SetParametersResult:
-        """Start-up-only and planner names here; the planning values are PlanningConfig's to
-        check (its ValueError is the reason, as at start-up)."""
+        """Planner names here; the planning values together are PlanningConfig's to check (its
+        ValueError is the reason). Ranges and read-only are the descriptors', checked by rclpy.
+        """
         for p in params:
-            if p.name in ('scene_file', 'allowed_dirs') and hasattr(self, '_planner'):
-                return SetParametersResult(successful=False,
-                                           reason=f'{p.name} is read at start-up only')
             if p.name == 'default_planner' and p.value.lower() not in PLANNERS:
                 return SetParametersResult(successful=False,
                                            reason=f'unknown planner {p.value!r}')
         changes = {p.name: p.value for p in params if p.name in _CONFIG_PARAMS}
         if changes:
+            current = {name: self.get_parameter(name).value for name in _CONFIG_PARAMS
+                       if self.has_parameter(name)}
             try:
-                dataclasses.replace(self._config(), **changes)
+                PlanningConfig(**{**current, **changes})
             except (TypeError, ValueError) as exc:
                 return SetParametersResult(successful=False, reason=str(exc))
         return SetParametersResult(successful=True)

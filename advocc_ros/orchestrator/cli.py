@@ -16,7 +16,7 @@ import yaml
 
 from advocc_ros.paths import config_dir
 
-_DESCRIPTION = "orchestrator: runs the paper's benchmark through real nodes (SPEC §6, issue 6)."
+_DESCRIPTION = "orchestrator: runs the paper's benchmark through real nodes (docs/design.md)."
 
 
 def _names(text: str) -> list[str]:

@@ -1,4 +1,4 @@
-"""orchestrator: runs the paper's benchmark through real nodes (SPEC §6, issue 6).
+"""orchestrator: runs the paper's benchmark through real nodes (docs/design.md).
 
 A plain Python program (there is no ``launch`` wheel) that, per scene,
 
@@ -50,14 +50,13 @@ from advocc_ros.orchestrator.graph import Graph
 from advocc_ros.orchestrator.shims import (CallFailed, PlanAnswer, PlanJob, PlanQuery, Shim,
                                            ShimPool, ShimQueries, ShimState)
 from advocc_ros.orchestrator.sources import AttackSources, SceneTask, prepare_heatmaps
-from advocc_ros.planning.types import PlanStatus
+from advocc_ros.planning.types import REQUEST_ERRORS, PlanStatus
 from advocc_ros.ros.spawn import Child
 
 log = logging.getLogger(__name__)
 
 # Plan outcomes that say the protocol itself is wrong (not the attack): stop the benchmark.
-_FATAL_CODES = {'INVALID_REQUEST', 'UNKNOWN_METHOD', 'INVALID_ROBOT_STATE',
-                'INVALID_GOAL_CONSTRAINTS', 'START_STATE_IN_COLLISION'}
+_FATAL_CODES = frozenset(status.name for status in REQUEST_ERRORS)
 _INTERNAL_ERROR_RETRIES = 2
 """A trial whose shim answers with an internal error (a crash, an exception) or whose plan call
 fails is planned again this many times before the internal error is recorded."""

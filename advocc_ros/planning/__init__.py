@@ -5,13 +5,14 @@ here for the planners' users.
 """
 
 from advocc_ros.model.ik import GoalSampler, start_configuration
-from advocc_ros.planning.types import (PLANNERS, PlanResult, PlanStatus, PlanningConfig,
-                                       planner_class_name, validate_request)
+from advocc_ros.planning.types import (PLANNERS, REQUEST_ERRORS, PlanResult, PlanStatus,
+                                       PlanningConfig, planner_class_name, validate_request)
 from advocc_ros.planning.solve import solve
 from advocc_ros.planning.worker import Planner, WorkerDied
 from advocc_ros.planning.pool import LocalPlanners
 
 __all__ = [
-    'GoalSampler', 'LocalPlanners', 'PLANNERS', 'PlanResult', 'PlanStatus', 'Planner',
+    'GoalSampler', 'LocalPlanners', 'PLANNERS', 'REQUEST_ERRORS', 'PlanResult', 'PlanStatus',
+    'Planner',
     'PlanningConfig', 'WorkerDied', 'planner_class_name', 'solve', 'start_configuration',
     'validate_request']

@@ -30,6 +30,13 @@ class PlanStatus(enum.IntEnum):
     trial says nothing about the scene, so it must never count as a planning failure."""
 
 
+REQUEST_ERRORS = frozenset({
+    PlanStatus.INVALID_REQUEST, PlanStatus.UNKNOWN_METHOD, PlanStatus.INVALID_ROBOT_STATE,
+    PlanStatus.INVALID_GOAL_CONSTRAINTS, PlanStatus.START_STATE_IN_COLLISION})
+"""Outcomes that say the request is wrong, not that the planner failed: a benchmark and a
+planner-in-the-loop attack stop on them instead of counting them as attack wins."""
+
+
 # OMPL geometric planners selectable by name (lower-case id -> class name in ompl.geometric).
 # All of them solve the problem as set up here (goal region, default projection for KPIECE/SBL).
 _PLANNER_CLASSES = (

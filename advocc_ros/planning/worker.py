@@ -1,7 +1,7 @@
 """Motion planning with OMPL to tolerance-aware goal regions, run in a watched worker process.
 
-The victim side of the evaluation (paper §V-A, SPEC §4): OMPL geometric planners over the arm
-joints (``RealVectorStateSpace`` with the joint limits), a validity checker built on
+The victim side of the evaluation (paper §V-A; docs/design.md): OMPL geometric planners over
+the arm joints (``RealVectorStateSpace`` with the joint limits), a validity checker built on
 ``CollisionWorld`` (SRDF self-collision + scene), and a goal region reached by sampling goal
 configurations with damped-least-squares IK inside the region.
 

@@ -15,16 +15,20 @@ from sensor_msgs.msg import PointCloud2, PointField
 from std_msgs.msg import ColorRGBA
 from visualization_msgs.msg import Marker, MarkerArray
 
-from advocc_ros.limits import MAX_CLOUD_POINTS
+from advocc_ros.limits import MAX_CLOUD_POINTS, MAX_CLOUD_RESOLUTION_M, MIN_CLOUD_RESOLUTION_M
 from advocc_ros.model.cloud import make_cloud_shape
 from advocc_ros.model.scene import Pose, SceneError, SceneObject, Shape
 from advocc_ros.model.shapes import cloud_cells
+from advocc_ros.ros.params import Param
 
 CLOUD_TOPIC = '/advocc/cloud'
-CLOUD_PARAMS = {'cloud_resolution': 0.02, 'cloud_crop_min': [-1.5, -1.5, -0.5],
-                'cloud_crop_max': [1.5, 1.5, 2.0]}
-"""Parameters of a node that reads ``/advocc/cloud``: octree leaf edge [m] and the crop box
-[m, robot base frame] (points outside are ignored, like MoveIt's updater's max range)."""
+CLOUD_PARAMETERS = (
+    Param('cloud_resolution', 0.02, f'{CLOUD_TOPIC}: octree leaf edge [m]',
+          low=MIN_CLOUD_RESOLUTION_M, high=MAX_CLOUD_RESOLUTION_M),
+    Param('cloud_crop_min', [-1.5, -1.5, -0.5], f'{CLOUD_TOPIC}: crop box corner, robot base '
+          'frame [m]; points outside the box are ignored, like MoveIt\'s updater\'s max range'),
+    Param('cloud_crop_max', [1.5, 1.5, 2.0], f'{CLOUD_TOPIC}: opposite crop box corner [m]'))
+"""Parameters of a node that reads ``/advocc/cloud``."""
 _NUMPY = {PointField.FLOAT32: 'f4', PointField.FLOAT64: 'f8'}
 
 
@@ -168,23 +172,12 @@ def scene_markers(objects, frame: str, ns: str, start_id: int = 0) -> list[Marke
     return markers
 
 
-def delete_all_marker(frame: str) -> Marker:
-    m = Marker(action=Marker.DELETEALL)
-    m.header.frame_id = frame
-    return m
-
-
 def markers_with_scene(boxes: MarkerArray, objects: tuple[SceneObject, ...], frame: str,
                        ns: str) -> MarkerArray:
     """``boxes`` (starting with a DELETEALL) followed by the scene's object markers."""
     out = MarkerArray()
     out.markers = list(boxes.markers) + scene_markers(objects, frame, ns)
     return out
-
-
-def declare_cloud_parameters(node) -> None:
-    for name, default in CLOUD_PARAMS.items():
-        node.declare_parameter(name, default)
 
 
 def cloud_shape_from_node_params(node, msg: PointCloud2) -> Shape | None:

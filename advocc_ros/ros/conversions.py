@@ -18,11 +18,13 @@ from shape_msgs.msg import Mesh, MeshTriangle, SolidPrimitive
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 from visualization_msgs.msg import Marker, MarkerArray
 
+from advocc_ros.attack.types import DEFAULT_METHOD
 from advocc_ros.limits import (MAX_JOINTS, MAX_MESH_TRIANGLES, MAX_MESH_VERTICES, MAX_OBJECTS,
                                MAX_SCENE_VERTICES, MAX_SHAPES)
 from advocc_ros.model.robot import RobotError, RobotModel
 from advocc_ros.model.scene import (GoalRegion, Operation, Pose, Scene, SceneError, SceneObject,
-                                    Shape, make_box, make_mesh_shape, objects_to_data)
+                                    Shape, make_box, objects_to_data)
+from advocc_ros.model.shapes import make_mesh_shape
 from advocc_ros.ros.clouds import cloud_msg, scene_cloud, without_clouds
 from advocc_ros.ros.errors import code_name
 
@@ -230,7 +232,8 @@ def scene_to_msg(scene: Scene) -> SceneMsg:
 
 
 def attack_request_from_msgs(scene: SceneMsg, goal: GoalRegionMsg, budget: int,
-                             method: str = 'ours', box_size_m: float = 0.0, seed: int = 0,
+                             method: str = DEFAULT_METHOD, box_size_m: float = 0.0,
+                             seed: int = 0,
                              goal_policy: str = '') -> Attack.Request:
     """Attack.Request for a task as it arrives on ``/advocc/scene`` and ``/advocc/goal_region``
     (passed on unchanged: the heatmap server validates it)."""
@@ -244,8 +247,9 @@ def attack_request_from_msgs(scene: SceneMsg, goal: GoalRegionMsg, budget: int,
     return req
 
 
-def attack_request(scene: Scene, budget: int, method: str = 'ours', box_size_m: float = 0.0,
-                   seed: int = 0, goal_policy: str = '') -> Attack.Request:
+def attack_request(scene: Scene, budget: int, method: str = DEFAULT_METHOD,
+                   box_size_m: float = 0.0, seed: int = 0, goal_policy: str = ''
+                   ) -> Attack.Request:
     """Attack.Request for a scene's objects, start and goal ('' policy: the server's)."""
     if scene.start is None or scene.goal is None:
         raise SceneError(f'scene {scene.name!r} needs a start and a goal to attack')

@@ -1,4 +1,4 @@
-"""The online attack through the ROS graph, for ``advocc demo`` (issue 3, "done when").
+"""The online attack through the ROS graph, for ``advocc demo``.
 
 :func:`run_attack_nodes` starts ``heatmap_server`` and ``attacker`` as child processes on a
 private ROS domain, publishes the scene and goal region on their latched topics, collects the
@@ -14,12 +14,13 @@ import tempfile
 import time
 
 from advocc_ros.attack.obstacles import obstacles_file_data, save_obstacles
+from advocc_ros.attack.types import DEFAULT_METHOD
 from advocc_ros.model.scene import Scene
 from advocc_ros.ros.spawn import start_node, stop
 
 
 def run_attack_nodes(heatmap_file: str | pathlib.Path, scene: Scene, out: str | pathlib.Path,
-                     budget: int = 3, method: str = 'ours', timeout_s: float = 90.0,
+                     budget: int = 3, method: str = DEFAULT_METHOD, timeout_s: float = 90.0,
                      domain: int | None = None, bag: str | pathlib.Path | None = None) -> dict:
     """Attack ``scene``'s task through the nodes; returns what the attacker published
     (``bag``: the attacker records the attack there as a ROS 2 bag, ``.mcap``).
