@@ -156,7 +156,12 @@ def test_server_answers_bad_requests_and_keeps_serving(ros, ros_env, heatmap_fil
     assert [o.id for o in good.obstacles] == ['adv_0', 'adv_1', 'adv_2']
     assert good.total_mass == pytest.approx(sum(o.covered_mass for o in good.obstacles))
     assert 0 < good.compute_time_s < 5
-    assert good.solvable == 'certified', good.solvable_message  # Ours at M = 3 keeps the witness
+    assert good.solvable in ('certified', 'goal blocked', 'unknown') and good.solvable_message
+    solvable = _request(table_scene, budget=5, method='task')
+    solvable.goal_policy = 'solvable'
+    kept = _call(executor, client, solvable)
+    assert kept.error_code.val == ErrorCodes.SUCCESS, kept.message
+    assert kept.solvable == 'certified', kept.solvable_message  # the witness is kept by design
 
     def bad(**edit):
         req = _request(table_scene)
@@ -212,7 +217,7 @@ def test_server_answers_bad_requests_and_keeps_serving(ros, ros_env, heatmap_fil
     info = json.loads(_call(executor, info_client, GetInfo.Request()).info_json)
     assert info['robot']['joints'][0] == 'panda_joint1'
     assert info['grid']['voxel_m'] == 0.02 and info['parameters']['max_budget'] == 20
-    assert info['requests_served'] == len(cases) + 3
+    assert info['requests_served'] == len(cases) + 4
 
     # The CLI client sees the same server.
     out = subprocess.run([sys.executable, '-m', 'advocc_ros.cli', 'call', 'attack', '--scene',
