@@ -9,10 +9,7 @@ import pytest
 from advocc_ros.heatmap import HeatmapConfig, build_heatmap, save_heatmap
 from advocc_ros.model.scene import load_scene
 from conftest import REPO
-import test_attack_nodes as _nodes
 from test_attack_nodes import _call, _start, _stop, _wait_service
-
-ros = _nodes.ros  # the fixture: rclpy in this process, children always killed
 
 UR5 = ('robot_urdf:=example-robot-data://ur_description/urdf/ur5_robot.urdf',
        'robot_srdf:=example-robot-data://ur_description/srdf/ur5.srdf', "robot_group:=''",
