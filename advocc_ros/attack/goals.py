@@ -19,8 +19,6 @@ computed once per task and cached: every attack of one task is judged on the sam
 from __future__ import annotations
 
 import collections
-import hashlib
-import json
 import math
 import threading
 
@@ -30,7 +28,7 @@ import numpy as np
 from advocc_ros.model.collision import CollisionWorld
 from advocc_ros.model.ik import goal_set
 from advocc_ros.model.robot import RobotModel
-from advocc_ros.model.scene import GoalRegion, SceneObject
+from advocc_ros.model.scene import GoalRegion, SceneObject, task_hash
 
 VALIDATION_SEED = 7_345_001
 """Seed of the goal samples behind ``goal_valid_fraction`` (fixed: comparable attacks)."""
@@ -102,20 +100,12 @@ class GoalSamples:
         return float(valid.mean())
 
 
-def _task_key(robot: RobotModel, objects: tuple[SceneObject, ...], goal: GoalRegion,
-              n: int) -> str:
-    # Fingerprints, not objects_to_data: a sensed cloud's points would be serialized each time.
-    shapes = [[o.id, [s.fingerprint() for s in o.shapes]] for o in objects]
-    text = json.dumps([robot.hash, shapes, goal.to_data(), n], sort_keys=True, default=float)
-    return hashlib.sha256(text.encode()).hexdigest()
-
-
 def goal_samples(robot: RobotModel, objects: tuple[SceneObject, ...], goal: GoalRegion,
                  n: int = VALIDATION_SAMPLES, world: CollisionWorld | None = None
                  ) -> GoalSamples:
     """The task's fixed-seed goal samples (cached per task; ~60 ms the first time, computed
     outside the lock: two threads may both compute a new task, and the first one is kept)."""
-    key = _task_key(robot, tuple(objects), goal, n)
+    key = task_hash(robot.hash, objects, goal, n)
     with _CACHE_LOCK:
         if key in _CACHE:
             _CACHE.move_to_end(key)

@@ -32,6 +32,16 @@ class SceneObject:
     shapes: tuple[Shape, ...]
 
 
+def task_hash(robot_hash: str, objects, goal: GoalRegion, *extra) -> str:
+    """A hash of what a task's answers depend on: robot, object shapes, goal region, and the
+    caller's ``extra`` (start, seed, sample count). Shape fingerprints, not object data: a sensed
+    cloud's points would be serialized on every call."""
+    shapes = [[o.id, [s.fingerprint() for s in o.shapes]] for o in objects]
+    text = json.dumps([robot_hash, shapes, goal.to_data(), list(extra)], sort_keys=True,
+                      default=float)
+    return hashlib.sha256(text.encode()).hexdigest()
+
+
 def make_box(obj_id: str, center_m, size_m) -> SceneObject:
     """Axis-aligned box object centred at ``center_m`` with edge lengths ``size_m``."""
     pose = Pose(tuple(float(v) for v in center_m))

@@ -20,8 +20,6 @@ from __future__ import annotations
 
 import collections
 import dataclasses
-import hashlib
-import json
 import logging
 import math
 import pathlib
@@ -31,7 +29,7 @@ import numpy as np
 
 from advocc_ros.model.robot import RobotModel
 from advocc_ros.model.scene import (GoalRegion, Scene, SceneError, SceneObject, read_yaml,
-                                    save_yaml_atomic)
+                                    save_yaml_atomic, task_hash)
 from advocc_ros.planning.types import PlanningConfig, PlanStatus
 
 log = logging.getLogger(__name__)
@@ -134,15 +132,6 @@ _CACHE_SIZE = 32
 _LOCK = threading.Lock()
 
 
-def task_key(robot: RobotModel, objects: tuple[SceneObject, ...], q_init: np.ndarray,
-             goal: GoalRegion, *extra) -> str:
-    """A hash of everything a task's solutions depend on (robot, scene shapes, start, goal)."""
-    shapes = [[o.id, [s.fingerprint() for s in o.shapes]] for o in objects]
-    text = json.dumps([robot.hash, shapes, np.round(np.asarray(q_init, float), 12).tolist(),
-                       goal.to_data(), list(extra)], sort_keys=True, default=float)
-    return hashlib.sha256(text.encode()).hexdigest()
-
-
 def find_witness(robot: RobotModel, objects: tuple[SceneObject, ...] | list,
                  q_init: np.ndarray, goal: GoalRegion, seed: int = WITNESS_SEED,
                  time_s: float = WITNESS_TIME_S) -> Witness | None:
@@ -152,7 +141,8 @@ def find_witness(robot: RobotModel, objects: tuple[SceneObject, ...] | list,
     from advocc_ros.planning.worker import Planner
 
     objects = tuple(objects)
-    key = task_key(robot, objects, q_init, goal, seed, time_s)
+    key = task_hash(robot.hash, objects, goal, np.round(np.asarray(q_init, float), 12).tolist(),
+                    seed, time_s)
     with _LOCK:
         if key in _CACHE:
             _CACHE.move_to_end(key)
@@ -182,4 +172,4 @@ def find_witness(robot: RobotModel, objects: tuple[SceneObject, ...] | list,
 
 
 __all__ = ['WITNESS_STEP_RAD', 'Witness', 'find_witness', 'load_witness', 'save_witness',
-           'task_key', 'witness_file', 'witness_states']
+           'witness_file', 'witness_states']
