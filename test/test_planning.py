@@ -179,6 +179,20 @@ def test_watchdog_kills_an_overrun_and_recovers(open_scene):
         assert planner.worker_pid not in (None, pid)
 
 
+def test_worker_imports_its_parents_code_not_the_working_directorys(open_scene, tmp_path,
+                                                                      monkeypatch):
+    """A node started inside another checkout must not plan with that checkout's code."""
+    fake = tmp_path / 'advocc_ros'
+    fake.mkdir()
+    (fake / '__init__.py').write_text('raise ImportError("the checkout in the cwd was imported")\n')
+    monkeypatch.chdir(tmp_path)
+    with Planner(open_scene) as planner:
+        planner.start()
+        q0 = start_configuration(open_scene, planner.robot)
+        r = planner.plan(q0, open_scene.goal, 'rrtconnect', BUDGET, 1)
+    assert r.success, r.message
+
+
 def test_worker_overhead_is_small(planner, open_scene):
     q0 = start_configuration(open_scene, planner.robot)
     overheads = [planner.plan(q0, open_scene.goal, 'rrtconnect', BUDGET, s).stats['overhead_s']

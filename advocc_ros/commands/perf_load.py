@@ -146,7 +146,7 @@ def _run_load(kind: str, service: str, scene: str, clients: int, n: int, budget:
               env: dict, node_pid: int) -> dict:
     """Start ``clients`` client processes, release them together, gather their results."""
     procs = [subprocess.Popen(
-        [sys.executable, '-c', 'import sys; from advocc_ros.commands.perf_load import '
+        [sys.executable, '-P', '-c', 'import sys; from advocc_ros.commands.perf_load import '
          '_client_main; _client_main(*sys.argv[1:4], int(sys.argv[4]), float(sys.argv[5]), '
          'int(sys.argv[6]))', kind, service, scene, str(n), str(budget), str(i)],
         env=env, stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.PIPE,

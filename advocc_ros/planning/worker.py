@@ -150,8 +150,9 @@ class _Worker:
         src = str(pathlib.Path(__file__).resolve().parents[2])
         env = dict(os.environ)
         env['PYTHONPATH'] = os.pathsep.join(p for p in (src, env.get('PYTHONPATH')) if p)
+        # -P: the working directory must not shadow the parent's code (a checkout's cwd).
         self.proc = subprocess.Popen(
-            [sys.executable, '-c', 'from advocc_ros.planning.worker import _worker_main; '
+            [sys.executable, '-P', '-c', 'from advocc_ros.planning.worker import _worker_main; '
              '_worker_main()'], stdin=subprocess.PIPE, stdout=subprocess.PIPE, env=env,
             close_fds=True)
         self._buf = b''
