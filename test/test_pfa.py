@@ -14,8 +14,9 @@ import pytest
 
 from advocc_ros.attack import METHODS, AttackConfig, AttackStatus, attack, search_region
 from advocc_ros.heatmap import HeatmapConfig, build_heatmap
-from advocc_ros.attack.pfa import PfaConfig, PfaOptions, _Decoder, exact_goal, optimise
-from advocc_ros.planning import LocalPlanners, start_configuration
+from advocc_ros.attack.pfa import (RETRY_SEED_OFFSET, PfaConfig, PfaOptions, _Decoder,
+                                   exact_goal, optimise)
+from advocc_ros.planning import LocalPlanners, PlanStatus, start_configuration
 from advocc_ros.model.scene import GoalRegion, Pose, Scene, make_box
 from test_attack import _assert_constraints
 
@@ -217,3 +218,44 @@ def test_pfa_stops_when_the_planner_refuses_the_goal(panda, bin_task, planners):
                  method_options=PfaOptions(wrong_link, pcfg))
     assert res.status == AttackStatus.INVALID_REQUEST
     assert 'PFA query refused' in res.message and 'no_such_link' in res.message
+
+
+def test_pfa_asks_again_after_an_internal_error(panda, bin_task, monkeypatch):
+    """A crashed planning worker says nothing about the boxes: the optimiser must not score it
+    as a planner failure (here: the worker SIGKILLs itself on two of the baseline queries)."""
+    scene, heatmap = bin_task
+    q = start_configuration(scene, panda)
+    monkeypatch.setenv('ADVOCC_PLANNING_FAULT', 'kill:0,1')
+    answers = []
+
+    with LocalPlanners(scene, workers=2) as lp:
+        lp.start()
+
+        def recorded(*args):
+            res = lp(*args)
+            answers.append((args[-1], res.status))
+            return res
+        recorded.workers = lp.workers
+        pcfg = PfaConfig(queries=6, queries_per_placement=3, query_time_s=1.0)
+        res = attack(heatmap, panda, scene.objects, q, scene.goal, 1, 'pfa', CFG, seed=0,
+                     method_options=PfaOptions(recorded, pcfg))
+    assert res.status == AttackStatus.SUCCESS, res.message
+    stats = res.stats['pfa']
+    assert stats['internal_errors_retried'] == 2 and stats['statuses']['INTERNAL_ERROR'] == 2
+    status = dict(answers)
+    assert status[0] == status[1] == PlanStatus.INTERNAL_ERROR
+    baseline = [status[s] for s in (2, RETRY_SEED_OFFSET, RETRY_SEED_OFFSET + 1)]
+    expected = sum(s != PlanStatus.SUCCESS for s in baseline) / 3
+    assert stats['baseline_failure_rate'] == expected, (answers, stats)
+
+
+def test_pfa_stops_when_the_planner_keeps_failing_internally(panda, bin_task, monkeypatch):
+    scene, heatmap = bin_task
+    q = start_configuration(scene, panda)
+    monkeypatch.setenv('ADVOCC_PLANNING_FAULT', f'raise:1,{RETRY_SEED_OFFSET + 1}')
+    with LocalPlanners(scene, workers=1) as lp:
+        pcfg = PfaConfig(queries=6, queries_per_placement=3, query_time_s=0.5)
+        res = attack(heatmap, panda, scene.objects, q, scene.goal, 1, 'pfa', CFG, seed=0,
+                     method_options=PfaOptions(lp.start(), pcfg))
+    assert res.status == AttackStatus.INTERNAL_ERROR
+    assert 'failed internally twice' in res.message and 'fault injected' in res.message

@@ -15,8 +15,10 @@ is the mean joint-space path length of the successful queries (OMPL's simplified
 the same over K queries of the unattacked scene. g lies in [0, 1), so it only breaks ties
 between equal failure counts (lexicographic: failure rate first, then detour). Any status other
 than SUCCESS is a failure (timeout, goal in collision, no IK solution): the planner did not
-deliver a plan, which is what the attack is for. Repeated placements reuse their score (no
-queries are spent twice on one set of boxes).
+deliver a plan, which is what the attack is for. An internal error (our planning worker crashed)
+is no answer about the boxes: the query is asked again once with another seed, and a second
+internal error stops the attack. Repeated placements reuse their score (no queries are spent
+twice on one set of boxes).
 
 Optimiser. CMA-ES from the maintained ``cmaes`` package (0.13.1) in 3M continuous dimensions:
 each box's centre normalised to [0, 1] over the candidates' bounding box (box bounds given to
@@ -83,7 +85,7 @@ from advocc_ros.attack.region import SearchRegion
 from advocc_ros.attack.types import AttackConfig, AttackError, AttackStatus
 from advocc_ros.limits import MAX_PLANNER_QUERIES
 from advocc_ros.model.scene import GoalRegion, SceneObject, make_box
-from advocc_ros.planning import REQUEST_ERRORS, PlanResult, planner_class_name
+from advocc_ros.planning import REQUEST_ERRORS, PlanResult, PlanStatus, planner_class_name
 
 log = logging.getLogger(__name__)
 
@@ -92,6 +94,8 @@ EXACT_POSITION_TOL_M = 1e-4
 """MoveIt's default pose-goal position tolerance (MoveGroupInterface)."""
 EXACT_ORIENTATION_TOL_RAD = 1e-3
 """MoveIt's default pose-goal orientation tolerance."""
+RETRY_SEED_OFFSET = 2 ** 30
+"""A query asked again after an internal error uses seed + this (not a seed of the run's own)."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -345,6 +349,7 @@ class _PlannerObjective:
         self.done = 0
         self.planner_time_s = 0.0
         self.statuses: dict[str, int] = {}
+        self.retried = 0
         self.baseline_length: float | None = None
         self.baseline_failures = 0
         self._lock = threading.Lock()
@@ -356,12 +361,22 @@ class _PlannerObjective:
     def affordable(self) -> int:
         return (self.cfg.queries - self.used) // self.cfg.queries_per_placement
 
-    def _query(self, obstacles: tuple, seed: int) -> PlanResult:
+    def _ask(self, obstacles: tuple, seed: int) -> PlanResult:
         res = self.planner(self.q_init, obstacles, self.goal, self.planner_id,
                            self.cfg.query_time_s, seed)
         with self._lock:
             self.planner_time_s += res.planning_time_s
             self.statuses[res.status.name] = self.statuses.get(res.status.name, 0) + 1
+        return res
+
+    def _query(self, obstacles: tuple, seed: int) -> PlanResult:
+        res = self._ask(obstacles, seed)
+        if res.status == PlanStatus.INTERNAL_ERROR:
+            log.warning('PFA query failed internally (%s); asked again', res.message)
+            res = self._ask(obstacles, (seed + RETRY_SEED_OFFSET) % (2 ** 31))
+            with self._lock:
+                self.retried += 1
+        with self._lock:
             self.done += 1
             if self.progress is not None:
                 self.progress(self.done, self.cfg.queries)
@@ -382,6 +397,9 @@ class _PlannerObjective:
         for r in results:
             if r.status in REQUEST_ERRORS:
                 raise AttackError(AttackStatus.INVALID_REQUEST, f'PFA query refused: {r.message}')
+            if r.status == PlanStatus.INTERNAL_ERROR:
+                raise AttackError(AttackStatus.INTERNAL_ERROR, 'PFA: the planner failed '
+                                  f'internally twice on one query: {r.message}')
         return [results[i * K:(i + 1) * K] for i in range(len(obstacle_sets))]
 
     def baseline(self) -> None:
@@ -449,6 +467,7 @@ def _select(region: SearchRegion, budget: int, seed: int, cfg: AttackConfig,
         'query_time_s': pcfg.query_time_s, 'workers': int(options.planner.workers),
         'placements_scored': result.scored, 'generations': result.generations,
         'stopped': result.stopped, 'statuses': objective.statuses,
+        'internal_errors_retried': objective.retried,
         'baseline_failure_rate': objective.baseline_failures / K if len(cand) else None,
         'baseline_path_length_rad': objective.baseline_length,
         'best_failure_rate': best_fail,

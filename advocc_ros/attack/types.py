@@ -72,6 +72,7 @@ class AttackStatus(enum.Enum):
     INVALID_GOAL = 'invalid_goal'            # empty or malformed goal region
     INVALID_LINK = 'invalid_link'            # goal link not in the robot
     ROBOT_MISMATCH = 'robot_mismatch'        # heatmap built for another robot
+    INTERNAL_ERROR = 'internal_error'        # a planner-in-the-loop backend kept failing
 
     @property
     def ok(self) -> bool:

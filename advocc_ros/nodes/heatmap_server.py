@@ -109,6 +109,7 @@ STATUS_CODES = {
     AttackStatus.INVALID_GOAL: ErrorCodes.INVALID_GOAL_CONSTRAINTS,
     AttackStatus.INVALID_LINK: ErrorCodes.INVALID_LINK_NAME,
     AttackStatus.ROBOT_MISMATCH: ErrorCodes.INVALID_ROBOT_STATE,
+    AttackStatus.INTERNAL_ERROR: ErrorCodes.INTERNAL_ERROR,
 }
 
 
