@@ -314,6 +314,20 @@ def test_heatmap_of_another_robot_is_refused(panda, heatmaps, task):
     assert attack(hm, panda, objects, q, goal, 1).status == AttackStatus.ROBOT_MISMATCH
 
 
+@pytest.mark.parametrize('extra, words', [
+    (('table', (0.0, 0.8, 0.3)), "object ids repeat: ['table']"),
+    (('adv_2', (0.0, 0.8, 0.3)), "object ids ['adv_2'] are the names of the attack's boxes")])
+def test_ambiguous_object_ids_are_refused(panda, heatmaps, task, extra, words):
+    """MoveIt replaces an object on ADD with its id: a repeated id, or one of the boxes' own,
+    would make the attacked scene (and its witness check) ambiguous."""
+    q, goal, objects = task
+    assert 'table' in [o.id for o in objects]
+    objects = objects + (make_box(extra[0], extra[1], (0.05,) * 3),)
+    result = attack(heatmaps['scene'], panda, objects, q, goal, 1)
+    assert result.status == AttackStatus.INVALID_REQUEST and words in result.message
+    assert not result.obstacles
+
+
 def test_obstacles_file_round_trip(panda, heatmaps, task, tmp_path):
     q, goal, objects = task
     result = attack(heatmaps['scene'], panda, objects, q, goal, 3, box_size_m=0.06)

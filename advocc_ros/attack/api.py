@@ -42,8 +42,8 @@ from advocc_ros.attack.goals import GoalGuard, goal_samples
 from advocc_ros.attack.solvable import WitnessGuard, assess, witness_bodies
 from advocc_ros.attack.methods import CONTEXT_METHODS, METHODS, MethodContext, load_method
 from advocc_ros.attack.region import search_region
-from advocc_ros.attack.types import (DEFAULT_METHOD, POLICIES, AttackConfig, AttackError,
-                                     AttackResult, AttackStatus)
+from advocc_ros.attack.types import (BOX_ID, DEFAULT_METHOD, POLICIES, AttackConfig,
+                                     AttackError, AttackResult, AttackStatus, box_id)
 from advocc_ros.heatmap import Heatmap, link_tables
 from advocc_ros.model.collision import shared_world
 from advocc_ros.model.robot import RobotError, RobotModel
@@ -88,10 +88,26 @@ def validate_request(heatmap: Heatmap, robot: RobotModel, objects: tuple[SceneOb
         raise AttackError(AttackStatus.INVALID_GOAL,
                           'goal region is empty: every tolerance is 0 (an unset message?); '
                           'give position half-extents and orientation tolerances')
+    _check_object_ids(objects)
     world = shared_world(robot, [sh for o in objects for sh in o.shapes])
     if world.in_collision(q_init):
         raise AttackError(AttackStatus.START_IN_COLLISION,
                           'start state is in collision (self or with the scene)')
+
+
+def _check_object_ids(objects: tuple[SceneObject, ...]) -> None:
+    """Ids name objects (MoveIt replaces an object on ADD with its id): repeated ids, or the
+    ids the attack gives its boxes, would make the scene with the boxes ambiguous."""
+    ids = [o.id for o in objects]
+    repeated = sorted({i for i in ids if ids.count(i) > 1})
+    if repeated:
+        raise AttackError(AttackStatus.INVALID_REQUEST,
+                          f'object ids repeat: {repeated}; each collision object needs its own')
+    taken = sorted(i for i in ids if BOX_ID.fullmatch(i))
+    if taken:
+        raise AttackError(AttackStatus.INVALID_REQUEST,
+                          f'object ids {taken} are the names of the attack\'s boxes (adv_0, '
+                          'adv_1, ...); remove the boxes of an earlier attack or rename them')
 
 
 def attack(heatmap: Heatmap, robot: RobotModel, objects: tuple[SceneObject, ...] | list,
@@ -142,7 +158,7 @@ def attack(heatmap: Heatmap, robot: RobotModel, objects: tuple[SceneObject, ...]
     except (SceneError, RobotError) as exc:
         return AttackResult(AttackStatus.INVALID_REQUEST, str(exc),
                             compute_s=time.perf_counter() - t0, **base)
-    obstacles = tuple(make_box(f'adv_{i}', np.round(region.center_m(c), 9), (s, s, s))
+    obstacles = tuple(make_box(box_id(i), np.round(region.center_m(c), 9), (s, s, s))
                       for i, (c, _) in enumerate(picks))
     masses = tuple(float(m) for _, m in picks)
     stats = dict(region.stats, rejected_picks=rejected)

@@ -82,7 +82,7 @@ from scipy.spatial import cKDTree
 from advocc_ros.attack.coverage import _Coverage
 from advocc_ros.attack.methods import MethodContext, register_method
 from advocc_ros.attack.region import SearchRegion
-from advocc_ros.attack.types import AttackConfig, AttackError, AttackStatus
+from advocc_ros.attack.types import AttackConfig, AttackError, AttackStatus, box_id
 from advocc_ros.limits import MAX_PLANNER_QUERIES
 from advocc_ros.model.scene import GoalRegion, SceneObject, make_box
 from advocc_ros.planning import REQUEST_ERRORS, PlanResult, PlanStatus, planner_class_name
@@ -447,7 +447,7 @@ def _select(region: SearchRegion, budget: int, seed: int, cfg: AttackConfig,
     s = region.box_size_m
 
     def boxes(p: Placement) -> tuple[SceneObject, ...]:
-        return tuple(make_box(f'adv_{i}', np.round(centers[row], 9), (s, s, s))
+        return tuple(make_box(box_id(i), np.round(centers[row], 9), (s, s, s))
                      for i, row in enumerate(p))
 
     objective = _PlannerObjective(options.planner, np.asarray(context.q_init, float), goal,

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 import enum
+import re
 from typing import Any
 
 import numpy as np
@@ -15,6 +16,13 @@ POLICIES = ('paper', 'reachable', 'solvable')
 """Goal policies (``advocc_ros.attack.goals``): the one list of their names."""
 DEFAULT_METHOD = 'ours'
 """The attack method of a request that names none: the paper's."""
+BOX_ID = re.compile(r'adv_\d+')
+"""Ids of the attack's boxes (``box_id``): a scene object may not carry one."""
+
+
+def box_id(i: int) -> str:
+    """Id of the attack's box ``i`` (pick order)."""
+    return f'adv_{i}'
 
 
 @dataclasses.dataclass(frozen=True)
