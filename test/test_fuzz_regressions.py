@@ -253,6 +253,22 @@ def test_mbm_joint_constraint_position_that_is_a_list_is_refused(tmp_path, panda
         load_request(path, panda)
 
 
+def test_mbm_pose_goal_far_away_names_the_file(tmp_path, panda):
+    """A pose goal 1e30 m away was refused by the goal region's own check, whose message named
+    no file (the fuzzer's one unclear error)."""
+    from advocc_ros.model.mbm import load_request
+    from advocc_ros.model.scene import SceneError
+    path = tmp_path / 'request.yaml'
+    path.write_text(
+        'goal_constraints: [{position_constraints: [{header: {frame_id: panda_link0}, '
+        'link_name: panda_hand, constraint_region: {primitives: [{type: 1, dimensions: '
+        '[0.1, 0.1, 0.1]}], primitive_poses: [{position: [1.0e+30, 0, 0.4], '
+        'orientation: [0, 0, 0, 1]}]}}]}]\n')
+    with pytest.raises(SceneError, match=r'request\.yaml: goal_constraints\[0\]'
+                       r'\.position_constraints\[0\]: goal\.center: a coordinate of 1e\+30 m'):
+        load_request(path, panda)
+
+
 # ---------------------------------------------------------------------------------------------
 # Attacks
 

@@ -170,9 +170,12 @@ def _pose_goal(goal: dict, w: str, robot: RobotModel, T_base_world: pin.SE3) -> 
         rot_tol = tuple(min(t, math.pi) for t in rot_tol)
     half = _inner_half_extents(prims[0], f'{pw}.constraint_region.primitives[0]',
                                T_region.rotation, R_goal)
-    return GoalRegion(center=Pose.from_se3(pin.SE3(R_goal, T_region.translation)),
-                      position_tolerance_m=half, orientation_tolerance_rad=rot_tol, link=link,
-                      tool_offset=Pose(tuple(offset.tolist())))
+    try:
+        return GoalRegion(center=Pose.from_se3(pin.SE3(R_goal, T_region.translation)),
+                          position_tolerance_m=half, orientation_tolerance_rad=rot_tol,
+                          link=link, tool_offset=Pose(tuple(offset.tolist())))
+    except SceneError as exc:  # the region's own checks (a goal 1e30 m away) name no file
+        raise SceneError(f'{pw}: {exc}') from None
 
 
 def _seed_goals(entries: list, where: str, robot: RobotModel) -> tuple[tuple[float, ...], ...]:
