@@ -11,6 +11,15 @@ import pytest
 REPO = pathlib.Path(__file__).resolve().parents[1]
 
 
+@pytest.fixture(autouse=True, scope='session')
+def _witness_cache(tmp_path_factory):
+    """Witnesses found by one test's processes are reused by later ones, as on a user's
+    machine, but never read from or written to the user's own cache."""
+    from advocc_ros.planning.witness import CACHE_ENV
+    os.environ[CACHE_ENV] = str(tmp_path_factory.mktemp('witness_cache'))
+    yield
+
+
 @pytest.fixture(autouse=True)
 def _seed():
     random.seed(0)

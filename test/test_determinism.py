@@ -12,6 +12,7 @@ import pytest
 from advocc_ros.model.collision import CollisionWorld
 from advocc_ros.model.ik import GoalSampler, goal_set, start_configuration
 from advocc_ros.model.robot import load_robot
+from advocc_ros.planning.witness import CACHE_ENV
 
 from conftest import REPO
 
@@ -21,6 +22,7 @@ CLI = [sys.executable, '-m', 'advocc_ros.cli']
 def _env():
     env = dict(os.environ)
     env['PYTHONPATH'] = str(REPO) + os.pathsep + env.get('PYTHONPATH', '')
+    env[CACHE_ENV] = 'off'  # both runs search their witness: the search is under test too
     return env
 
 

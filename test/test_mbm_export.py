@@ -211,7 +211,7 @@ def _witness_of(files, robot):
 def test_export_round_trip_keeps_the_witness_valid(solvable_attack, table_scene, tmp_path,
                                                    capsys):
     from advocc_ros.attack import load_obstacles
-    from advocc_ros.attack.solvable import certify
+    from advocc_ros.planning.witness import certify
     from advocc_ros.cli import main
     from advocc_ros.model.mbm import load_any_scene
     from advocc_ros.planning.witness import load_witness, witness_file, witness_states
@@ -290,7 +290,7 @@ def test_export_refuses_what_it_cannot_vouch_for(solvable_attack, tmp_path, caps
 
 
 def test_variations_are_attacked_again_and_certified(solvable_attack, tmp_path):
-    from advocc_ros.attack.solvable import certify
+    from advocc_ros.planning.witness import certify
     from advocc_ros.cli import main
     from advocc_ros.model.mbm import load_any_scene
 

@@ -179,12 +179,11 @@ def test_watchdog_kills_an_overrun_and_recovers(open_scene):
         assert planner.worker_pid not in (None, pid)
 
 
-def test_worker_imports_its_parents_code_not_the_working_directorys(open_scene, tmp_path,
-                                                                      monkeypatch):
+def test_worker_ignores_a_checkout_in_the_working_directory(open_scene, tmp_path, monkeypatch):
     """A node started inside another checkout must not plan with that checkout's code."""
     fake = tmp_path / 'advocc_ros'
     fake.mkdir()
-    (fake / '__init__.py').write_text('raise ImportError("the checkout in the cwd was imported")\n')
+    (fake / '__init__.py').write_text('raise ImportError("the cwd\'s checkout was imported")\n')
     monkeypatch.chdir(tmp_path)
     with Planner(open_scene) as planner:
         planner.start()

@@ -7,6 +7,7 @@ pair, at 0.005 rad steps.
 """
 
 import json
+import os
 import subprocess
 import sys
 
@@ -15,15 +16,15 @@ import pinocchio as pin
 import pytest
 
 from advocc_ros.attack import AttackConfig, AttackStatus, attack, load_obstacles
-from advocc_ros.attack.solvable import assess, certify, probe_goal
+from advocc_ros.attack.solvable import assess, probe_goal
 from advocc_ros.heatmap import HeatmapConfig, build_heatmap, save_heatmap
 from advocc_ros.model import CollisionWorld
 from advocc_ros.model.collision import coal_geometry
 from advocc_ros.model.robot import load_robot
 from advocc_ros.model.scene import SceneError, make_box
 from advocc_ros.planning import witness as witness_mod
-from advocc_ros.planning.witness import (Witness, find_witness, load_witness, save_witness,
-                                         witness_file, witness_states)
+from advocc_ros.planning.witness import (Witness, certify, find_witness, load_witness,
+                                         save_witness, witness_file, witness_states)
 
 
 @pytest.fixture(scope='module')
@@ -55,12 +56,95 @@ def independent_collisions(robot, objects, Q) -> np.ndarray:
 
 def test_witness_search_is_deterministic_for_a_seed(task, monkeypatch):
     scene, robot, q0, _ = task
+    monkeypatch.setenv(witness_mod.CACHE_ENV, 'off')  # two searches, not one and a file
     first = find_witness(robot, scene.objects, q0, scene.goal)
     monkeypatch.setattr(witness_mod, '_CACHE', type(witness_mod._CACHE)())
     again = find_witness(robot, scene.objects, q0, scene.goal)
     assert first is not None and again is not first
     assert np.array_equal(first.waypoints, again.waypoints)
     assert first.locked == robot.locked_values and first.joint_names == robot.joint_names
+
+
+class _CountedSearch:
+    """Calls the real witness search and counts the calls."""
+
+    def __init__(self, monkeypatch):
+        self.calls, self._search = 0, witness_mod._search
+        monkeypatch.setattr(witness_mod, '_search', self)
+
+    def __call__(self, *args):
+        self.calls += 1
+        return self._search(*args)
+
+
+def _new_process(monkeypatch):
+    """What a new process sees: an empty in-process cache (the disk cache stays)."""
+    monkeypatch.setattr(witness_mod, '_CACHE', type(witness_mod._CACHE)())
+
+
+def test_the_disk_cache_spares_the_next_process_the_search(task, tmp_path, monkeypatch):
+    scene, robot, q0, _ = task
+    monkeypatch.setenv(witness_mod.CACHE_ENV, str(tmp_path))
+    _new_process(monkeypatch)
+    search = _CountedSearch(monkeypatch)
+    first = find_witness(robot, scene.objects, q0, scene.goal)
+    (cached,) = tmp_path.iterdir()
+    _new_process(monkeypatch)
+    again = find_witness(robot, scene.objects, q0, scene.goal)
+    assert search.calls == 1 and again is not first
+    np.testing.assert_allclose(again.waypoints, first.waypoints, atol=1e-12)
+    # Another task (a box elsewhere) has a file of its own.
+    box = make_box('elsewhere', (-0.5, 0.5, 0.2), (0.05,) * 3)
+    find_witness(robot, scene.objects + (box,), q0, scene.goal)
+    assert search.calls == 2 and len(list(tmp_path.iterdir())) == 2 and cached.exists()
+
+
+@pytest.mark.parametrize('damage', ['garbage', 'other start', 'through a wall'])
+def test_a_damaged_cache_file_costs_a_search_not_a_wrong_verdict(task, tmp_path, monkeypatch,
+                                                                 damage, caplog):
+    scene, robot, q0, _ = task
+    monkeypatch.setenv(witness_mod.CACHE_ENV, str(tmp_path))
+    _new_process(monkeypatch)
+    search = _CountedSearch(monkeypatch)
+    good = find_witness(robot, scene.objects, q0, scene.goal)
+    (path,) = tmp_path.iterdir()
+    if damage == 'garbage':
+        path.write_text('joint_names: [\n')
+    else:
+        waypoints = good.waypoints.copy()
+        if damage == 'other start':
+            waypoints[0, 0] += 0.1
+        else:  # the middle waypoint pushed down through the table
+            waypoints = np.insert(waypoints, 1, q0 + np.array([0, 1.2, 0, 0, 0, 1.5, 0]), 0)
+        save_witness(path, Witness(good.joint_names, waypoints, good.locked, good.source))
+    _new_process(monkeypatch)
+    again = find_witness(robot, scene.objects, q0, scene.goal)
+    assert search.calls == 2 and 'witness cache' in caplog.text
+    np.testing.assert_allclose(again.waypoints, good.waypoints, atol=1e-12)
+    assert load_witness(path).waypoints.shape == good.waypoints.shape  # replaced
+
+
+def test_attack_cli_reuses_the_witness_of_an_earlier_run(task, tmp_path):
+    """Two ``advocc attack`` processes: the second reads the first one's witness (the cache
+    file is not written again) and certifies the same path."""
+    scene, robot, q0, heatmap = task
+    save_heatmap(heatmap, tmp_path / 'h.npz')
+    cache = tmp_path / 'cache'
+    env = {**os.environ, witness_mod.CACHE_ENV: str(cache)}
+    runs = []
+    for k in range(2):
+        out = tmp_path / f'obs{k}.yaml'
+        proc = subprocess.run([sys.executable, '-m', 'advocc_ros.cli', 'attack', '--scene',
+                               'table_pick', '--heatmap', str(tmp_path / 'h.npz'), '--budget',
+                               '1', '--policy', 'solvable', '--json', '--no-progress', '--out',
+                               str(out)], capture_output=True, text=True, timeout=180, env=env)
+        assert proc.returncode == 0, proc.stderr[-2000:]
+        (cached,) = cache.iterdir()
+        runs.append((json.loads(proc.stdout), cached.stat().st_mtime_ns,
+                     load_witness(witness_file(out)).waypoints))
+    assert runs[0][1] == runs[1][1], 'the second run searched and wrote the cache again'
+    assert all(r['solvable']['verdict'] == 'certified' for r, _, _ in runs)
+    np.testing.assert_allclose(runs[1][2], runs[0][2], atol=1e-12)
 
 
 @pytest.mark.parametrize('method', ['task', 'random', 'ours'])

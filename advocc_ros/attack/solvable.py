@@ -26,7 +26,6 @@ import dataclasses
 import threading
 
 import numpy as np
-import pinocchio as pin
 
 from advocc_ros.attack.coverage import box_distance
 from advocc_ros.attack.goals import GoalSamples
@@ -34,8 +33,8 @@ from advocc_ros.heatmap import link_tables, placement_arrays
 from advocc_ros.model.collision import CollisionWorld
 from advocc_ros.model.ik import GoalSampler, IkConfig
 from advocc_ros.model.robot import RobotModel
-from advocc_ros.model.scene import GoalRegion, SceneError, SceneObject
-from advocc_ros.planning.witness import WITNESS_STEP_RAD, Witness, witness_states
+from advocc_ros.model.scene import GoalRegion, SceneObject
+from advocc_ros.planning.witness import Witness, certify, witness_states
 
 VERDICTS = ('certified', 'goal blocked', 'unknown')
 GOAL_PROBE_CONVERGED = 500
@@ -65,39 +64,6 @@ class Solvability:
     def to_json(self) -> dict:
         return {'verdict': self.verdict, 'message': self.message,
                 'goal_probe': self.goal_probe, 'witness_states': self.witness_states}
-
-
-def _tool_pose(robot: RobotModel, data, q: np.ndarray, goal: GoalRegion) -> pin.SE3:
-    pin.framesForwardKinematics(robot.model, data, q)
-    return data.oMf[robot.model.getFrameId(goal.link)] * goal.tool_offset.to_se3()
-
-
-def certify(robot: RobotModel, world: CollisionWorld, goal: GoalRegion, witness: Witness,
-            step_rad: float = WITNESS_STEP_RAD) -> tuple[str | None, int]:
-    """(None if ``witness`` is a valid solution in ``world`` else why, states checked).
-
-    ``world``: the scene with the boxes. Checks the joint names, the locked joints' values,
-    joint limits, every state at ``step_rad`` (self and scene collision, exact) and that the
-    last state lies in ``goal``.
-    """
-    try:
-        Q = witness.configurations(robot)
-    except SceneError as exc:
-        return str(exc), 0
-    for name, value in robot.locked_values.items():
-        if abs(witness.locked.get(name, np.nan) - value) > 1e-9:
-            return (f'locked joint {name}: witness holds {witness.locked.get(name)}, the task '
-                    f'{value}'), 0
-    states = witness_states(Q, step_rad)
-    outside = ~np.all((states >= robot.lower - 1e-9) & (states <= robot.upper + 1e-9), axis=1)
-    if outside.any():
-        return f'witness state {int(np.argmax(outside))} is outside the joint limits', 0
-    first = world.first_collision(states)
-    if first >= 0:
-        return f'witness state {first} of {len(states)} is in collision', first + 1
-    if not goal.contains(_tool_pose(robot, robot.create_data(), states[-1], goal)):
-        return 'the witness does not end inside the goal region', len(states)
-    return None, len(states)
 
 
 def probe_goal(robot: RobotModel, world: CollisionWorld, goal: GoalRegion,

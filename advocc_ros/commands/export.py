@@ -53,7 +53,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def _certified(robot, scene, witness) -> str | None:
     """Why ``witness`` is not a solution of ``scene`` (its objects include the boxes), or None."""
-    from advocc_ros.attack.solvable import certify
+    from advocc_ros.planning.witness import certify
     from advocc_ros.model.collision import CollisionWorld
 
     return certify(robot, CollisionWorld(robot, scene.shapes), scene.goal, witness)[0]

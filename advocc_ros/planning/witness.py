@@ -10,6 +10,11 @@ search is deterministic for its seed only in a process of its own (``Planner`` g
 its watchdog). The search checks motions at ``WITNESS_STEP_RAD``, half the planners' step, so
 the witness also passes the finer re-check that certificates use.
 
+A found witness is kept twice: in this process, and on disk (``witness_cache_dir``) so that
+the next process (another ``advocc attack``, a restarted node) skips the search; a witness read
+from disk is certified again on the unattacked scene before it is used, so a stale or damaged
+file costs a search, never a wrong verdict.
+
 File (``<obstacles>.witness.yaml`` beside an obstacles file): ``joint_names`` (the planned
 joints), ``waypoints`` (rad; the path is the linear interpolation in joint space between them),
 ``locked`` (every joint of the model that is not planned, at its held value) and ``source``
@@ -22,11 +27,14 @@ import collections
 import dataclasses
 import logging
 import math
+import os
 import pathlib
 import threading
 
 import numpy as np
+import pinocchio as pin
 
+from advocc_ros.model.collision import CollisionWorld
 from advocc_ros.model.robot import RobotModel
 from advocc_ros.model.scene import (GoalRegion, Scene, SceneError, SceneObject, read_yaml,
                                     save_yaml_atomic, task_hash)
@@ -43,6 +51,8 @@ WITNESS_SEED = 0
 """Seed of the witness search: the witness belongs to the task, not to one attack's seed."""
 WITNESS_TIME_S = 30.0
 """Budget of one witness search [s] (RRTConnect solves the shipped scenes in < 1 s)."""
+CACHE_ENV = 'ADVOCC_WITNESS_CACHE'
+"""Environment variable: the on-disk witness cache's directory, or ``off``."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -110,6 +120,42 @@ def witness_states(waypoints: np.ndarray, step_rad: float = WITNESS_STEP_RAD) ->
     return np.concatenate(parts)
 
 
+def _tool_pose(robot: RobotModel, data, q: np.ndarray, goal: GoalRegion) -> pin.SE3:
+    pin.framesForwardKinematics(robot.model, data, q)
+    return data.oMf[robot.model.getFrameId(goal.link)] * goal.tool_offset.to_se3()
+
+
+def certify(robot: RobotModel, world: CollisionWorld, goal: GoalRegion, witness: Witness,
+            step_rad: float = WITNESS_STEP_RAD, q_init: np.ndarray | None = None
+            ) -> tuple[str | None, int]:
+    """(None if ``witness`` is a valid solution in ``world`` else why, states checked).
+
+    ``world``: the scene with the boxes. Checks the joint names, the locked joints' values,
+    the start (when ``q_init`` is given), joint limits, every state at ``step_rad`` (self and
+    scene collision, exact) and that the last state lies in ``goal``.
+    """
+    try:
+        Q = witness.configurations(robot)
+    except SceneError as exc:
+        return str(exc), 0
+    if q_init is not None and not np.allclose(Q[0], q_init, atol=1e-9):
+        return 'the witness does not start at the start state', 0
+    for name, value in robot.locked_values.items():
+        if abs(witness.locked.get(name, np.nan) - value) > 1e-9:
+            return (f'locked joint {name}: witness holds {witness.locked.get(name)}, the task '
+                    f'{value}'), 0
+    states = witness_states(Q, step_rad)
+    outside = ~np.all((states >= robot.lower - 1e-9) & (states <= robot.upper + 1e-9), axis=1)
+    if outside.any():
+        return f'witness state {int(np.argmax(outside))} is outside the joint limits', 0
+    first = world.first_collision(states)
+    if first >= 0:
+        return f'witness state {first} of {len(states)} is in collision', first + 1
+    if not goal.contains(_tool_pose(robot, robot.create_data(), states[-1], goal)):
+        return 'the witness does not end inside the goal region', len(states)
+    return None, len(states)
+
+
 def witness_file(obstacles_path: str | pathlib.Path) -> pathlib.Path:
     """``obs.yaml`` -> ``obs.witness.yaml`` (the witness written beside an obstacles file)."""
     path = pathlib.Path(obstacles_path)
@@ -132,38 +178,41 @@ _CACHE_SIZE = 32
 _LOCK = threading.Lock()
 
 
+def witness_cache_dir() -> pathlib.Path | None:
+    """The on-disk witness cache: ``$ADVOCC_WITNESS_CACHE`` (``off``: none), by default
+    ``$XDG_CACHE_HOME/advocc_ros/witness`` (``~/.cache/advocc_ros/witness``)."""
+    value = os.environ.get(CACHE_ENV, '')
+    if value == 'off':
+        return None
+    if value:
+        return pathlib.Path(value)
+    base = os.environ.get('XDG_CACHE_HOME') or pathlib.Path.home() / '.cache'
+    return pathlib.Path(base) / 'advocc_ros' / 'witness'
+
+
 def find_witness(robot: RobotModel, objects: tuple[SceneObject, ...] | list,
                  q_init: np.ndarray, goal: GoalRegion, seed: int = WITNESS_SEED,
                  time_s: float = WITNESS_TIME_S) -> Witness | None:
     """A witness for the task on the scene ``objects`` (None when the search fails), cached
-    per task and seed in this process. Deterministic for a seed when the search ends before
-    its budget (see the module docstring)."""
-    from advocc_ros.planning.worker import Planner
-
+    per task and seed in this process and on disk. Deterministic for a seed when the search
+    ends before its budget (see the module docstring)."""
     objects = tuple(objects)
-    key = task_hash(robot.hash, objects, goal, np.round(np.asarray(q_init, float), 12).tolist(),
-                    seed, time_s)
+    q_init = np.asarray(q_init, float)
+    key = task_hash(robot.hash, objects, goal, np.round(q_init, 12).tolist(), seed, time_s,
+                    WITNESS_FORMAT, WITNESS_PLANNER, WITNESS_STEP_RAD)
     with _LOCK:
         if key in _CACHE:
             _CACHE.move_to_end(key)
             return _CACHE[key]
-    config = PlanningConfig(time_budget_s=time_s, motion_step_rad=WITNESS_STEP_RAD,
-                            stop_at_first_solution=True, simplify=True, interpolate=False)
-    scene = Scene(name='witness', robot=robot.spec, objects=objects)
-    with Planner(scene, config) as planner:
-        result = planner.plan(q_init, goal, WITNESS_PLANNER, time_s, seed)
-    witness = None
-    if result.status == PlanStatus.INTERNAL_ERROR:  # not an answer about the task: not cached
-        log.error('witness search failed internally: %s', result.message)
-        return None
-    if result.success:
-        witness = Witness(robot.joint_names, result.path, dict(robot.locked_values), {
-            'planner': WITNESS_PLANNER, 'seed': int(seed), 'time_budget_s': float(time_s),
-            'planning_time_s': round(result.planning_time_s, 4),
-            'path_length_rad': round(float(result.stats.get('path_length_rad', 0.0)), 6),
-            'step_rad': WITNESS_STEP_RAD})
-    else:
-        log.warning('no witness for the task (seed %d): %s', seed, result.message)
+    cache_dir = witness_cache_dir()
+    disk = cache_dir / f'{key}.yaml' if cache_dir is not None else None
+    witness = _from_disk(disk, robot, objects, q_init, goal) if disk is not None else None
+    if witness is None:
+        found, witness = _search(robot, objects, q_init, goal, seed, time_s)
+        if not found:  # an internal error says nothing about the task: not cached
+            return None
+        if witness is not None and disk is not None:
+            _to_disk(disk, witness)
     with _LOCK:
         _CACHE[key] = witness
         while len(_CACHE) > _CACHE_SIZE:
@@ -171,5 +220,55 @@ def find_witness(robot: RobotModel, objects: tuple[SceneObject, ...] | list,
     return witness
 
 
-__all__ = ['WITNESS_STEP_RAD', 'Witness', 'find_witness', 'load_witness', 'save_witness',
-           'witness_file', 'witness_states']
+def _search(robot: RobotModel, objects: tuple[SceneObject, ...], q_init: np.ndarray,
+            goal: GoalRegion, seed: int, time_s: float) -> tuple[bool, Witness | None]:
+    """(the search answered, its witness or None) of one RRTConnect run in a fresh worker."""
+    from advocc_ros.planning.worker import Planner
+
+    config = PlanningConfig(time_budget_s=time_s, motion_step_rad=WITNESS_STEP_RAD,
+                            stop_at_first_solution=True, simplify=True, interpolate=False)
+    scene = Scene(name='witness', robot=robot.spec, objects=objects)
+    with Planner(scene, config) as planner:
+        result = planner.plan(q_init, goal, WITNESS_PLANNER, time_s, seed)
+    if result.status == PlanStatus.INTERNAL_ERROR:
+        log.error('witness search failed internally: %s', result.message)
+        return False, None
+    if not result.success:
+        log.warning('no witness for the task (seed %d): %s', seed, result.message)
+        return True, None
+    return True, Witness(robot.joint_names, result.path, dict(robot.locked_values), {
+        'planner': WITNESS_PLANNER, 'seed': int(seed), 'time_budget_s': float(time_s),
+        'planning_time_s': round(result.planning_time_s, 4),
+        'path_length_rad': round(float(result.stats.get('path_length_rad', 0.0)), 6),
+        'step_rad': WITNESS_STEP_RAD})
+
+
+def _from_disk(path: pathlib.Path, robot: RobotModel, objects: tuple[SceneObject, ...],
+               q_init: np.ndarray, goal: GoalRegion) -> Witness | None:
+    """The cached witness of ``path`` if it is one for this task (certified again)."""
+    if not path.is_file():
+        return None
+    try:
+        witness = load_witness(path)
+    except (SceneError, OSError) as exc:
+        log.warning('witness cache: %s (searching again)', exc)
+        return None
+    world = CollisionWorld(robot, [sh for o in objects for sh in o.shapes])
+    why, _ = certify(robot, world, goal, witness, q_init=q_init)
+    if why is not None:
+        log.warning('witness cache: %s is not a witness of this task: %s (searching again)',
+                    path, why)
+        return None
+    return witness
+
+
+def _to_disk(path: pathlib.Path, witness: Witness) -> None:
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        save_witness(path, witness)
+    except OSError as exc:  # a read-only home must not fail the attack
+        log.warning('witness cache: cannot write %s (%s)', path, exc)
+
+
+__all__ = ['CACHE_ENV', 'WITNESS_STEP_RAD', 'Witness', 'certify', 'find_witness', 'load_witness',
+           'save_witness', 'witness_cache_dir', 'witness_file', 'witness_states']
