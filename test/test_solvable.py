@@ -82,11 +82,16 @@ def _new_process(monkeypatch):
     monkeypatch.setattr(witness_mod, '_CACHE', type(witness_mod._CACHE)())
 
 
-def test_the_disk_cache_spares_the_next_process_the_search(task, tmp_path, monkeypatch):
-    scene, robot, q0, _ = task
+@pytest.fixture
+def search(tmp_path, monkeypatch):
+    """The real witness search, counted, with an empty disk cache in ``tmp_path``."""
     monkeypatch.setenv(witness_mod.CACHE_ENV, str(tmp_path))
     _new_process(monkeypatch)
-    search = _CountedSearch(monkeypatch)
+    return _CountedSearch(monkeypatch)
+
+
+def test_the_disk_cache_spares_the_next_process_the_search(task, tmp_path, monkeypatch, search):
+    scene, robot, q0, _ = task
     first = find_witness(robot, scene.objects, q0, scene.goal)
     (cached,) = tmp_path.iterdir()
     _new_process(monkeypatch)
@@ -101,11 +106,8 @@ def test_the_disk_cache_spares_the_next_process_the_search(task, tmp_path, monke
 
 @pytest.mark.parametrize('damage', ['garbage', 'other start', 'through a wall'])
 def test_a_damaged_cache_file_costs_a_search_not_a_wrong_verdict(task, tmp_path, monkeypatch,
-                                                                 damage, caplog):
+                                                                 search, damage, caplog):
     scene, robot, q0, _ = task
-    monkeypatch.setenv(witness_mod.CACHE_ENV, str(tmp_path))
-    _new_process(monkeypatch)
-    search = _CountedSearch(monkeypatch)
     good = find_witness(robot, scene.objects, q0, scene.goal)
     (path,) = tmp_path.iterdir()
     if damage == 'garbage':
