@@ -51,6 +51,8 @@ WITNESS_SEED = 0
 """Seed of the witness search: the witness belongs to the task, not to one attack's seed."""
 WITNESS_TIME_S = 30.0
 """Budget of one witness search [s] (RRTConnect solves the shipped scenes in < 1 s)."""
+WAYPOINT_DECIMALS = 12
+"""Waypoints are rounded to 1e-12 rad, in memory as in files (YAML keeps them exactly)."""
 CACHE_ENV = 'ADVOCC_WITNESS_CACHE'
 """Environment variable: the on-disk witness cache's directory, or ``off``."""
 
@@ -69,7 +71,8 @@ class Witness:
 
     def to_data(self) -> dict:
         return {'format': WITNESS_FORMAT, 'joint_names': list(self.joint_names),
-                'waypoints': np.round(np.asarray(self.waypoints, float), 12).tolist(),
+                'waypoints': np.round(np.asarray(self.waypoints, float),
+                                      WAYPOINT_DECIMALS).tolist(),
                 'locked': {k: float(v) for k, v in self.locked.items()},
                 'source': dict(self.source)}
 
@@ -236,7 +239,9 @@ def _search(robot: RobotModel, objects: tuple[SceneObject, ...], q_init: np.ndar
     if not result.success:
         log.warning('no witness for the task (seed %d): %s', seed, result.message)
         return True, None
-    return True, Witness(robot.joint_names, result.path, dict(robot.locked_values), {
+    # Rounded as in its file: the witness certified is the one written and the one read back.
+    waypoints = np.round(np.asarray(result.path, float), WAYPOINT_DECIMALS)
+    return True, Witness(robot.joint_names, waypoints, dict(robot.locked_values), {
         'planner': WITNESS_PLANNER, 'seed': int(seed), 'time_budget_s': float(time_s),
         'planning_time_s': round(result.planning_time_s, 4),
         'path_length_rad': round(float(result.stats.get('path_length_rad', 0.0)), 6),
