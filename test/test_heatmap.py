@@ -40,6 +40,34 @@ def test_one_link_cube_occupies_125_voxels_per_sample():
     assert len(set(ys)) == 5 and len(set(zs)) == 5
 
 
+@pytest.mark.parametrize('solid', ['panda_link5', 'cylinder', 'turned box', 'sphere'])
+def test_convex_lut_is_the_half_space_test_of_every_cell(panda, solid):
+    """The look-up table of a convex solid, built column by column, equals the plain test of
+    every cell centre against every face of the hull."""
+    import trimesh
+
+    from advocc_ros.model.voxels import SolidLUT
+    meshes = {'cylinder': trimesh.creation.cylinder(0.05, 0.2, 48),
+              'turned box': trimesh.creation.box((0.1, 0.07, 0.2), trimesh.transformations.
+                                                 euler_matrix(0.3, 0.5, 0.7)),
+              'sphere': trimesh.creation.icosphere(3, 0.07)}
+    if solid in meshes:
+        mesh = meshes[solid]
+    else:
+        names = [panda.collision_model.geometryObjects[i].name
+                 for i in range(panda.collision_model.ngeoms)]
+        mesh = panda.link_meshes[next(i for i, n in enumerate(names) if solid in n)]
+    hull = mesh.convex_hull
+    assert abs(hull.volume - mesh.volume) <= 1e-3 * hull.volume  # the convex path
+    lut = SolidLUT.from_mesh(mesh, 0.005)
+    idx = np.argwhere(np.ones(lut.filled.shape, bool))
+    centres = lut.origin_m + (idx + 0.5) * lut.pitch_m
+    offsets = np.einsum('ij,ij->i', hull.face_normals, hull.triangles[:, 0])
+    inside = np.all(centres @ hull.face_normals.T <= offsets + 1e-12, axis=1)
+    np.testing.assert_array_equal(lut.filled[tuple(idx.T)], inside)
+    assert inside.sum() > 100 and (~inside).sum() > 100
+
+
 def test_h_is_zero_inside_scene_objects(small_table_heatmap, table_scene):
     heatmap = small_table_heatmap
     expected_blocked = occupied_mask(heatmap.grid, table_scene.shapes)
