@@ -97,7 +97,8 @@ def test_audit_end_to_end_table_pick(tmp_path, table_scene, small_heatmap):
     for b in budgets:
         assert 0.0 <= b['goal_valid_fraction'] <= 1.0
         row = b['planners']['rrtconnect']
-        assert set(row['failures']) == {'goal not sampled', 'timed out', 'planning failed'}
+        modes = {'goal not sampled', 'timed out', 'planning failed', 'invalid path'}
+        assert set(row['failures']) == modes
         assert sum(row['failures'].values()) == row['trials'] - row['successes']
     assert budgets[0]['goal_valid_fraction'] == 1.0
     psr = data['psr']['rrtconnect']
@@ -149,7 +150,8 @@ def _hand_audit(psr, verdicts, goal_blocked_m):
     budgets = [{'m': m, 'solvable': s, 'goal_valid_fraction': 1.0, 'planners': {'rrtconnect': {
         'psr': v, 'first_solution_median_s': 0.1 * (m + 1),
         'failures': {'goal not sampled': 0, 'timed out': round(10 * (1 - v)),
-                     'planning failed': 0}}}} for m, (v, s) in enumerate(zip(psr, verdicts))]
+                     'planning failed': 0, 'invalid path': 0}}}}
+               for m, (v, s) in enumerate(zip(psr, verdicts))]
     prefixes = [{'m': m, 'solvable': s, 'solvability': {'message': 'why'}}
                 for m, s in enumerate(verdicts) if m > 0][:goal_blocked_m or None]
     return {'scene': 'table_pick', 'method_label': 'Task', 'policy': 'solvable', 'max_budget': 3,

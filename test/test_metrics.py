@@ -144,14 +144,16 @@ def test_internal_errors_stay_out_of_psr_and_pt_but_are_counted():
     recs = [TrialRecord(0, 0, True, 'SUCCESS', 1.0, min_manipulability=0.05,
                         min_clearance_rad=0.02, jds_rad=1.0),
             TrialRecord(1, 1, False, 'PLANNING_FAILED', 2.0),
+            TrialRecord(6, 6, False, 'INVALID_MOTION_PLAN', 1.5),  # a planner failure
             TrialRecord(2, 2, False, 'INTERNAL_ERROR', 0.0),   # the worker raised
             TrialRecord(3, 3, False, 'CRASH', 0.0),            # an older shim's dead worker
             TrialRecord(4, 4, False, '-999', 0.0),             # a code without a name
             TrialRecord(5, 5, True, 'TIMED_OUT', 5.0)]         # contradicts itself
     row = aggregate(recs, time_budget_s=5.0)
-    assert row['trials'] == 6 and row['internal_errors'] == 4
-    assert row['psr'] == 0.5  # 1 success of the 2 trials that measured the planner
-    assert row['pt'] == pytest.approx((1.0 + 5.0) / 2)
-    assert row['failures'] == {'goal not sampled': 0, 'timed out': 0, 'planning failed': 1}
-    only_errors = aggregate(recs[2:5], time_budget_s=5.0)
+    assert row['trials'] == 7 and row['internal_errors'] == 4
+    assert row['psr'] == pytest.approx(1 / 3)  # 1 success of the 3 trials that measured it
+    assert row['pt'] == pytest.approx((1.0 + 5.0 + 5.0) / 3)
+    assert row['failures'] == {'goal not sampled': 0, 'timed out': 0, 'planning failed': 1,
+                               'invalid path': 1}
+    only_errors = aggregate(recs[3:6], time_budget_s=5.0)
     assert only_errors['psr'] is None and only_errors['pt'] is None

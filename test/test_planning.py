@@ -192,6 +192,38 @@ def test_worker_ignores_a_checkout_in_the_working_directory(open_scene, tmp_path
     assert r.success, r.message
 
 
+def test_a_solution_through_an_obstacle_is_refused_as_moveit_does(open_scene, panda):
+    """With a motion check far coarser than the interpolation, RRTConnect connects start and
+    goal straight through a thin plate; the shim validates the interpolated solution (as
+    MoveIt's ValidateSolution adapter does) and answers INVALID_MOTION_PLAN, a planner
+    failure, never a success that collides."""
+    from advocc_ros.model.mbm_request import goal_region_at
+    from advocc_ros.model.scene import Scene
+
+    q0 = start_configuration(open_scene, panda)
+    q_goal = q0.copy()
+    q_goal[0] += 1.5  # the same pose, swung 1.5 rad about the base
+    goal = goal_region_at(panda, dict(zip(panda.joint_names, q_goal)))
+    angle = 0.75  # a radial plate halfway along the swing, clear of start and goal
+    plate = SceneObject('plate', (Shape('box', (0.3, 0.01, 0.3), Pose(
+        (0.32 * np.cos(angle), 0.32 * np.sin(angle), 0.6),
+        (0.0, 0.0, np.sin(angle / 2), np.cos(angle / 2)))),))
+    scene = Scene(open_scene.objects + (plate,), dict(open_scene.start), goal,
+                  open_scene.robot, 'plate')
+    world = CollisionWorld(panda, scene.shapes)
+    assert not world.in_collision(q0) and not world.in_collision(q_goal)
+    coarse = PlanningConfig(motion_step_rad=3.0)
+    with Planner(scene, coarse) as planner:
+        results = [planner.plan(q0, goal, 'rrtconnect', BUDGET, seed) for seed in range(3)]
+    assert any(r.status == PlanStatus.INVALID_MOTION_PLAN for r in results), \
+        [r.message for r in results]
+    for r in results:
+        if r.status == PlanStatus.INVALID_MOTION_PLAN:
+            assert 'in collision' in r.message and len(r.path) == 0
+        if r.success:
+            assert not world.collisions_batch(r.path).any()
+
+
 def test_worker_overhead_is_small(planner, open_scene):
     q0 = start_configuration(open_scene, planner.robot)
     overheads = [planner.plan(q0, open_scene.goal, 'rrtconnect', BUDGET, s).stats['overhead_s']

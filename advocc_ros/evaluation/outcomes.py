@@ -4,10 +4,12 @@ internal error.
 Only the planner's own answers measure the scene: no collision-free goal configuration sampled
 (``GOAL_IN_COLLISION``, ``NO_IK_SOLUTION``: the planner's goal sampler gave up; whether the goal
 is really blocked is the task's ``solvable`` verdict, not the planner's word), out of time
-(``TIMED_OUT``: the paths were occluded) or no path found (``PLANNING_FAILED``). Anything else
-(``INTERNAL_ERROR`` from a planner that raised or died, a path that collides,
-``CRASH``/``FAILURE``/an unknown code from a shim, a rejected request, a record that contradicts
-itself) is an internal error: a bug or a dead process must not lower PSR and pass for a
+(``TIMED_OUT``: the paths were occluded), no path found (``PLANNING_FAILED``) or a solution
+with a waypoint in collision (``INVALID_MOTION_PLAN``: the planner's motion check stepped over
+an obstacle; MoveIt's ``ValidateSolution`` adapter refuses such a plan the same way). Anything
+else (``INTERNAL_ERROR`` from a planner that raised or died, a "success" whose path collides
+after all, ``CRASH``/``FAILURE``/an unknown code from a shim, a rejected request, a record that
+contradicts itself) is an internal error: a bug or a dead process must not lower PSR and pass for a
 successful attack, so internal errors stay out of PSR's denominator, are counted on their own,
 and a benchmark cell with more than ``MAX_INTERNAL_ERROR_FRACTION`` of them fails the run.
 """
@@ -16,10 +18,11 @@ from __future__ import annotations
 
 SUCCESS = 'success'
 INTERNAL_ERROR = 'internal error'
-FAILURE_MODES = ('goal not sampled', 'timed out', 'planning failed')
+FAILURE_MODES = ('goal not sampled', 'timed out', 'planning failed', 'invalid path')
 """The planner's failure modes, in table order."""
 _MODES = {'GOAL_IN_COLLISION': 'goal not sampled', 'NO_IK_SOLUTION': 'goal not sampled',
-          'TIMED_OUT': 'timed out', 'PLANNING_FAILED': 'planning failed'}
+          'TIMED_OUT': 'timed out', 'PLANNING_FAILED': 'planning failed',
+          'INVALID_MOTION_PLAN': 'invalid path'}
 MAX_INTERNAL_ERROR_FRACTION = 0.05
 """A benchmark cell with a larger share of internal errors fails the run."""
 

@@ -154,7 +154,7 @@ def solve(robot: RobotModel, world: CollisionWorld, q_start: np.ndarray, goal: G
         return _no_solution(status.asString(), time_budget_s, nq, time.monotonic() - t0, stats)
     first = goal_obj.first_pair_t
     stats['first_solution_s'] = (first if first is not None else time.monotonic()) - t0
-    return _solution(ss, nq, t0, t0 + time_budget_s, config, stats)
+    return _solution(ss, world, t0, t0 + time_budget_s, config, stats)
 
 
 def _seed_ompl(ou, seed: int) -> None:
@@ -222,9 +222,12 @@ def _no_solution(name: str, time_budget_s: float, nq: int, elapsed: float, stats
     return _fail(PlanStatus.PLANNING_FAILED, f'OMPL: {name}', nq, elapsed, **stats)
 
 
-def _solution(ss, nq: int, t0: float, deadline: float, config: PlanningConfig, stats: dict
-              ) -> PlanResult:
-    """The success: the solution simplified and interpolated like MoveIt's defaults."""
+def _solution(ss, world: CollisionWorld, t0: float, deadline: float, config: PlanningConfig,
+              stats: dict) -> PlanResult:
+    """The solution simplified and interpolated like MoveIt's defaults, then validated like
+    MoveIt's ``ValidateSolution`` response adapter: a waypoint in collision (interpolation put
+    it between two states the motion check passed) makes the answer ``INVALID_MOTION_PLAN``."""
+    nq = world.robot.nq
     if config.simplify:
         ss.simplifySolution(max(deadline - time.monotonic(), 0.01))
     path = ss.getSolutionPath()
@@ -236,5 +239,10 @@ def _solution(ss, nq: int, t0: float, deadline: float, config: PlanningConfig, s
                           for k in range(path.getStateCount())])
     elapsed = time.monotonic() - t0
     stats['path_length_rad'] = float(path.length())
+    colliding = np.flatnonzero(world.collisions_batch(waypoints))
+    if len(colliding):
+        return _fail(PlanStatus.INVALID_MOTION_PLAN, f'{stats["planner"]}: waypoint '
+                     f'{colliding[0]} of the {len(waypoints)} of its solution is in collision '
+                     '(between two states its motion check passed)', nq, elapsed, **stats)
     return PlanResult(PlanStatus.SUCCESS, f'{stats["planner"]}: solved in {elapsed:.3f} s',
                       waypoints, elapsed, stats)

@@ -17,6 +17,9 @@ class PlanStatus(enum.IntEnum):
 
     SUCCESS = 1
     PLANNING_FAILED = -1
+    INVALID_MOTION_PLAN = -2
+    """The solution has a waypoint in collision (MoveIt's ``ValidateSolution`` answers the
+    same): the planner's motion check stepped over an obstacle it then interpolated into."""
     TIMED_OUT = -6
     START_STATE_IN_COLLISION = -10
     GOAL_IN_COLLISION = -12
@@ -26,8 +29,8 @@ class PlanStatus(enum.IntEnum):
     INVALID_REQUEST = -101
     UNKNOWN_METHOD = -102
     INTERNAL_ERROR = -105
-    """The planner itself failed (an exception, a dead worker, a path that collides): the
-    trial says nothing about the scene, so it must never count as a planning failure."""
+    """The planner itself failed (an exception, a dead worker): the trial says nothing about
+    the scene, so it must never count as a planning failure."""
 
 
 REQUEST_ERRORS = frozenset({
