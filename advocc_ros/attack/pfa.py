@@ -15,10 +15,9 @@ is the mean joint-space path length of the successful queries (OMPL's simplified
 the same over K queries of the unattacked scene. g lies in [0, 1), so it only breaks ties
 between equal failure counts (lexicographic: failure rate first, then detour). Any status other
 than SUCCESS is a failure (timeout, goal in collision, no IK solution): the planner did not
-deliver a plan, which is what the attack is for. An internal error (our planning worker crashed)
-is no answer about the boxes: the query is asked again once with another seed, and a second
-internal error stops the attack. Repeated placements reuse their score (no queries are spent
-twice on one set of boxes).
+deliver a plan, which is what the attack is for. An internal error (a crashed planning worker)
+says nothing about the boxes: asked again with another seed; a second one stops the attack.
+Repeated placements reuse their score (no queries are spent twice on one set of boxes).
 
 Optimiser. CMA-ES from the maintained ``cmaes`` package (0.13.1) in 3M continuous dimensions:
 each box's centre normalised to [0, 1] over the candidates' bounding box (box bounds given to
@@ -94,8 +93,7 @@ EXACT_POSITION_TOL_M = 1e-4
 """MoveIt's default pose-goal position tolerance (MoveGroupInterface)."""
 EXACT_ORIENTATION_TOL_RAD = 1e-3
 """MoveIt's default pose-goal orientation tolerance."""
-RETRY_SEED_OFFSET = 2 ** 30
-"""A query asked again after an internal error uses seed + this (not a seed of the run's own)."""
+RETRY_SEED_OFFSET = 2 ** 30  # a query asked again uses seed + this: no seed of the run's own
 
 
 @dataclasses.dataclass(frozen=True)
@@ -371,12 +369,12 @@ class _PlannerObjective:
 
     def _query(self, obstacles: tuple, seed: int) -> PlanResult:
         res = self._ask(obstacles, seed)
-        if res.status == PlanStatus.INTERNAL_ERROR:
+        retry = res.status == PlanStatus.INTERNAL_ERROR
+        if retry:
             log.warning('PFA query failed internally (%s); asked again', res.message)
             res = self._ask(obstacles, (seed + RETRY_SEED_OFFSET) % (2 ** 31))
-            with self._lock:
-                self.retried += 1
         with self._lock:
+            self.retried += retry
             self.done += 1
             if self.progress is not None:
                 self.progress(self.done, self.cfg.queries)
@@ -469,8 +467,7 @@ def _select(region: SearchRegion, budget: int, seed: int, cfg: AttackConfig,
         'stopped': result.stopped, 'statuses': objective.statuses,
         'internal_errors_retried': objective.retried,
         'baseline_failure_rate': objective.baseline_failures / K if len(cand) else None,
-        'baseline_path_length_rad': objective.baseline_length,
-        'best_failure_rate': best_fail,
+        'baseline_path_length_rad': objective.baseline_length, 'best_failure_rate': best_fail,
         'best_path_increase': (result.best_score - math.floor(result.best_score)
                                if result.history else None),
         'planner_time_s': round(objective.planner_time_s, 3),
@@ -481,12 +478,9 @@ def _select(region: SearchRegion, budget: int, seed: int, cfg: AttackConfig,
                     pcfg.query_time_s)
     log.info('%s: %d queries, %d placements, best failure rate %s, %.1f s', name,
              objective.used, result.scored, best_fail, time.perf_counter() - t0)
-    picks = []
     coverage = _Coverage(region.weights, region.candidates, region.k,
                          region.d_min_m / region.grid.voxel_m)
-    for row in result.best:
-        picks.append((cand[row], coverage.cover(cand[row])))
-    return picks, decoder.rejected
+    return [(cand[row], coverage.cover(cand[row])) for row in result.best], decoder.rejected
 
 
 def _select_pfa(region, budget, seed, cfg, context):
