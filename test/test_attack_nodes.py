@@ -20,15 +20,26 @@ def _start(module, env, *params):
 
 
 def _stop(proc, timeout_s=15.0):
-    """SIGINT, then the exit code (killed and failed if it does not exit in time)."""
+    """SIGINT, then the exit code (killed and failed if it does not exit in time); a node that
+    does not exit with 0 shows the end of its output."""
     if proc.poll() is None:
         proc.send_signal(signal.SIGINT)
     try:
-        return proc.wait(timeout_s)
+        code = proc.wait(timeout_s)
     except subprocess.TimeoutExpired:
         proc.kill()
         proc.wait(5)
-        pytest.fail(f'{proc.args[2]} ignored SIGINT for {timeout_s} s')
+        pytest.fail(f'{proc.args[2]} ignored SIGINT for {timeout_s} s:\n{_tail(proc)}')
+    if code != 0:
+        print(f'{proc.args[2]} exited with {code}:\n{_tail(proc)}')
+    return code
+
+
+def _tail(proc, chars=3000) -> str:
+    try:
+        return (proc.stdout.read() or '')[-chars:] if proc.stdout else ''
+    except (OSError, ValueError):
+        return ''
 
 
 def _wait_service(executor, client, proc, timeout_s=60):
