@@ -60,9 +60,13 @@ def test_every_attack_setting_is_described_on_the_server():
             f'{field.name}: add its description to heatmap_server._CONFIG_DOC'
 
 
-def _set(node, executor, service, **values):
+def _set(proc, calls, **values):
+    """The results of one set_parameters call on the running attacker (resent when it goes
+    unanswered: a set is the same twice); the attacker's output when it never answers."""
     from rcl_interfaces.msg import Parameter, ParameterType, ParameterValue
     from rcl_interfaces.srv import SetParameters
+
+    from advocc_ros.ros.client import ServiceError
 
     def value(v):
         if isinstance(v, int):
@@ -72,52 +76,46 @@ def _set(node, executor, service, **values):
         return ParameterValue(type=ParameterType.PARAMETER_STRING, string_value=v)
     req = SetParameters.Request(parameters=[Parameter(name=k, value=value(v))
                                             for k, v in values.items()])
-    future = service.call_async(req)
-    executor.spin_until_future_complete(future, timeout_sec=10)
-    assert future.done(), 'set_parameters did not answer in 10 s'
-    return future.result().results
+    try:
+        client = calls.client(SetParameters, '/attacker/set_parameters', 60.0)
+        return calls.call_client(client, req, 30.0, lambda: proc.poll() is None,
+                                 resend_s=2.0).results
+    except ServiceError as exc:
+        proc.kill()
+        pytest.fail(f'{exc} (attacker exit code {proc.wait(10)}); its output:\n'
+                    f'{proc.stdout.read()[-3000:]}')
 
 
 def test_running_attacker_refuses_bad_sets_with_the_reason(ros_env, monkeypatch):
-    import rclpy
-    from rcl_interfaces.srv import DescribeParameters, SetParameters
+    from rcl_interfaces.srv import DescribeParameters
 
-    for key in ('ROS_DOMAIN_ID', 'ROS_LOCALHOST_ONLY'):
-        monkeypatch.setenv(key, ros_env[key])
+    from advocc_ros.ros.client import ServiceClient
+
+    monkeypatch.setenv('ROS_LOCALHOST_ONLY', ros_env['ROS_LOCALHOST_ONLY'])
     proc = subprocess.Popen([sys.executable, '-m', 'advocc_ros.nodes.attacker'], env=ros_env,
                             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
-    context = rclpy.Context()
-    rclpy.init(context=context, domain_id=int(ros_env['ROS_DOMAIN_ID']))
     try:
-        node = rclpy.create_node('parameter_test_client', context=context)
-        executor = rclpy.executors.SingleThreadedExecutor(context=context)
-        executor.add_node(node)
-        setter = node.create_client(SetParameters, '/attacker/set_parameters')
-        assert setter.wait_for_service(timeout_sec=60), 'attacker did not come up'
+        with ServiceClient('parameter_test', domain_id=int(ros_env['ROS_DOMAIN_ID'])) as calls:
+            (low,) = _set(proc, calls, budget=0)
+            assert not low.successful and 'budget out of range' in low.reason
+            assert 'Min: 1, Max: 100' in low.reason
+            (wide,) = _set(proc, calls, box_size_m=-0.1)
+            assert not wide.successful and 'box_size_m out of range' in wide.reason
+            (fixed,) = _set(proc, calls, server='/elsewhere')
+            assert not fixed.successful and 'read-only' in fixed.reason
+            (pfa,) = _set(proc, calls, method='pfa')
+            assert not pfa.successful and "'task'" in pfa.reason
+            (typed,) = _set(proc, calls, budget=2.5)
+            assert not typed.successful and 'type' in typed.reason.lower()
+            assert all(r.successful for r in _set(proc, calls, budget=5, method='task'))
 
-        (low,) = _set(node, executor, setter, budget=0)
-        assert not low.successful and 'budget out of range' in low.reason
-        assert 'Min: 1, Max: 100' in low.reason
-        (wide,) = _set(node, executor, setter, box_size_m=-0.1)
-        assert not wide.successful and 'box_size_m out of range' in wide.reason
-        (fixed,) = _set(node, executor, setter, server='/elsewhere')
-        assert not fixed.successful and 'read-only' in fixed.reason
-        (pfa,) = _set(node, executor, setter, method='pfa')
-        assert not pfa.successful and "'task'" in pfa.reason
-        (typed,) = _set(node, executor, setter, budget=2.5)
-        assert not typed.successful and 'type' in typed.reason.lower()
-        assert all(r.successful for r in _set(node, executor, setter, budget=5, method='task'))
-
-        describe = node.create_client(DescribeParameters, '/attacker/describe_parameters')
-        assert describe.wait_for_service(timeout_sec=10)
-        future = describe.call_async(DescribeParameters.Request(names=['budget', 'server']))
-        executor.spin_until_future_complete(future, timeout_sec=10)
-        budget, server = future.result().descriptors
-        assert budget.description and budget.integer_range[0].to_value == 100
-        assert server.read_only
-        node.destroy_node()
+            described = calls.call(DescribeParameters, '/attacker/describe_parameters',
+                                   DescribeParameters.Request(names=['budget', 'server']),
+                                   30.0, resend_s=2.0)
+            budget, server = described.descriptors
+            assert budget.description and budget.integer_range[0].to_value == 100
+            assert server.read_only
     finally:
-        rclpy.shutdown(context=context)
         proc.terminate()
         try:
             proc.wait(15)

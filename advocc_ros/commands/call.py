@@ -13,6 +13,10 @@ from advocc_ros.attack.methods import SERVER_METHODS
 from advocc_ros.attack.types import DEFAULT_METHOD
 from advocc_ros.model.scene import SceneError
 
+RESEND_S = 2.0
+"""An unanswered attack or info request is sent again after this long, then 2x, 4x ... [s]
+(this CLI is a new client on every call: see ``ServiceClient.call_client``)."""
+
 
 def register(sub: argparse._SubParsersAction) -> None:
     parser = sub.add_parser('call', help='call a running node\'s service')
@@ -54,7 +58,7 @@ def _attack(args: argparse.Namespace) -> int:
     with ServiceClient() as client:
         client.client(Attack, f'{args.server}/attack', args.timeout)
         t0 = time.perf_counter()
-        res = client.call(Attack, f'{args.server}/attack', req, args.timeout)
+        res = client.call(Attack, f'{args.server}/attack', req, args.timeout, RESEND_S)
         data = attack_response_data(res, time.perf_counter() - t0)
     ok = res.error_code.val in ATTACK_OK
     if args.out and ok:
@@ -87,7 +91,8 @@ def _info(args: argparse.Namespace) -> int:
     from advocc_ros.ros.client import ServiceClient
 
     with ServiceClient() as client:
-        res = client.call(GetInfo, f'{args.server}/get_info', GetInfo.Request(), args.timeout)
+        res = client.call(GetInfo, f'{args.server}/get_info', GetInfo.Request(), args.timeout,
+                          RESEND_S)
     if not res.success:
         raise UserError(f'{args.server}/get_info: {res.message}')
     info = json.loads(res.info_json)

@@ -32,11 +32,13 @@ class Graph:
         if client is not None:
             self.node.destroy_client(client)
 
-    def call(self, client, request, timeout_s: float, alive=lambda: True):
-        """Blocking call that keeps spinning; ``CallFailed`` on timeout or a dead server."""
+    def call(self, client, request, timeout_s: float, alive=lambda: True,
+             resend_s: float | None = None):
+        """Blocking call that keeps spinning; ``CallFailed`` on timeout or a dead server
+        (``resend_s``: see ``ServiceClient.call_client``)."""
         from advocc_ros.ros.client import ServiceError
         try:
-            return self._calls.call_client(client, request, timeout_s, alive)
+            return self._calls.call_client(client, request, timeout_s, alive, resend_s)
         except ServiceError as exc:
             raise CallFailed(str(exc)) from None
 

@@ -57,26 +57,48 @@ class ServiceClient:
             self.spin(0.05)
 
     def call_client(self, client, request, timeout_s: float,
-                    alive: Callable[[], bool] = lambda: True):
+                    alive: Callable[[], bool] = lambda: True, resend_s: float | None = None):
         """The response of ``client`` within ``timeout_s`` (waiting for the service included),
-        or ``ServiceError``; spins meanwhile, so other callbacks keep running."""
+        or ``ServiceError``; spins meanwhile, so other callbacks keep running.
+
+        ``resend_s``: send the request again when it has had no answer for ``resend_s``
+        (then 2x, 4x, ... as long); the first answer wins. Fast DDS drops a response when
+        the server has not matched this client's response reader within 100 ms, which a new
+        client's first call can meet on a busy machine: the call then waits for nothing.
+        Only for requests that give the same answer twice (an attack for a seed, info, a
+        parameter set).
+        """
         deadline = time.monotonic() + timeout_s
         self.wait_ready(client, timeout_s, alive)
-        future = client.call_async(request)
-        while not future.done():
-            if time.monotonic() > deadline or not alive():
-                client.remove_pending_request(future)
+        futures = [client.call_async(request)]
+        interval = resend_s
+        resend_at = time.monotonic() + resend_s if resend_s else float('inf')
+        while not any(f.done() for f in futures):
+            now = time.monotonic()
+            if now > deadline or not alive():
+                for future in futures:
+                    client.remove_pending_request(future)
                 raise ServiceError(f'{client.srv_name}: no answer within {timeout_s:g} s'
                                    if alive() else f'{client.srv_name}: the node died')
+            if now >= resend_at:
+                futures.append(client.call_async(request))
+                interval *= 2
+                resend_at = now + interval
             self.spin(0.05)
+        future = next(f for f in futures if f.done())
+        for other in futures:
+            if other is not future:
+                client.remove_pending_request(other)
         if future.exception() is not None:
             raise ServiceError(f'{client.srv_name}: call failed ({future.exception()})')
         return future.result()
 
-    def call(self, srv_type, service: str, request, timeout_s: float):
-        """The response, or ``ServiceError`` when there is none within ``timeout_s``."""
+    def call(self, srv_type, service: str, request, timeout_s: float,
+             resend_s: float | None = None):
+        """The response, or ``ServiceError`` when there is none within ``timeout_s``
+        (``resend_s``: as in ``call_client``)."""
         client = self.client(srv_type, service, timeout_s)
-        return self.call_client(client, request, timeout_s)
+        return self.call_client(client, request, timeout_s, resend_s=resend_s)
 
     def close(self) -> None:
         try:
