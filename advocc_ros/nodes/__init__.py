@@ -2,9 +2,28 @@
 
 from __future__ import annotations
 
+import signal
+import threading
 
 SPIN_WAKE_S = 0.5
 """Longest wait of the spin loop before it looks at the context again [s]."""
+
+_SIGINT_SEEN = threading.Event()
+
+
+def _remember_sigint(signum, frame):
+    """Python's own Ctrl-C (KeyboardInterrupt), remembered: trimesh's optional imports catch
+    BaseException, so a Ctrl-C during a node's imports raised an exception nobody saw and the
+    node then served on as if nothing had happened."""
+    _SIGINT_SEEN.set()
+    raise KeyboardInterrupt
+
+
+# Installed when this package is imported, i.e. before a node module's own (slow) imports;
+# rclpy's handler, installed later, passes SIGINT on to it.
+if threading.current_thread() is threading.main_thread() \
+        and signal.getsignal(signal.SIGINT) is signal.default_int_handler:
+    signal.signal(signal.SIGINT, _remember_sigint)
 
 
 def run(node_class, name: str, args=None, startup_errors: tuple = (), threads: int = 1) -> int:
@@ -18,6 +37,8 @@ def run(node_class, name: str, args=None, startup_errors: tuple = (), threads: i
     """
     from advocc_ros.ros.spawn import die_with_parent
 
+    if _SIGINT_SEEN.is_set():  # Ctrl-C during the imports, swallowed on the way
+        return 0
     die_with_parent()  # before rclpy starts its threads
     import rclpy
     from rclpy.exceptions import ParameterException
@@ -38,7 +59,7 @@ def run(node_class, name: str, args=None, startup_errors: tuple = (), threads: i
         # Not executor.spin(): a SIGINT that lands before the executor's wait set exists wakes
         # nothing, and an endless wait then ignores it (measured: 2 of 28 stops hung). A bounded
         # wait sees the shut-down context within SPIN_WAKE_S.
-        while rclpy.ok():
+        while rclpy.ok() and not _SIGINT_SEEN.is_set():
             executor.spin_once(timeout_sec=SPIN_WAKE_S)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
