@@ -1,10 +1,13 @@
 """``ServiceClient``: a call that gets no answer is sent again when asked (``resend_s``), the
-first answer wins; without it the call fails with ``ServiceError`` at its timeout.
+first answer wins; without it the call fails with ``ServiceError`` at its timeout. A program
+whose signal handler raises (the orchestrator) holds signals around rclpy calls (``guard``).
 
 A lost response (Fast DDS drops it when the server has not matched the new client's response
 reader within 100 ms) cannot be caused on demand, so the server here holds its first request
 for longer than the call's timeout: to the client that is the same silence."""
 
+import os
+import signal
 import threading
 import time
 
@@ -76,3 +79,41 @@ def test_without_resend_a_silent_server_is_a_timeout(slow_first_server):
             client.call(Trigger, name, Trigger.Request(), timeout_s=3.0)
         assert time.monotonic() - t0 < 10.0
     assert len(seen) == 1
+
+
+def test_a_signal_during_a_response_conversion_interrupts_the_orchestrator_after_it(
+        slow_first_server, ros_env, tmp_path):
+    """The orchestrator's SIGINT handler raises; raised inside rclpy's conversion of a response
+    (Python code called from C++) it came out as a SystemError and the run ended with exit 1
+    instead of 'interrupted'. Held by the orchestrator's guard, it interrupts after the spin."""
+    from std_srvs.srv import Trigger
+
+    from advocc_ros.bench import BenchConfig
+    from advocc_ros.orchestrator.graph import Graph
+    from advocc_ros.orchestrator.run import Interrupted, Orchestrator
+
+    name, seen = slow_first_server
+    orch = Orchestrator(BenchConfig(), tmp_path / 'run')
+    graph = Graph(int(ros_env['ROS_DOMAIN_ID']), orch._signals_held)
+    client = graph.client(Trigger, name)
+    graph.call(client, Trigger.Request(), 15.0, resend_s=1.0)  # the server's slow first one
+    converted = []
+    original_init = Trigger.Response.__init__
+
+    def init_then_sigint(self, **kwargs):
+        original_init(self, **kwargs)
+        if threading.current_thread() is threading.main_thread():  # the client's side
+            converted.append(self)
+            os.kill(os.getpid(), signal.SIGINT)
+            time.sleep(0.01)  # the handler runs here, inside the conversion
+
+    old = signal.signal(signal.SIGINT, orch._on_signal)
+    Trigger.Response.__init__ = init_then_sigint
+    try:
+        with pytest.raises(Interrupted):
+            graph.call(client, Trigger.Request(), 15.0)
+        assert converted
+    finally:
+        Trigger.Response.__init__ = original_init
+        signal.signal(signal.SIGINT, old)
+        graph.close()

@@ -3,27 +3,40 @@ the collision-object publisher."""
 
 from __future__ import annotations
 
+import contextlib
+from typing import Callable, ContextManager
+
 from advocc_ros.orchestrator.shims import CallFailed
 
 
 class Graph:
     """The orchestrator's rclpy context, node, executor and collision-object publisher."""
 
-    def __init__(self, domain: int | None):
+    def __init__(self, domain: int | None,
+                 guard: Callable[[], ContextManager] = contextlib.nullcontext):
         from advocc_msgs.msg import CollisionObject
 
         from advocc_ros.ros.client import ServiceClient
         from advocc_ros.ros.qos import COLLISION_OBJECT_TOPIC, LATCHED_QOS
 
         # Our own SIGINT/SIGTERM handling: rclpy's would shut the context down under us.
+        # ``guard`` holds them around rclpy calls (see ServiceClient).
         self._calls = ServiceClient('advocc_orchestrator', domain_id=domain,
-                                    handle_signals=False)
+                                    handle_signals=False, guard=guard)
         self.node = self._calls.node
         self.publisher = self.node.create_publisher(CollisionObject, COLLISION_OBJECT_TOPIC,
                                                     LATCHED_QOS)
 
     def spin(self, timeout_s: float = 0.02) -> None:
         self._calls.spin(timeout_s)
+
+    def send(self, client, request):
+        """The future of ``client``'s answer to ``request`` (sent under the guard)."""
+        return self._calls.send(client, request)
+
+    def publish(self, msg) -> None:
+        with self._calls.guard():
+            self.publisher.publish(msg)
 
     def client(self, srv_type, service: str):
         return self.node.create_client(srv_type, service)

@@ -117,7 +117,7 @@ class RosShimPool:
 
     def _publish(self, obj, operation) -> None:
         from advocc_ros.ros.conversions import collision_object_to_msg
-        self.graph.publisher.publish(collision_object_to_msg(obj, self.scene.frame, operation))
+        self.graph.publish(collision_object_to_msg(obj, self.scene.frame, operation))
 
     def _publish_remove_all(self) -> None:
         from advocc_ros.model.scene import Operation, SceneObject
@@ -160,7 +160,7 @@ class RosShimPool:
             except Exception:  # noqa: BLE001 - a failed call is retried
                 return None
         if now - h.info_at >= _SYNC_POLL_S and h.info.service_is_ready():
-            h.info_future = h.info.call_async(GetInfo.Request())
+            h.info_future = self.graph.send(h.info, GetInfo.Request())
             h.info_at = now
         return None
 
@@ -208,7 +208,7 @@ class RosShimPool:
         from advocc_ros.ros.conversions import plan_request
         req = plan_request(self.robot, job.q_start, job.goal, self.scene.frame, job.planner_id,
                            job.time_budget_s, job.seed)
-        shim.handles.future = shim.handles.plan.call_async(req)
+        shim.handles.future = self.graph.send(shim.handles.plan, req)
 
     def poll(self, shim: Shim) -> PlanAnswer | None:
         from advocc_ros.ros.conversions import trajectory_from_msg

@@ -28,6 +28,7 @@ figures and a heatmap slice with the placed obstacles per scene, ``summary.json`
 from __future__ import annotations
 
 import collections
+import contextlib
 import json
 import logging
 import os
@@ -168,25 +169,35 @@ class Orchestrator:
         return summary
 
     def _on_signal(self, signum, frame) -> None:
-        if self._holding_signals:  # raised once the record being written is in the store
+        if self._holding_signals:  # raised when the held block ends
             self._held_signal = signum
             return
         raise Interrupted(f'signal {signal.Signals(signum).name}')
+
+    @contextlib.contextmanager
+    def _signals_held(self):
+        """A signal in the block interrupts only when the block is done: around rclpy calls
+        (raised inside a message conversion, Interrupted came out as a SystemError and exit 1)
+        and around a record's append."""
+        if self._holding_signals:
+            yield
+            return
+        self._holding_signals = True
+        try:
+            yield
+        finally:
+            self._holding_signals = False
+        if self._held_signal is not None:
+            signum, self._held_signal = self._held_signal, None
+            raise Interrupted(f'signal {signal.Signals(signum).name}')
 
     def _append(self, record: dict) -> None:
         """Append a trial's record; a signal meanwhile interrupts only after it is stored (an
         Interrupted between the durable write and the store's update left the summary a trial
         short of the file)."""
-        self._holding_signals = True
-        try:
-            appended = self.store.append(record)
-        finally:
-            self._holding_signals = False
-        if appended:
-            self.bar.update(1)
-        if self._held_signal is not None:
-            signum, self._held_signal = self._held_signal, None
-            raise Interrupted(f'signal {signal.Signals(signum).name}')
+        with self._signals_held():
+            if self.store.append(record):
+                self.bar.update(1)
 
     def _shutdown(self) -> None:
         if self.bar is not None:
@@ -231,7 +242,7 @@ class Orchestrator:
         from advocc_ros.progress import progress_bar
 
         if self.pool_factory is None:
-            self.graph = Graph(self.domain)
+            self.graph = Graph(self.domain, self._signals_held)
         planned = sum(len(u.trials) for u in units)
         done = sum(1 for u in units for t in u.trials if t.key in self.store)
         self.bar = progress_bar(planned, 'bench', 'trial', initial=done, file=sys.stderr,

@@ -2,9 +2,10 @@
 
 from __future__ import annotations
 
+import contextlib
 import os
 import time
-from typing import Callable
+from typing import Callable, ContextManager
 
 
 class ServiceError(OSError):
@@ -16,10 +17,14 @@ class ServiceClient:
 
     ``domain_id``: the ROS domain (None: ``ROS_DOMAIN_ID``); ``handle_signals=False`` leaves
     SIGINT/SIGTERM to the program (rclpy's handlers would shut the context down under it).
+    ``guard``: a context manager entered around every rclpy call that runs Python code from C++
+    (spinning, sending): a program whose signal handler raises holds its signals there, since
+    an exception raised inside a message conversion comes out as a ``SystemError``.
     """
 
     def __init__(self, name: str = 'advocc_call', domain_id: int | None = None,
-                 handle_signals: bool = True):
+                 handle_signals: bool = True,
+                 guard: Callable[[], ContextManager] = contextlib.nullcontext):
         import rclpy
         from rclpy.executors import SingleThreadedExecutor
         from rclpy.signals import SignalHandlerOptions
@@ -32,9 +37,16 @@ class ServiceClient:
         self.executor = SingleThreadedExecutor(context=self.context)
         self.executor.add_node(self.node)
         self._clients: dict = {}
+        self.guard = guard
 
     def spin(self, timeout_s: float = 0.05) -> None:
-        self.executor.spin_once(timeout_sec=timeout_s)
+        with self.guard():
+            self.executor.spin_once(timeout_sec=timeout_s)
+
+    def send(self, client, request):
+        """``client.call_async(request)`` under the guard: the future of the answer."""
+        with self.guard():
+            return client.call_async(request)
 
     def client(self, srv_type, service: str, timeout_s: float):
         """A ready client for ``service``, or ``ServiceError`` after ``timeout_s``."""
@@ -70,7 +82,7 @@ class ServiceClient:
         """
         deadline = time.monotonic() + timeout_s
         self.wait_ready(client, timeout_s, alive)
-        futures = [client.call_async(request)]
+        futures = [self.send(client, request)]
         interval = resend_s
         resend_at = time.monotonic() + resend_s if resend_s else float('inf')
         while not any(f.done() for f in futures):
@@ -81,7 +93,7 @@ class ServiceClient:
                 raise ServiceError(f'{client.srv_name}: no answer within {timeout_s:g} s'
                                    if alive() else f'{client.srv_name}: the node died')
             if now >= resend_at:
-                futures.append(client.call_async(request))
+                futures.append(self.send(client, request))
                 interval *= 2
                 resend_at = now + interval
             self.spin(0.05)
