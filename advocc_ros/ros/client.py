@@ -73,10 +73,10 @@ class ServiceClient:
         """The response of ``client`` within ``timeout_s`` (waiting for the service included),
         or ``ServiceError``; spins meanwhile, so other callbacks keep running.
 
-        ``resend_s``: send the request again when it has had no answer for ``resend_s``
-        (then 2x, 4x, ... as long); the first answer wins. Fast DDS drops a response when
-        the server has not matched this client's response reader within 100 ms, which a new
-        client's first call can meet on a busy machine: the call then waits for nothing.
+        ``resend_s``: send the request again when it has had no answer for ``resend_s``, and
+        again after 2x, 4x, ... that long; the first answer wins. rmw_fastrtps drops a
+        response when the server has not matched this client's response reader within 100 ms
+        (a new client's first call, on a busy machine): the call would then wait for nothing.
         Only for requests that give the same answer twice (an attack for a seed, info, a
         parameter set).
         """
