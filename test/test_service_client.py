@@ -90,11 +90,12 @@ def test_a_signal_during_a_response_conversion_interrupts_the_orchestrator_after
 
     from advocc_ros.bench import BenchConfig
     from advocc_ros.orchestrator.graph import Graph
-    from advocc_ros.orchestrator.run import Interrupted, Orchestrator
+    from advocc_ros.orchestrator.run import Orchestrator
+    from advocc_ros.orchestrator.signals import Interrupted
 
     name, seen = slow_first_server
     orch = Orchestrator(BenchConfig(), tmp_path / 'run')
-    graph = Graph(int(ros_env['ROS_DOMAIN_ID']), orch._signals_held)
+    graph = Graph(int(ros_env['ROS_DOMAIN_ID']), orch.signals.held)
     client = graph.client(Trigger, name)
     graph.call(client, Trigger.Request(), 15.0, resend_s=1.0)  # the server's slow first one
     converted = []
@@ -107,7 +108,7 @@ def test_a_signal_during_a_response_conversion_interrupts_the_orchestrator_after
             os.kill(os.getpid(), signal.SIGINT)
             time.sleep(0.01)  # the handler runs here, inside the conversion
 
-    old = signal.signal(signal.SIGINT, orch._on_signal)
+    old = signal.signal(signal.SIGINT, orch.signals.on_signal)
     Trigger.Response.__init__ = init_then_sigint
     try:
         with pytest.raises(Interrupted):

@@ -28,7 +28,6 @@ figures and a heatmap slice with the placed obstacles per scene, ``summary.json`
 from __future__ import annotations
 
 import collections
-import contextlib
 import json
 import logging
 import os
@@ -50,6 +49,7 @@ from advocc_ros.fileio import atomic_write_text
 from advocc_ros.orchestrator.graph import Graph
 from advocc_ros.orchestrator.shims import (CallFailed, PlanAnswer, PlanJob, PlanQuery, Shim,
                                            ShimPool, ShimQueries, ShimState)
+from advocc_ros.orchestrator.signals import SignalGate
 from advocc_ros.orchestrator.sources import AttackSources, SceneTask, prepare_heatmaps
 from advocc_ros.planning.types import REQUEST_ERRORS, PlanStatus
 from advocc_ros.ros.spawn import Child
@@ -62,10 +62,6 @@ _INTERNAL_ERROR_RETRIES = 2
 """A trial whose shim answers with an internal error (a crash, an exception) or whose plan call
 fails is planned again this many times before the internal error is recorded."""
 _INTERNAL_ERROR_CODE = int(PlanStatus.INTERNAL_ERROR)
-
-
-class Interrupted(KeyboardInterrupt):
-    """SIGTERM (or SIGINT): stop children, keep finished trials."""
 
 
 # --------------------------------------------------------------------------------------------
@@ -107,8 +103,7 @@ class Orchestrator:
         self.world = None
         """``CollisionWorld`` of the current unit (scene + attack) that scores the paths."""
         self.retries: collections.Counter = collections.Counter()
-        self._holding_signals = False
-        self._held_signal: int | None = None
+        self.signals = SignalGate()
         self._t0 = time.monotonic()
         self.trials_run = 0
         self.trial_phase_s = 0.0
@@ -126,7 +121,7 @@ class Orchestrator:
             units, self.notes = plan_units(self.cfg, available,
                                            variation_scenes(self.cfg, self.run_dir))
             self._write_config()
-            old = {s: signal.signal(s, self._on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
+            old = {s: signal.signal(s, self.signals.on_signal) for s in SignalGate.SIGNALS}
             try:
                 todo = [u for u in units if any(t.key not in self.store for t in u.trials)]
                 heatmaps = self._prepare_heatmaps(todo)
@@ -168,34 +163,9 @@ class Orchestrator:
                         raise
         return summary
 
-    def _on_signal(self, signum, frame) -> None:
-        if self._holding_signals:  # raised when the held block ends
-            self._held_signal = signum
-            return
-        raise Interrupted(f'signal {signal.Signals(signum).name}')
-
-    @contextlib.contextmanager
-    def _signals_held(self):
-        """A signal in the block interrupts only when the block is done: around rclpy calls
-        (raised inside a message conversion, Interrupted came out as a SystemError and exit 1)
-        and around a record's append."""
-        if self._holding_signals:
-            yield
-            return
-        self._holding_signals = True
-        try:
-            yield
-        finally:
-            self._holding_signals = False
-        if self._held_signal is not None:
-            signum, self._held_signal = self._held_signal, None
-            raise Interrupted(f'signal {signal.Signals(signum).name}')
-
     def _append(self, record: dict) -> None:
-        """Append a trial's record; a signal meanwhile interrupts only after it is stored (an
-        Interrupted between the durable write and the store's update left the summary a trial
-        short of the file)."""
-        with self._signals_held():
+        """Append a trial's record; a signal meanwhile interrupts only after it is stored."""
+        with self.signals.held():
             if self.store.append(record):
                 self.bar.update(1)
 
@@ -242,7 +212,7 @@ class Orchestrator:
         from advocc_ros.progress import progress_bar
 
         if self.pool_factory is None:
-            self.graph = Graph(self.domain, self._signals_held)
+            self.graph = Graph(self.domain, self.signals.held)
         planned = sum(len(u.trials) for u in units)
         done = sum(1 for u in units for t in u.trials if t.key in self.store)
         self.bar = progress_bar(planned, 'bench', 'trial', initial=done, file=sys.stderr,
