@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import os
 import signal
+import sys
 import threading
 
 SPIN_WAKE_S = 0.5
@@ -19,11 +21,30 @@ def _remember_sigint(signum, frame):
     raise KeyboardInterrupt
 
 
+def _die_by_sigint_after_a_swallowed_one(exc_type, exc, tb):
+    """An import that swallowed the KeyboardInterrupt can fail later on what it left half done
+    (trimesh: a TypeError on the ``ExceptionWrapper`` standing in for ``Path3D``, exit 1 with
+    that traceback). After a Ctrl-C, die by SIGINT instead, as Python does on Ctrl-C."""
+    if not _SIGINT_SEEN.is_set():
+        return sys.__excepthook__(exc_type, exc, tb)
+    sys.stdout.flush()
+    sys.stderr.flush()
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+    os.kill(os.getpid(), signal.SIGINT)
+
+
 # Installed when this package is imported, i.e. before a node module's own (slow) imports;
 # rclpy's handler, installed later, passes SIGINT on to it.
 if threading.current_thread() is threading.main_thread() \
         and signal.getsignal(signal.SIGINT) is signal.default_int_handler:
     signal.signal(signal.SIGINT, _remember_sigint)
+    if sys.excepthook is sys.__excepthook__:
+        sys.excepthook = _die_by_sigint_after_a_swallowed_one
+
+
+def _interrupted(rclpy) -> bool:
+    """Whether a Ctrl-C (or an external shutdown) has happened in this process."""
+    return _SIGINT_SEEN.is_set() or not rclpy.ok()
 
 
 def run(node_class, name: str, args=None, startup_errors: tuple = (), threads: int = 1) -> int:
@@ -51,6 +72,8 @@ def run(node_class, name: str, args=None, startup_errors: tuple = (), threads: i
         try:
             node = node_class()
         except (ParameterException, *startup_errors) as exc:
+            if _interrupted(rclpy):  # the error is the Ctrl-C's doing (see below)
+                return 0
             rclpy.logging.get_logger(name).fatal(f'cannot start: {exc}')
             return 1
         executor = MultiThreadedExecutor(num_threads=threads) if threads > 1 \
@@ -64,10 +87,11 @@ def run(node_class, name: str, args=None, startup_errors: tuple = (), threads: i
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     except Exception:
-        if rclpy.ok():
+        if not _interrupted(rclpy):
             raise
         # Ctrl-C shut the context down under a call that needed it (the constructor, a wait
-        # set being built: rclpy raises RCLError there): a clean stop all the same.
+        # set being built: rclpy raises RCLError there), or its KeyboardInterrupt was raised
+        # inside Python called from C++ and came out as a SystemError: a clean stop all the same.
     finally:
         if node is not None:
             node.destroy_node()
