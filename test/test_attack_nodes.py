@@ -312,21 +312,32 @@ def test_sigint_at_any_moment_stops_the_server_cleanly(ros_env, heatmap_file, af
     assert _stop(server) in (0, -signal.SIGINT)
 
 
+_SWALLOW_CTRL_C = (
+    'try:\n'
+    '    os.kill(os.getpid(), signal.SIGINT)\n'
+    '    time.sleep(1.0)\n'
+    'except BaseException:\n'
+    '    pass  # as trimesh\'s optional imports do\n')
+
+
+def _python_with_a_swallowed_ctrl_c(env, before: str, after: str, indent: str = '',
+                                    timeout_s: float = 60):
+    """Run ``before``, a Ctrl-C that an ``except BaseException`` swallows (indented by
+    ``indent``), then ``after``, in a fresh Python; the finished process."""
+    import textwrap
+    code = ('import os, signal, time\n' + before + textwrap.indent(_SWALLOW_CTRL_C, indent)
+            + after)
+    return subprocess.run([sys.executable, '-c', code], env=env, capture_output=True,
+                          text=True, timeout=timeout_s)
+
+
 def test_an_import_broken_by_a_swallowed_ctrl_c_dies_by_sigint_without_a_traceback(ros_env):
     """trimesh, having swallowed the KeyboardInterrupt, fails a few lines later with a
     TypeError (measured: 1 of 60 heatmap_server stops). That is the Ctrl-C's doing: the
     process dies by SIGINT, as on any Ctrl-C during Python's imports, not with exit 1."""
-    code = (
-        'import os, signal, time\n'
-        'import advocc_ros.nodes\n'
-        'try:\n'
-        '    os.kill(os.getpid(), signal.SIGINT)\n'
-        '    time.sleep(1.0)\n'
-        'except BaseException:\n'
-        '    pass\n'
+    proc = _python_with_a_swallowed_ctrl_c(
+        ros_env, 'import advocc_ros.nodes\n',
         'raise TypeError("unsupported operand type(s) for |")\n')
-    proc = subprocess.run([sys.executable, '-c', code], env=ros_env, capture_output=True,
-                          text=True, timeout=60)
     assert proc.returncode == -signal.SIGINT, proc.stdout + proc.stderr
     assert 'Traceback' not in proc.stderr
     ok = subprocess.run([sys.executable, '-c', 'import advocc_ros.nodes\nraise TypeError("x")'],
@@ -337,44 +348,26 @@ def test_an_import_broken_by_a_swallowed_ctrl_c_dies_by_sigint_without_a_traceba
 def test_an_error_that_a_ctrl_c_caused_while_the_node_builds_is_a_clean_stop(ros_env):
     """A Ctrl-C during construction can surface as some other error (a SystemError out of C++,
     a file load that failed half-way): exit 0, not 'cannot start' and exit 1."""
-    code = (
-        'import os, signal, time\n'
+    proc = _python_with_a_swallowed_ctrl_c(
+        ros_env,
         'from rclpy.node import Node\n'
         'from advocc_ros.nodes import run\n'
         'class Built(Node):\n'
         '    def __init__(self):\n'
-        '        super().__init__("ctrl_c_while_building")\n'
-        '        try:\n'
-        '            os.kill(os.getpid(), signal.SIGINT)\n'
-        '            time.sleep(1.0)\n'
-        '        except BaseException:\n'
-        '            pass\n'
+        '        super().__init__("ctrl_c_while_building")\n',
         '        raise ValueError("half-loaded")\n'
-        'raise SystemExit(run(Built, "built", startup_errors=(ValueError,)))\n')
-    proc = subprocess.run([sys.executable, '-c', code], env=ros_env, capture_output=True,
-                          text=True, timeout=60)
+        'raise SystemExit(run(Built, "built", startup_errors=(ValueError,)))\n',
+        indent=' ' * 8)
     assert proc.returncode == 0, proc.stdout + proc.stderr
     assert 'cannot start' not in proc.stdout + proc.stderr
 
 
 def test_a_ctrl_c_swallowed_during_the_imports_still_stops_the_node(ros_env):
     """trimesh's optional imports catch BaseException: a KeyboardInterrupt raised there never
-    reaches the node. It must stop all the same, with 0, instead of serving on."""
-    code = (
-        'import os, signal, time\n'
-        'import advocc_ros.nodes\n'
-        'try:\n'
-        '    os.kill(os.getpid(), signal.SIGINT)\n'
-        '    time.sleep(1.0)\n'
-        'except BaseException:\n'
-        '    pass  # as trimesh does\n'
+    reaches the node. It must stop all the same, with 0, instead of serving on (the old code
+    served on: a timeout here)."""
+    proc = _python_with_a_swallowed_ctrl_c(
+        ros_env, 'import advocc_ros.nodes\n',
         'from advocc_ros.nodes.attacker import main\n'
-        'raise SystemExit(main())\n')
-    proc = subprocess.Popen([sys.executable, '-c', code], env=ros_env, stdout=subprocess.PIPE,
-                            stderr=subprocess.STDOUT, text=True)
-    try:
-        assert proc.wait(30) == 0, _tail(proc)
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.wait(5)
+        'raise SystemExit(main())\n', timeout_s=30)
+    assert proc.returncode == 0, proc.stdout + proc.stderr
