@@ -14,7 +14,9 @@ from advocc_ros.attack import (AttackConfig, AttackStatus, attack, box_distance,
                                save_obstacles, search_region)
 from advocc_ros.model.collision import CollisionWorld, coal_geometry
 from advocc_ros.heatmap import HeatmapConfig, build_heatmap
-from advocc_ros.model.scene import GoalRegion, Pose, make_box, objects_from_data, read_yaml
+from advocc_ros.model.goal import GoalRegion
+from advocc_ros.model.pose import Pose
+from advocc_ros.model.scene import make_box, objects_from_data, read_yaml
 
 # ---------------------------------------------------------------------------------------------
 # Synthetic arrays: brute force is computable

@@ -73,7 +73,8 @@ def test_attacker_publishes_what_the_core_computes(ros, ros_env, heatmap_file, t
     from advocc_ros.heatmap import load_heatmap
     from advocc_ros.ros.qos import (COLLISION_OBJECT_TOPIC, GOAL_REGION_TOPIC, LATCHED_QOS,
                                     SCENE_TOPIC)
-    from advocc_ros.model.scene import Pose, make_box
+    from advocc_ros.model.pose import Pose
+    from advocc_ros.model.scene import make_box
 
     node, executor, children = ros
     server = _start('heatmap_server', ros_env, f'heatmap_file:={heatmap_file}')

@@ -4,7 +4,7 @@ import json
 
 import pytest
 
-from advocc_ros.evaluation.audit import AuditConfig, minimal_budgets
+from advocc_ros.audit.audit import AuditConfig, minimal_budgets
 
 
 def test_minimal_budgets_monotone_curve():
@@ -70,8 +70,8 @@ def test_audit_end_to_end_table_pick(tmp_path, table_scene, small_heatmap):
     """Task / paper on table_pick: the first box blocks every goal pose (measured), so the PSR
     drops to the last evaluated prefix, the goal-valid fraction goes to 0, and the verdict of
     that prefix is 'goal blocked': the failure is no evidence against the planner."""
-    from advocc_ros.evaluation.audit import run_audit
-    from advocc_ros.evaluation.audit_report import write_audit
+    from advocc_ros.audit.audit import run_audit
+    from advocc_ros.audit.report import write_audit
 
     heatmap = small_heatmap
     cfg = AuditConfig(planners=('rrtconnect',), max_budget=2, trials=2, time_budget_s=2.0,
@@ -124,8 +124,8 @@ def test_audit_end_to_end_table_pick(tmp_path, table_scene, small_heatmap):
 def test_audit_policy_solvable_gives_both_answers(tmp_path, table_scene, small_heatmap):
     """--policy solvable: every evaluated prefix stays certified (the witness is kept by
     construction) and a second, paper-policy attack says how few boxes block the goal."""
-    from advocc_ros.evaluation.audit import run_audit
-    from advocc_ros.evaluation.audit_report import audit_answer
+    from advocc_ros.audit.audit import run_audit
+    from advocc_ros.audit.report import audit_answer
 
     cfg = AuditConfig(planners=('rrtconnect',), max_budget=2, trials=2, time_budget_s=1.0,
                       policy='solvable', workers=1)
@@ -145,7 +145,7 @@ def test_audit_policy_solvable_gives_both_answers(tmp_path, table_scene, small_h
 
 def _hand_audit(psr, verdicts, goal_blocked_m):
     """A minimal audit dict for the report: one planner, its PSR curve and the verdicts."""
-    from advocc_ros.evaluation.audit import minimal_budgets
+    from advocc_ros.audit.audit import minimal_budgets
     certified = [v if s == 'certified' else None for v, s in zip(psr, verdicts)]
     budgets = [{'m': m, 'solvable': s, 'goal_valid_fraction': 1.0, 'planners': {'rrtconnect': {
         'psr': v, 'first_solution_median_s': 0.1 * (m + 1),
@@ -165,7 +165,7 @@ def _hand_audit(psr, verdicts, goal_blocked_m):
 
 
 def test_audit_answer_names_both_numbers():
-    from advocc_ros.evaluation.audit_report import audit_answer, budget_table
+    from advocc_ros.audit.report import audit_answer, budget_table
 
     audit = _hand_audit([1.0, 0.6, 0.2, 0.0], ['certified'] * 4, goal_blocked_m=None)
     audit['impossible']['prefixes'] = [{'m': 1, 'solvable': 'certified'},
@@ -179,7 +179,7 @@ def test_audit_answer_names_both_numbers():
 
 
 def test_audit_answer_does_not_count_a_blocked_goal_as_a_win():
-    from advocc_ros.evaluation.audit_report import audit_answer
+    from advocc_ros.audit.report import audit_answer
 
     audit = _hand_audit([1.0, 0.7, 0.0], ['certified', 'certified', 'goal blocked'], 2)
     text = audit_answer(audit)

@@ -64,7 +64,7 @@ def small_heatmap(table_scene):
 
 
 def test_attack_bag_round_trip(tmp_path, table_scene, small_heatmap):
-    from advocc_ros.model import make_box
+    from advocc_ros.model.scene import make_box
     from advocc_ros.ros.bag import attack_messages, write_bag
 
     boxes = [make_box('adv_0', (0.5, 0.0, 0.5), (0.05,) * 3),

@@ -6,8 +6,9 @@ import pytest
 
 from advocc_ros.limits import MAX_CLOUD_POINTS, MAX_CLOUD_RESOLUTION_M
 from advocc_ros.model.cloud import cloud_octree, make_cloud_shape, read_cloud_file
-from advocc_ros.model.scene import Pose, SceneError, load_scene, scene_from_data
-from advocc_ros.model.sensing import sensed_scene, write_sensed_scene
+from advocc_ros.model.pose import Pose, SceneError
+from advocc_ros.model.scene import load_scene, scene_from_data
+from advocc_ros.scenes.sensing import sensed_scene, write_sensed_scene
 from advocc_ros.model.shapes import cloud_cells
 from advocc_ros.model.voxels import VoxelGrid, occupied_mask, points_in_shape
 
@@ -109,7 +110,7 @@ def test_voxel_occupancy_matches_the_octree_leaves():
 
 def test_collision_world_uses_the_octree(panda, sensed_table):
     from advocc_ros.model.collision import CollisionWorld
-    from advocc_ros.planning import start_configuration
+    from advocc_ros.kinematics.ik import start_configuration
     world = CollisionWorld(panda, sensed_table.shapes)
     q = start_configuration(sensed_table, panda)
     assert world.is_valid(q)
@@ -127,7 +128,7 @@ def test_sensed_table_pick_plans_builds_a_heatmap_and_takes_a_task_attack(panda,
     from advocc_ros.attack import attack
     from advocc_ros.evaluation.runner import evaluate_planner
     from advocc_ros.heatmap import HeatmapConfig, build_heatmap
-    from advocc_ros.planning import start_configuration
+    from advocc_ros.kinematics.ik import start_configuration
 
     heatmap = build_heatmap(sensed_table, HeatmapConfig(samples=400), seed=1)
     assert heatmap.values.sum() > 0 and not heatmap.free.all()

@@ -11,7 +11,7 @@ from test_attack_nodes import _call, _start, _stop, _wait_service
 
 @pytest.fixture(scope='module')
 def sensed_table(table_scene):
-    from advocc_ros.model.sensing import sensed_scene
+    from advocc_ros.scenes.sensing import sensed_scene
     return sensed_scene(table_scene)
 
 
@@ -164,7 +164,7 @@ def _cloud(points, dtype='<f4', height=1, pad=0, fields='xyz'):
 
 
 def test_clouds_have_no_collision_object_form(sensed_table, table_scene):
-    from advocc_ros.model.scene import SceneError
+    from advocc_ros.model.pose import SceneError
     from advocc_ros.ros.conversions import collision_object_to_msg, scene_to_msg
 
     with pytest.raises(SceneError, match='PointCloud2'):
@@ -174,7 +174,7 @@ def test_clouds_have_no_collision_object_form(sensed_table, table_scene):
 
 
 def test_point_cloud2_parsing_layouts_and_errors():
-    from advocc_ros.model.scene import SceneError
+    from advocc_ros.model.pose import SceneError
     from advocc_ros.ros.clouds import cloud_shape_from_msg, points_from_cloud_msg
 
     pts = np.arange(36, dtype=float).reshape(12, 3) / 10

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from advocc_ros.model.collision import CollisionWorld
-from advocc_ros.model.ik import GoalSampler, goal_set, start_configuration
+from advocc_ros.kinematics.ik import GoalSampler, goal_set, start_configuration
 from advocc_ros.model.robot import load_robot
 from advocc_ros.planning.witness import CACHE_ENV
 
@@ -83,7 +83,7 @@ def test_goal_set_follows_its_seed_not_the_clock(table):
 def test_goal_set_safety_cap_reports_itself(table, caplog):
     robot, world, scene = table
     stats = {}
-    with caplog.at_level(logging.WARNING, logger='advocc_ros.model.ik'):
+    with caplog.at_level(logging.WARNING, logger='advocc_ros.kinematics.ik'):
         Q = goal_set(robot, world.collisions_batch, world.in_collision, scene.goal, 24, seed=5,
                      cap_s=1e-9, stats=stats)
     assert stats['goal_time_cap_hit'] is True

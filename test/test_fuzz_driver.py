@@ -50,7 +50,7 @@ def test_pool_tells_hangs_and_deaths_from_answers():
 
 
 def test_classification():
-    from advocc_ros.model.scene import SceneError
+    from advocc_ros.model.pose import SceneError
     names = ('/tmp/x/input.yaml', 'input.yaml')
     doc = (SceneError,)
     assert classify_exception(SceneError('/tmp/x/input.yaml: objects[0].size: expected 3 '

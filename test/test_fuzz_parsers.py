@@ -124,7 +124,8 @@ def _scene_docs():
 @settings(**SETTINGS)
 @given(data=st.data())
 def test_scene_data(data):
-    from advocc_ros.model.scene import Scene, SceneError, scene_from_data
+    from advocc_ros.model.scene import Scene, scene_from_data
+    from advocc_ros.model.pose import SceneError
     doc = mutate(data, data.draw(st.sampled_from(_scene_docs()), label='scene'))
     _count('scene_yaml')
     with _Timer():
@@ -137,7 +138,8 @@ def test_scene_data(data):
 @settings(**SETTINGS)
 @given(data=st.data())
 def test_scene_file_bytes(data, tmp_path):
-    from advocc_ros.model.scene import SceneError, load_scene
+    from advocc_ros.model.pose import SceneError
+    from advocc_ros.model.scene import load_scene
     raw = data.draw(st.sampled_from(sorted(SCENES.glob('*.yaml')))).read_bytes()
     path = tmp_path / 'scene.yaml'
     path.write_bytes(_flip(data, raw))
@@ -169,7 +171,8 @@ YAML_BOMB = _yaml_bomb()
 ])
 def test_scene_file_hostile(tmp_path, text):
     """YAML aliases that expand to 10^9 numbers, cycles, deep nesting and Python tags."""
-    from advocc_ros.model.scene import SceneError, load_scene
+    from advocc_ros.model.pose import SceneError
+    from advocc_ros.model.scene import load_scene
     path = tmp_path / 'hostile.yaml'
     path.write_text(text)
     _count('scene_yaml_hostile')
@@ -180,7 +183,8 @@ def test_scene_file_hostile(tmp_path, text):
 
 def test_scene_mesh_file_too_large(tmp_path):
     from advocc_ros.limits import MAX_FILE_BYTES
-    from advocc_ros.model.scene import SceneError, load_scene
+    from advocc_ros.model.pose import SceneError
+    from advocc_ros.model.scene import load_scene
     big = tmp_path / 'big.stl'
     with open(big, 'wb') as handle:
         handle.truncate(MAX_FILE_BYTES + 1)  # sparse: no disk used
@@ -196,8 +200,9 @@ def test_scene_mesh_file_too_large(tmp_path):
 @settings(**SETTINGS)
 @given(data=st.data())
 def test_mbm_scene(data, tmp_path):
-    from advocc_ros.model.mbm import load_mbm_scene
-    from advocc_ros.model.scene import Scene, SceneError
+    from advocc_ros.formats.mbm_scene import load_mbm_scene
+    from advocc_ros.model.scene import Scene
+    from advocc_ros.model.pose import SceneError
     src = data.draw(st.sampled_from(sorted(MBM.glob('scene*.yaml'))), label='file')
     path = tmp_path / 'scene.yaml'
     if data.draw(st.booleans(), label='bytes'):
@@ -215,8 +220,8 @@ def test_mbm_scene(data, tmp_path):
 @settings(**SETTINGS)
 @given(data=st.data())
 def test_mbm_request(data, tmp_path, panda):
-    from advocc_ros.model.mbm import load_request
-    from advocc_ros.model.scene import SceneError
+    from advocc_ros.formats.mbm_scene import load_request
+    from advocc_ros.model.pose import SceneError
     src = data.draw(st.sampled_from(sorted(MBM.glob('request*.yaml'))), label='file')
     path = tmp_path / 'request.yaml'
     if data.draw(st.booleans(), label='bytes'):
@@ -235,8 +240,8 @@ def test_mbm_request(data, tmp_path, panda):
 @settings(**SETTINGS)
 @given(data=st.data())
 def test_mbm_trajectory(data, tmp_path):
-    from advocc_ros.model.mbm_export import load_trajectory, trajectory_data
-    from advocc_ros.model.scene import SceneError
+    from advocc_ros.formats.mbm_export import load_trajectory, trajectory_data
+    from advocc_ros.model.pose import SceneError
     doc = trajectory_data(['a', 'b'], np.array([[0.0, 0.1], [0.5, -0.2], [1.0, 0.3]]),
                           np.ones(2))
     path = tmp_path / 'trajectory.yaml'
@@ -269,7 +274,7 @@ def obstacles_doc():
 @given(data=st.data())
 def test_obstacles_file(data, tmp_path, obstacles_doc):
     from advocc_ros.attack import load_obstacles
-    from advocc_ros.model.scene import SceneError
+    from advocc_ros.model.pose import SceneError
     path = tmp_path / 'obstacles.yaml'
     text = yaml.safe_dump(obstacles_doc)
     if data.draw(st.booleans(), label='bytes'):
@@ -384,7 +389,7 @@ _CONFIG_VALUES = st.one_of(st.floats(allow_nan=True, allow_infinity=True),
 def test_config_dataclasses(data):
     from advocc_ros.attack import AttackConfig
     from advocc_ros.heatmap import HeatmapConfig
-    from advocc_ros.planning import PlanningConfig
+    from advocc_ros.planning.types import PlanningConfig
     import dataclasses
     cls = data.draw(st.sampled_from([AttackConfig, HeatmapConfig, PlanningConfig]))
     names = [f.name for f in dataclasses.fields(cls)]
@@ -406,7 +411,7 @@ def _node_config(node: str, params: dict):
     import dataclasses
 
     from advocc_ros.attack import AttackConfig
-    from advocc_ros.planning import PlanningConfig
+    from advocc_ros.planning.types import PlanningConfig
     cls = {'/heatmap_server': AttackConfig, '/planner_shim': PlanningConfig}.get(node)
     if cls is None:
         return None
@@ -418,7 +423,8 @@ def _node_config(node: str, params: dict):
 @given(data=st.data())
 def test_node_params_files(data, tmp_path):
     """The shipped params YAML files, mutated: read (bounded) and validated like the nodes do."""
-    from advocc_ros.model.scene import SceneError, read_yaml
+    from advocc_ros.model.pose import SceneError
+    from advocc_ros.model.scene import read_yaml
     src = data.draw(st.sampled_from(sorted((REPO / 'config').glob('*.yaml'))), label='file')
     path = tmp_path / src.name
     if data.draw(st.booleans(), label='bytes'):
@@ -447,9 +453,9 @@ def test_node_params_files(data, tmp_path):
                              NASTY, max_size=3),
        tol=st.text(alphabet='posrt=;,.0123456789-einfa ', max_size=30))
 def test_robot_spec_and_goal_tolerance(robot, tol):
-    from advocc_ros.model.mbm import parse_goal_tolerance
+    from advocc_ros.formats.mbm_scene import parse_goal_tolerance
     from advocc_ros.model.robot import RobotError, RobotSpec
-    from advocc_ros.model.scene import SceneError
+    from advocc_ros.model.pose import SceneError
     _count('config')
     try:
         RobotSpec.from_dict(robot)
@@ -474,7 +480,7 @@ def test_collision_object_messages(data):
 
     from advocc_ros.ros.conversions import collision_object_from_msg, scene_from_msgs
     from advocc_ros.model.robot import RobotError
-    from advocc_ros.model.scene import SceneError
+    from advocc_ros.model.pose import SceneError
 
     floats = st.floats(allow_nan=True, allow_infinity=True)
 
@@ -519,7 +525,7 @@ def test_huge_mesh_message_is_refused_quickly():
     from shape_msgs.msg import Mesh, MeshTriangle
 
     from advocc_ros.ros.conversions import collision_object_from_msg
-    from advocc_ros.model.scene import SceneError
+    from advocc_ros.model.pose import SceneError
     point = Point(x=1.0, y=2.0, z=3.0)
     msg = CollisionObject(id='big', operation=CollisionObject.ADD)
     msg.pose.orientation.w = 1.0

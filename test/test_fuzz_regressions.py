@@ -28,7 +28,7 @@ def test_good_cloud_message_reads():
     {'point_step': 4, 'row_step': 8},
 ])
 def test_cloud_message_whose_fields_overrun_the_point_is_refused(changes):
-    from advocc_ros.model.scene import SceneError
+    from advocc_ros.model.pose import SceneError
     from advocc_ros.ros.clouds import points_from_cloud_msg
     with pytest.raises(SceneError, match='does not fit in a point of'):
         points_from_cloud_msg(_cloud_msg(**changes))
@@ -36,7 +36,7 @@ def test_cloud_message_whose_fields_overrun_the_point_is_refused(changes):
 
 def test_cloud_message_with_a_huge_field_offset_is_refused():
     """An offset of 2^32 - 1 overflowed numpy's C int ('integer won't fit'), was FAILURE."""
-    from advocc_ros.model.scene import SceneError
+    from advocc_ros.model.pose import SceneError
     from advocc_ros.ros.clouds import points_from_cloud_msg
     msg = _cloud_msg()
     msg.fields[1].offset = 2 ** 32 - 1
@@ -68,7 +68,8 @@ def test_heatmap_with_an_infinite_format_version_is_refused(tmp_path):
 def test_yaml_that_broke_the_loader_is_refused(tmp_path, text, message):
     """A bad !!timestamp raised a bare AttributeError inside PyYAML; 100,000 open brackets
     segfault libyaml's composer (C recursion), so they are counted before parsing."""
-    from advocc_ros.model.scene import SceneError, load_scene
+    from advocc_ros.model.pose import SceneError
+    from advocc_ros.model.scene import load_scene
     path = tmp_path / 'scene.yaml'
     path.write_text(text)
     with pytest.raises(SceneError, match=message):
@@ -80,7 +81,8 @@ def test_yaml_of_50000_list_items_parses_in_seconds(tmp_path):
     would take most of an hour at MAX_FILE_BYTES); libyaml takes well under a second."""
     import time
 
-    from advocc_ros.model.scene import SceneError, load_scene
+    from advocc_ros.model.pose import SceneError
+    from advocc_ros.model.scene import load_scene
     path = tmp_path / 'scene.yaml'
     path.write_text('objects:\n' + '  - 0.0\n' * 50_000)
     t0 = time.perf_counter()
@@ -91,8 +93,8 @@ def test_yaml_of_50000_list_items_parses_in_seconds(tmp_path):
 
 def test_mbm_primitive_type_that_is_a_list_is_refused(tmp_path):
     """``type: [1, 2]`` was looked up in a dict: TypeError (unhashable)."""
-    from advocc_ros.model.mbm import load_mbm_scene
-    from advocc_ros.model.scene import SceneError
+    from advocc_ros.formats.mbm_scene import load_mbm_scene
+    from advocc_ros.model.pose import SceneError
     path = tmp_path / 'scene.yaml'
     path.write_text('world: {collision_objects: [{id: a, primitives: [{type: [1, 2], '
                     'dimensions: [0.1, 0.1, 0.1]}], primitive_poses: [{position: [0, 0, 0]}]}]}\n')
@@ -193,7 +195,7 @@ PCD = ('VERSION 0.7\nFIELDS x y z\nSIZE 4 4 4\nTYPE F F F\nCOUNT {count}\nWIDTH 
 
 def _cloud(tmp_path, name, text):
     from advocc_ros.model.cloud import cloud_shape_from_data
-    from advocc_ros.model.scene import Pose
+    from advocc_ros.model.pose import Pose
     (tmp_path / name).write_text(text)
     return cloud_shape_from_data({'file': name}, 'scene.yaml.objects[0]', tmp_path, Pose())
 
@@ -210,7 +212,7 @@ def test_pcd_header_pypcd4_would_trust_is_refused(tmp_path, count, message):
     """COUNT 2^64 made pypcd4 build a dtype list of 2^64 entries: a hang."""
     import time
 
-    from advocc_ros.model.scene import SceneError
+    from advocc_ros.model.pose import SceneError
     t0 = time.perf_counter()
     with pytest.raises(SceneError, match=message) as err:
         _cloud(tmp_path, 'c.pcd', PCD.format(count=count, y=0.5))
@@ -218,7 +220,7 @@ def test_pcd_header_pypcd4_would_trust_is_refused(tmp_path, count, message):
 
 
 def test_nan_point_in_a_cloud_file_names_the_file(tmp_path):
-    from advocc_ros.model.scene import SceneError
+    from advocc_ros.model.pose import SceneError
     with pytest.raises(SceneError, match=r'objects\[0\] \(.*c\.pcd\)\.points: 1 NaN/inf'):
         _cloud(tmp_path, 'c.pcd', PCD.format(count='1 1 1', y='nan'))
 
@@ -226,7 +228,7 @@ def test_nan_point_in_a_cloud_file_names_the_file(tmp_path):
 def test_cloud_message_with_the_wrong_byte_order_is_refused():
     """Little-endian floats flagged big-endian decode to points ~4e8 m away; coal's octree
     keys overflow there and its distance queries segfaulted the heatmap server."""
-    from advocc_ros.model.scene import SceneError
+    from advocc_ros.model.pose import SceneError
     from advocc_ros.ros.clouds import cloud_shape_from_msg
     with pytest.raises(SceneError, match='an octree of 0.02 m leaves reaches 655.36 m'):
         cloud_shape_from_msg(_cloud_msg(is_bigendian=True), 0.02, [-np.inf] * 3, [np.inf] * 3)
@@ -235,7 +237,7 @@ def test_cloud_message_with_the_wrong_byte_order_is_refused():
 def test_cloud_points_the_octree_would_drop_are_refused():
     """Beyond 2^15 leaves from the origin coal.makeOctree drops a point without a word."""
     from advocc_ros.model.cloud import make_cloud_shape
-    from advocc_ros.model.scene import SceneError
+    from advocc_ros.model.pose import SceneError
     assert make_cloud_shape([[655.0, 0.0, 0.0]], 0.02).vertices.shape == (1, 3)
     with pytest.raises(SceneError, match='a coordinate of 1e\\+04 m'):
         make_cloud_shape([[0.6, 0.0, 0.8], [1e4, 1e4, 1e4]], 0.02)
@@ -243,8 +245,8 @@ def test_cloud_points_the_octree_would_drop_are_refused():
 
 def test_mbm_joint_constraint_position_that_is_a_list_is_refused(tmp_path, panda):
     """``position: [[2.9]]`` reached ``float()`` of a 2-D array: a bare TypeError."""
-    from advocc_ros.model.mbm import load_request
-    from advocc_ros.model.scene import SceneError
+    from advocc_ros.formats.mbm_scene import load_request
+    from advocc_ros.model.pose import SceneError
     joints = ', '.join(f'{{joint_name: panda_joint{i}, position: {"[[2.9]]" if i == 5 else 0}}}'
                        for i in range(1, 8))
     path = tmp_path / 'request.yaml'
@@ -256,8 +258,8 @@ def test_mbm_joint_constraint_position_that_is_a_list_is_refused(tmp_path, panda
 def test_mbm_pose_goal_far_away_names_the_file(tmp_path, panda):
     """A pose goal 1e30 m away was refused by the goal region's own check, whose message named
     no file (the fuzzer's one unclear error)."""
-    from advocc_ros.model.mbm import load_request
-    from advocc_ros.model.scene import SceneError
+    from advocc_ros.formats.mbm_scene import load_request
+    from advocc_ros.model.pose import SceneError
     path = tmp_path / 'request.yaml'
     path.write_text(
         'goal_constraints: [{position_constraints: [{header: {frame_id: panda_link0}, '
@@ -280,7 +282,7 @@ def test_attack_certifies_without_a_witness_instead_of_raising(panda, table_scen
 
     from advocc_ros.attack import attack
     from advocc_ros.heatmap import HeatmapConfig, build_heatmap
-    from advocc_ros.model.scene import Pose
+    from advocc_ros.model.pose import Pose
     heatmap = build_heatmap(table_scene, HeatmapConfig(samples=100, voxel_m=0.05), seed=4)
     far = dataclasses.replace(table_scene.goal, center=Pose((2.5, 0.0, 0.4),
                                                             table_scene.goal.center.quat_xyzw))
@@ -295,6 +297,6 @@ def test_goal_a_planet_away_is_refused(table_scene, field):
     witness search and goal probe all spend their budgets on overflow)."""
     import dataclasses
 
-    from advocc_ros.model.scene import Pose, SceneError
+    from advocc_ros.model.pose import Pose, SceneError
     with pytest.raises(SceneError, match=f'goal.{field}: a coordinate of 1e\\+308 m, limit 100'):
         dataclasses.replace(table_scene.goal, **{field: Pose((0.0, 0.0, -1e308))})

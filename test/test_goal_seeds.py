@@ -5,9 +5,14 @@ import pathlib
 
 import numpy as np
 
-from advocc_ros.model import CollisionWorld, GoalSampler, load_any_scene, load_robot
-from advocc_ros.model.ik import goal_configuration, seed_configurations, start_configuration
-from advocc_ros.model.scene import GoalRegion, SceneError, scene_from_data
+from advocc_ros.model.collision import CollisionWorld
+from advocc_ros.kinematics.ik import GoalSampler
+from advocc_ros.formats.mbm_scene import load_any_scene
+from advocc_ros.model.robot import load_robot
+from advocc_ros.kinematics.ik import goal_configuration, seed_configurations, start_configuration
+from advocc_ros.model.goal import GoalRegion
+from advocc_ros.model.pose import SceneError
+from advocc_ros.model.scene import scene_from_data
 
 import pytest
 
@@ -70,7 +75,8 @@ def test_the_planner_worker_reaches_a_joint_goal_through_its_seed(task):
     """With one DLS iteration per IK attempt, random-seed IK never lands in a 0.1 mm / 1 mrad
     region; the seed (already inside) and walks near it do, so the seed crossed the worker's
     process boundary. The seedless goal fails as NO_IK_SOLUTION."""
-    from advocc_ros.planning import Planner, PlanningConfig
+    from advocc_ros.planning.worker import Planner
+    from advocc_ros.planning.types import PlanningConfig
     scene, robot = task
     tight = dataclasses.replace(scene.goal, position_tolerance_m=(1e-4,) * 3,
                                 orientation_tolerance_rad=(1e-3,) * 3)

@@ -226,7 +226,7 @@ def test_lut_pitch_comes_from_the_file(small_table_heatmap, table_scene, tmp_pat
     """The attack rasterizes the robot with the tables the build used, not a guessed pitch."""
     from advocc_ros.attack import search_region
     from advocc_ros.heatmap import save_heatmap
-    from advocc_ros.model.ik import start_configuration
+    from advocc_ros.kinematics.ik import start_configuration
 
     coarse = build_heatmap(table_scene, HeatmapConfig(samples=50, lut_pitch_fraction=0.5),
                            seed=3)

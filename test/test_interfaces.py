@@ -114,7 +114,7 @@ def test_service_round_trip_between_two_processes(ros_env):
 def test_every_plan_status_is_an_error_code_of_the_same_name():
     """The planner's statuses travel as ``ErrorCodes``; a name the message lacks (e.g. before
     the interfaces are rebuilt) would reach the records as a bare number."""
-    from advocc_ros.planning import PlanStatus
+    from advocc_ros.planning.types import PlanStatus
 
     for status in PlanStatus:
         assert getattr(ErrorCodes, status.name, None) == status.value, status

@@ -11,11 +11,13 @@ import pytest
 import yaml
 
 from advocc_ros.model.collision import CollisionWorld
-from advocc_ros.model.ik import goal_configuration, start_configuration
-from advocc_ros.model.mbm import load_mbm_scene
-from advocc_ros.model.mbm_export import load_trajectory, problem_files, write_problem
+from advocc_ros.kinematics.ik import goal_configuration, start_configuration
+from advocc_ros.formats.mbm_scene import load_mbm_scene
+from advocc_ros.formats.mbm_export import load_trajectory, problem_files, write_problem
 from advocc_ros.model.robot import load_robot
-from advocc_ros.model.scene import Pose, SceneError, SceneObject, Shape, load_scene, make_box
+from advocc_ros.model.pose import Pose, SceneError
+from advocc_ros.model.scene import SceneObject, load_scene, make_box
+from advocc_ros.model.shapes import Shape
 
 from conftest import REPO
 
@@ -213,7 +215,7 @@ def test_export_round_trip_keeps_the_witness_valid(solvable_attack, table_scene,
     from advocc_ros.attack import load_obstacles
     from advocc_ros.planning.witness import certify
     from advocc_ros.cli import main
-    from advocc_ros.model.mbm import load_any_scene
+    from advocc_ros.formats.mbm_scene import load_any_scene
     from advocc_ros.planning.witness import load_witness, witness_file, witness_states
 
     out = tmp_path / 'mbm'
@@ -292,7 +294,7 @@ def test_export_refuses_what_it_cannot_vouch_for(solvable_attack, tmp_path, caps
 def test_variations_are_attacked_again_and_certified(solvable_attack, tmp_path):
     from advocc_ros.planning.witness import certify
     from advocc_ros.cli import main
-    from advocc_ros.model.mbm import load_any_scene
+    from advocc_ros.formats.mbm_scene import load_any_scene
 
     out = tmp_path / 'dataset'
     assert main(['export', '--scene', 'table_pick', '--obstacles', str(solvable_attack),

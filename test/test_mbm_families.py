@@ -9,7 +9,7 @@ import pytest
 
 from advocc_ros.cli import main as cli_main
 from advocc_ros.model.collision import CollisionWorld
-from advocc_ros.model.mbm import load_mbm_scene, load_request
+from advocc_ros.formats.mbm_scene import load_mbm_scene, load_request
 from advocc_ros.model.robot import RobotSpec, load_robot
 
 FAMILIES = pathlib.Path(__file__).resolve().parent / 'data' / 'mbm' / 'families'

@@ -253,7 +253,7 @@ def test_a_success_whose_path_collides_is_an_internal_error(tmp_path):
     """The shim's "successful" path passes through the attack's box: not CMR 0, an error."""
     run = tmp_path / 'run'
     _cache_attack(run)
-    from advocc_ros.model import load_robot
+    from advocc_ros.model.robot import load_robot
     from advocc_ros.model.collision import CollisionWorld
     from advocc_ros.model.scene import load_scene
     from advocc_ros.paths import scene_path

@@ -13,7 +13,7 @@ from advocc_ros.heatmap import HeatmapConfig, build_heatmap
 from advocc_ros.model.collision import CollisionWorld
 from advocc_ros.model.robot import load_robot
 from advocc_ros.model.scene import load_scene
-from advocc_ros.planning import start_configuration
+from advocc_ros.kinematics.ik import start_configuration
 
 REPO = pathlib.Path(__file__).resolve().parents[1]
 ARMS = ('ur5_table', 'xarm7_table')

@@ -16,8 +16,12 @@ from advocc_ros.attack import METHODS, AttackConfig, AttackStatus, attack, searc
 from advocc_ros.heatmap import HeatmapConfig, build_heatmap
 from advocc_ros.attack.pfa import (RETRY_SEED_OFFSET, PfaConfig, PfaOptions, _Decoder,
                                    exact_goal, optimise)
-from advocc_ros.planning import LocalPlanners, PlanStatus, start_configuration
-from advocc_ros.model.scene import GoalRegion, Pose, Scene, make_box
+from advocc_ros.planning.pool import LocalPlanners
+from advocc_ros.planning.types import PlanStatus
+from advocc_ros.kinematics.ik import start_configuration
+from advocc_ros.model.goal import GoalRegion
+from advocc_ros.model.pose import Pose
+from advocc_ros.model.scene import Scene, make_box
 from test_attack import _assert_constraints
 
 # ---------------------------------------------------------------------------------------------

@@ -163,7 +163,7 @@ def test_planner_shim_end_to_end(ros, table_scene):
         assert res.error_code.val == code, res.message
         assert words in res.message, res.message
     # An exception in the worker is an internal error on the wire, not a planning failure.
-    from advocc_ros.planning import PlanStatus
+    from advocc_ros.planning.types import PlanStatus
     res = _call(node, executor, plan, request(seed=FAULT_SEED), 10)
     assert res.error_code.val == PlanStatus.INTERNAL_ERROR, res.message
     assert 'fault injected' in res.message and len(res.trajectory.points) == 0

@@ -7,7 +7,8 @@ import time
 def test_set_scene_waits_for_the_request_in_flight(table_scene):
     """PRM* plans for its whole budget; a scene change meanwhile takes effect after it."""
     from advocc_ros.model.scene import make_box
-    from advocc_ros.planning import Planner, start_configuration
+    from advocc_ros.planning.worker import Planner
+    from advocc_ros.kinematics.ik import start_configuration
 
     with Planner(table_scene).start() as planner:
         q0 = start_configuration(table_scene, planner.robot)

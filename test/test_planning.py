@@ -8,9 +8,13 @@ import pytest
 
 from advocc_ros.model.collision import CollisionWorld
 from advocc_ros.evaluation.metrics import densify
-from advocc_ros.planning import (Planner, PlanningConfig, PlanStatus, planner_class_name,
-                                 start_configuration)
-from advocc_ros.model.scene import GoalRegion, Pose, SceneObject, Shape, make_box
+from advocc_ros.planning.worker import Planner
+from advocc_ros.planning.types import PlanningConfig, PlanStatus, planner_class_name
+from advocc_ros.kinematics.ik import start_configuration
+from advocc_ros.model.goal import GoalRegion
+from advocc_ros.model.pose import Pose
+from advocc_ros.model.scene import SceneObject, make_box
+from advocc_ros.model.shapes import Shape
 
 BUDGET = 1.0
 
@@ -197,7 +201,7 @@ def test_a_solution_through_an_obstacle_is_refused_as_moveit_does(open_scene, pa
     goal straight through a thin plate; the shim validates the interpolated solution (as
     MoveIt's ValidateSolution adapter does) and answers INVALID_MOTION_PLAN, a planner
     failure, never a success that collides."""
-    from advocc_ros.model.mbm_request import goal_region_at
+    from advocc_ros.formats.mbm_request import goal_region_at
     from advocc_ros.model.scene import Scene
 
     q0 = start_configuration(open_scene, panda)

@@ -8,8 +8,10 @@ import pytest
 
 from advocc_ros.model.collision import CollisionWorld
 from advocc_ros.model.robot import RobotError, RobotSpec, load_robot
-from advocc_ros.model.scene import (GoalRegion, Pose, SceneError, apply_operation, load_scene,
-                                    make_box, objects_from_data, Operation)
+from advocc_ros.model.goal import GoalRegion
+from advocc_ros.model.pose import Pose, SceneError
+from advocc_ros.model.scene import (apply_operation, load_scene, make_box, objects_from_data,
+                                    Operation)
 
 UR5 = RobotSpec(urdf='example-robot-data://ur_description/urdf/ur5_robot.urdf',
                 srdf='example-robot-data://ur_description/srdf/ur5.srdf', group='',

@@ -10,12 +10,13 @@ import pytest
 from advocc_ros.model.collision import CollisionWorld
 from advocc_ros.model.robot import load_robot
 from advocc_ros.commands.common import add_scene_args, scene_from_args
-from advocc_ros.model.mbm import (GoalTolerance, is_mbm_scene, load_any_scene, load_mbm_scene,
-                                  parse_goal_tolerance)
-from advocc_ros.planning import GoalSampler, start_configuration
-from advocc_ros.model.scene import (GoalRegion, Pose, Scene, SceneError, load_scene, make_box,
-                                    read_yaml)
-from advocc_ros.model.scenegen import VariationConfig, vary_scene
+from advocc_ros.formats.mbm_scene import (GoalTolerance, is_mbm_scene, load_any_scene,
+                                          load_mbm_scene, parse_goal_tolerance)
+from advocc_ros.kinematics.ik import GoalSampler, start_configuration
+from advocc_ros.model.goal import GoalRegion
+from advocc_ros.model.pose import Pose, SceneError
+from advocc_ros.model.scene import Scene, load_scene, make_box, read_yaml
+from advocc_ros.scenes.variations import VariationConfig, vary_scene
 
 REPO = pathlib.Path(__file__).resolve().parents[1]
 MBM = REPO / 'test' / 'data' / 'mbm'

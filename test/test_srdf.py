@@ -7,7 +7,7 @@ import pinocchio as pin
 
 from advocc_ros.cli import main
 from advocc_ros.model.robot import example_robot_data_share, resolve_path
-from advocc_ros.model.srdf import disabled_collision_pairs
+from advocc_ros.formats.srdf import disabled_collision_pairs
 
 DATA = pathlib.Path(__file__).parent / 'data'
 PANDA = 'example-robot-data://panda_description/'

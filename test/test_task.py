@@ -9,10 +9,11 @@ import pytest
 from advocc_ros.attack import AttackConfig, AttackStatus, attack, robot_occupancy, search_region
 from advocc_ros.attack.configurations import cover_matrix, greedy_configurations
 from advocc_ros.attack.goals import goal_samples
-from advocc_ros.evaluation import evaluate_planner
+from advocc_ros.evaluation.runner import evaluate_planner
 from advocc_ros.heatmap import HeatmapConfig, build_heatmap
-from advocc_ros.model import CollisionWorld, goal_set
-from advocc_ros.planning import PlanningConfig
+from advocc_ros.model.collision import CollisionWorld
+from advocc_ros.kinematics.ik import goal_set
+from advocc_ros.planning.types import PlanningConfig
 
 from test_attack import _assert_constraints
 

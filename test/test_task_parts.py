@@ -9,7 +9,7 @@ from advocc_ros.attack.goals import GoalGuard, GoalSamples
 from advocc_ros.attack.task import (WEIGHT_FLOOR, _goal_filter, approach_samples,
                                     lexicographic_weights)
 from advocc_ros.model.collision import CollisionWorld
-from advocc_ros.model.ik import goal_set, start_configuration
+from advocc_ros.kinematics.ik import goal_set, start_configuration
 
 
 @pytest.fixture(scope='module')

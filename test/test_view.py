@@ -120,7 +120,7 @@ def audit_dir(tmp_path_factory, table_scene):
 
 
 def test_audit_writes_a_self_contained_page(audit_dir):
-    from advocc_ros.evaluation.audit_report import audit_answer
+    from advocc_ros.audit.report import audit_answer
 
     page = (audit_dir / 'audit.html').read_text()
     audit = json.loads((audit_dir / 'audit.json').read_text())
@@ -176,7 +176,7 @@ def test_view_command_with_obstacles_and_witness(tmp_path, table_scene, panda):
     """``advocc view`` reads an obstacles file and the witness beside it; bad input is a
     one-line error."""
     from advocc_ros.attack import obstacles_file_data, save_obstacles
-    from advocc_ros.model import make_box
+    from advocc_ros.model.scene import make_box
 
     boxes = [make_box('adv_0', (0.5, 0.0, 0.5), (0.05,) * 3),
              make_box('adv_1', (0.3, 0.2, 0.6), (0.05,) * 3)]

@@ -47,7 +47,9 @@ from advocc_ros.attack.types import (BOX_ID, DEFAULT_METHOD, POLICIES, AttackCon
 from advocc_ros.heatmap import Heatmap, link_tables
 from advocc_ros.model.collision import shared_world
 from advocc_ros.model.robot import RobotError, RobotModel
-from advocc_ros.model.scene import GoalRegion, SceneError, SceneObject, make_box
+from advocc_ros.model.goal import GoalRegion
+from advocc_ros.model.pose import SceneError
+from advocc_ros.model.scene import SceneObject, make_box
 from advocc_ros.planning.witness import find_witness
 
 log = logging.getLogger(__name__)

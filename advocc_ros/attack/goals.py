@@ -26,9 +26,10 @@ import coal
 import numpy as np
 
 from advocc_ros.model.collision import CollisionWorld
-from advocc_ros.model.ik import goal_set
+from advocc_ros.kinematics.ik import goal_set
 from advocc_ros.model.robot import RobotModel
-from advocc_ros.model.scene import GoalRegion, SceneObject, task_hash
+from advocc_ros.model.goal import GoalRegion
+from advocc_ros.model.scene import SceneObject, task_hash
 
 VALIDATION_SEED = 7_345_001
 """Seed of the goal samples behind ``goal_valid_fraction`` (fixed: comparable attacks)."""

@@ -13,7 +13,8 @@ from advocc_ros.attack.coverage import greedy_cover, random_cover
 from advocc_ros.attack.region import SearchRegion
 from advocc_ros.attack.types import AttackConfig
 from advocc_ros.model.robot import RobotModel
-from advocc_ros.model.scene import GoalRegion, SceneObject
+from advocc_ros.model.goal import GoalRegion
+from advocc_ros.model.scene import SceneObject
 
 log = logging.getLogger(__name__)
 

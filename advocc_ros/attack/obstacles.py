@@ -16,8 +16,9 @@ from typing import Any, Sequence
 
 from advocc_ros.attack.types import AttackResult
 from advocc_ros.heatmap import Heatmap
-from advocc_ros.model.scene import (SceneError, SceneObject, objects_from_data, objects_to_data,
-                                    read_yaml, save_yaml_atomic)
+from advocc_ros.model.pose import SceneError
+from advocc_ros.model.scene import (SceneObject, objects_from_data, objects_to_data, read_yaml,
+                                    save_yaml_atomic)
 
 OBSTACLES_FORMAT = 'advocc_obstacles'
 OBSTACLES_VERSION = 1

@@ -83,8 +83,9 @@ from advocc_ros.attack.methods import MethodContext, register_method
 from advocc_ros.attack.region import SearchRegion
 from advocc_ros.attack.types import AttackConfig, AttackError, AttackStatus, box_id
 from advocc_ros.limits import MAX_PLANNER_QUERIES
-from advocc_ros.model.scene import GoalRegion, SceneObject, make_box
-from advocc_ros.planning import REQUEST_ERRORS, PlanResult, PlanStatus, planner_class_name
+from advocc_ros.model.goal import GoalRegion
+from advocc_ros.model.scene import SceneObject, make_box
+from advocc_ros.planning.types import REQUEST_ERRORS, PlanResult, PlanStatus, planner_class_name
 
 log = logging.getLogger(__name__)
 

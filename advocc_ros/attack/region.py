@@ -17,9 +17,10 @@ from advocc_ros.attack.coverage import box_distance, box_half_voxels
 from advocc_ros.attack.types import AttackConfig
 from advocc_ros.heatmap import Heatmap, link_tables
 from advocc_ros.model.collision import coal_geometry, shared_world
-from advocc_ros.model.ik import goal_configuration
+from advocc_ros.kinematics.ik import goal_configuration
 from advocc_ros.model.robot import RobotModel
-from advocc_ros.model.scene import GoalRegion, SceneObject
+from advocc_ros.model.goal import GoalRegion
+from advocc_ros.model.scene import SceneObject
 from advocc_ros.model.voxels import VoxelGrid
 
 log = logging.getLogger(__name__)

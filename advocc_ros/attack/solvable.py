@@ -31,9 +31,10 @@ from advocc_ros.attack.coverage import box_distance
 from advocc_ros.attack.goals import GoalSamples
 from advocc_ros.heatmap import link_tables, placement_arrays
 from advocc_ros.model.collision import CollisionWorld
-from advocc_ros.model.ik import GoalSampler, IkConfig
+from advocc_ros.kinematics.ik import GoalSampler, IkConfig
 from advocc_ros.model.robot import RobotModel
-from advocc_ros.model.scene import GoalRegion, SceneObject
+from advocc_ros.model.goal import GoalRegion
+from advocc_ros.model.scene import SceneObject
 from advocc_ros.planning.witness import Witness, certify, witness_states
 
 VERDICTS = ('certified', 'goal blocked', 'unknown')

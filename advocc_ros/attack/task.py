@@ -8,7 +8,8 @@ and the scene; never a planner query) and its constraints C1-C3 (the same search
 exact coal checks), but covers *configurations* this task needs, each counted once and weighted
 by the paper's w(q):
 
-- the goal set Q_G: collision-free IK solutions inside the goal region (``model.ik.goal_set``);
+- the goal set Q_G: collision-free IK solutions inside the goal region
+  (``kinematics.ik.goal_set``);
 - approach configurations: collision-free points on the final half of joint-space approaches
   from ``q_init`` to each goal solution (the straight segment, and ``detours`` paths through a
   perturbed midpoint). The first half lies near q_init, where C3 forbids boxes anyway.
@@ -45,7 +46,7 @@ from advocc_ros.attack.solvable import WitnessGuard
 from advocc_ros.attack.types import AttackConfig
 from advocc_ros.heatmap import HeatmapConfig, placement_arrays, sample_weights
 from advocc_ros.model.collision import CollisionWorld, shared_world
-from advocc_ros.model.ik import GOAL_SET_CAP_S, goal_set
+from advocc_ros.kinematics.ik import GOAL_SET_CAP_S, goal_set
 
 
 @dataclasses.dataclass(frozen=True)

@@ -264,7 +264,7 @@ def variation_scenes(cfg: BenchConfig, run_dir: str | pathlib.Path) -> dict[str,
     """Scene files of ``cfg.variations`` seeded variations per scene, written once into
     ``run_dir/scenes/`` (re-used on resume): base scene -> files."""
     from advocc_ros.model.scene import load_scene
-    from advocc_ros.model.scenegen import write_variation
+    from advocc_ros.scenes.variations import write_variation
     from advocc_ros.paths import scene_path
 
     out: dict[str, list[str]] = {}

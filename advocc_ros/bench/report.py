@@ -215,7 +215,8 @@ def _write_figures(files: _Files, rows: dict[tuple, dict], cfg: BenchConfig, ind
     from advocc_ros.attack import load_obstacles
     from advocc_ros.evaluation.figures import plot_heatmap_slices
     from advocc_ros.paths import scene_path
-    from advocc_ros.model.scene import SceneError, load_scene
+    from advocc_ros.model.pose import SceneError
+    from advocc_ros.model.scene import load_scene
 
     stem = pathlib.Path(scene_path(scene)).stem
     curves = _psr_curves(rows, cfg, scene)

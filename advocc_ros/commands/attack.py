@@ -14,7 +14,8 @@ from advocc_ros.commands.common import add_bag_arg, check_bag_arg
 from advocc_ros.heatmap import HeatmapError, load_heatmap
 from advocc_ros.paths import scene_path
 from advocc_ros.model.robot import RobotError, load_robot
-from advocc_ros.model.scene import SceneError, load_scene
+from advocc_ros.model.pose import SceneError
+from advocc_ros.model.scene import load_scene
 from advocc_ros.planning.witness import save_witness, witness_file
 
 
@@ -134,7 +135,7 @@ def _attack_in_the_loop(args: argparse.Namespace, heatmap, robot, scene, q_init,
                         cfg: AttackConfig):
     """PFA / PFA++ with ``--workers`` local planner processes and a progress bar."""
     from advocc_ros.attack.pfa import PFA_PLANNER, PfaConfig, PfaOptions
-    from advocc_ros.planning import LocalPlanners
+    from advocc_ros.planning.pool import LocalPlanners
 
     if args.method == 'pfa' and args.planner not in (None, PFA_PLANNER):
         raise UserError(f'pfa always queries {PFA_PLANNER} with the exact goal pose; use '

@@ -64,9 +64,9 @@ def register(sub: argparse._SubParsersAction) -> None:
 def audit_config(args: argparse.Namespace):
     """``AuditConfig`` from the arguments, with the user's errors as ``UserError``."""
     from advocc_ros.attack import load_method
-    from advocc_ros.evaluation.audit import AuditConfig
+    from advocc_ros.audit.audit import AuditConfig
     from advocc_ros.limits import MAX_TRIALS
-    from advocc_ros.planning import PlanningConfig, planner_class_name
+    from advocc_ros.planning.types import PlanningConfig, planner_class_name
 
     planners = tuple(p.strip() for p in args.planners.split(',') if p.strip())
     if not planners:
@@ -97,7 +97,7 @@ def audit_heatmap(scene, out: pathlib.Path, heatmap_file: str | None, workers: i
     """The heatmap of ``--heatmap``, or ``out/heatmap_<scene>.npz`` (built there if missing)."""
     from advocc_ros.heatmap import (HeatmapConfig, HeatmapError, build_heatmap, load_heatmap,
                                     save_heatmap)
-    from advocc_ros.model import load_robot
+    from advocc_ros.model.robot import load_robot
 
     robot_hash = load_robot(scene.robot).hash
     path = pathlib.Path(heatmap_file) if heatmap_file else out / f'heatmap_{scene.name}.npz'
@@ -117,8 +117,8 @@ def audit_heatmap(scene, out: pathlib.Path, heatmap_file: str | None, workers: i
 
 def run_audit_to(scene, heatmap, cfg, out: pathlib.Path, log=print) -> dict:
     """Run the audit with a progress line per evaluation on stderr and write its files."""
-    from advocc_ros.evaluation.audit import run_audit
-    from advocc_ros.evaluation.audit_report import planner_label, write_audit
+    from advocc_ros.audit.audit import run_audit
+    from advocc_ros.audit.report import planner_label, write_audit
     from advocc_ros.evaluation.outcomes import internal_error_warning
 
     def progress(m: int, planner: str, row: dict) -> None:
@@ -134,13 +134,13 @@ def run_audit_to(scene, heatmap, cfg, out: pathlib.Path, log=print) -> dict:
     paths = write_audit(audit, out, heatmap, scene)
     log(f'audit: {paths["audit.md"]}, {paths["audit.json"]}, figures '
         f'{paths["audit_slices.png"]}, {paths["audit_psr.png"]} ({audit["wall_s"]:.0f} s)')
-    from advocc_ros.evaluation.view import write_audit_view
+    from advocc_ros.view.scene_page import write_audit_view
     log(f'3D view: {write_audit_view(out, scene, heatmap)} (open it in a browser)')
     return audit
 
 
 def run(args: argparse.Namespace) -> int:
-    from advocc_ros.evaluation.audit_report import audit_answer, budget_table
+    from advocc_ros.audit.report import audit_answer, budget_table
 
     cfg = audit_config(args)
     check_bag_arg(args)
@@ -153,7 +153,7 @@ def run(args: argparse.Namespace) -> int:
     heatmap = audit_heatmap(scene, out, args.heatmap, args.workers, log=log)
     audit = run_audit_to(scene, heatmap, cfg, out, log=log)
     if args.bag:
-        from advocc_ros.evaluation.view import audit_boxes
+        from advocc_ros.view.scene_page import audit_boxes
         from advocc_ros.ros.bag import write_attack_bag
         log(f'bag: {write_attack_bag(args.bag, scene, audit_boxes(audit), heatmap)}')
     if args.json:

@@ -11,7 +11,7 @@ from advocc_ros.cli import UserError
 from advocc_ros.commands.common import add_scene_args, scene_from_args
 from advocc_ros.attack.methods import SERVER_METHODS
 from advocc_ros.attack.types import DEFAULT_METHOD
-from advocc_ros.model.scene import SceneError
+from advocc_ros.model.pose import SceneError
 
 RESEND_S = 2.0
 """An unanswered attack or info request is sent again after this long, then 2x, 4x ... [s]

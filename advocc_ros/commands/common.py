@@ -28,7 +28,7 @@ def add_scene_args(parser: argparse.ArgumentParser, required: bool = True) -> No
 def scene_from_args(args: argparse.Namespace) -> Scene | None:
     """The scene named by ``--scene/--request/--goal-tol``; None if ``--scene`` was optional
     and not given. Errors are ``SceneError`` naming the file and field."""
-    from advocc_ros.model.mbm import load_any_scene
+    from advocc_ros.formats.mbm_scene import load_any_scene
 
     if args.scene is None:
         if getattr(args, 'request', None) or getattr(args, 'goal_tol', None):

@@ -86,8 +86,8 @@ def run(args) -> int:
            f'{args.audit_policy}, up to {args.audit_budget} boxes, {args.audit_trials} trials x '
            f'{args.audit_time:g} s)')
     from advocc_ros.commands.audit import run_audit_to
-    from advocc_ros.evaluation.audit import AuditConfig
-    from advocc_ros.evaluation.audit_report import audit_answer, budget_table
+    from advocc_ros.audit.audit import AuditConfig
+    from advocc_ros.audit.report import audit_answer, budget_table
     audit_cfg = AuditConfig(planners=planners, max_budget=args.audit_budget,
                             trials=args.audit_trials, time_budget_s=args.audit_time,
                             method='task', policy=args.audit_policy,

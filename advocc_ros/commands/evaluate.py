@@ -60,7 +60,7 @@ def run(args: argparse.Namespace) -> int:
     from advocc_ros.evaluation.metrics import format_value
     from advocc_ros.evaluation.outcomes import INTERNAL_ERROR, internal_error_warning, outcome
     from advocc_ros.evaluation.runner import evaluate_planner
-    from advocc_ros.planning import PlanningConfig, planner_class_name
+    from advocc_ros.planning.types import PlanningConfig, planner_class_name
 
     from advocc_ros.limits import MAX_TRIALS
     if not 1 <= args.trials <= MAX_TRIALS:

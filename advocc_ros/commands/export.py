@@ -61,7 +61,7 @@ def _certified(robot, scene, witness) -> str | None:
 
 def _write(args, index: int, attacked, robot, witness):
     """The problem files of ``attacked`` with ``witness`` (in the robot's joint order)."""
-    from advocc_ros.model.mbm_export import write_problem
+    from advocc_ros.formats.mbm_export import write_problem
 
     return write_problem(args.out, index, attacked, robot, robot.joint_names,
                          witness.configurations(robot), args.time)
@@ -96,9 +96,9 @@ def _export_variations(args, scene, robot, meta) -> dict:
     """Seeded variations of ``scene``, each attacked again under ``solvable`` (module doc)."""
     from advocc_ros.attack import REGISTRY, AttackConfig, attack
     from advocc_ros.heatmap import load_heatmap
-    from advocc_ros.model.ik import start_configuration
-    from advocc_ros.model.scene import SceneError
-    from advocc_ros.model.scenegen import vary_scene
+    from advocc_ros.kinematics.ik import start_configuration
+    from advocc_ros.model.pose import SceneError
+    from advocc_ros.scenes.variations import vary_scene
 
     heatmap_file = args.heatmap or meta.get('heatmap_file')
     if not heatmap_file:
@@ -148,7 +148,7 @@ def _export_variations(args, scene, robot, meta) -> dict:
 
 def run(args: argparse.Namespace) -> int:
     from advocc_ros.attack import load_obstacles
-    from advocc_ros.model.mbm_export import check_exportable
+    from advocc_ros.formats.mbm_export import check_exportable
     from advocc_ros.model.robot import load_robot
     from advocc_ros.model.scene import save_yaml_atomic
 

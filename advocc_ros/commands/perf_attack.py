@@ -124,7 +124,7 @@ def _perf_attack(args: argparse.Namespace) -> int:
                                     save_heatmap)
     from advocc_ros.commands.common import scene_from_args
     from advocc_ros.model.robot import load_robot
-    from advocc_ros.model.scene import SceneError
+    from advocc_ros.model.pose import SceneError
 
     try:
         budgets = [int(b) for b in args.budgets.split(',') if b.strip()]

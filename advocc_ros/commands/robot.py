@@ -2,7 +2,7 @@
 
 For arms whose shipped SRDF has no (or too few) ``<disable_collisions>``: adjacent links, pairs in
 collision in the default state, always or never in collision over random states
-(``advocc_ros.model.srdf``). With ``--srdf``, that file's groups, states and pairs are kept and
+(``advocc_ros.formats.srdf``). With ``--srdf``, that file's groups, states and pairs are kept and
 the new pairs added.
 """
 
@@ -45,7 +45,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 def _srdf(args: argparse.Namespace) -> int:
     from advocc_ros.fileio import atomic_write_text
     from advocc_ros.model.robot import example_robot_data_share, resolve_path
-    from advocc_ros.model.srdf import disabled_collision_pairs, srdf_text
+    from advocc_ros.formats.srdf import disabled_collision_pairs, srdf_text
 
     if not 1 <= args.samples <= 10 ** 7:
         raise UserError('--samples must be in 1..10^7')

@@ -105,7 +105,7 @@ def _check(args) -> int:
     import numpy as np
 
     from advocc_ros.model.collision import CollisionWorld
-    from advocc_ros.planning import GoalSampler, start_configuration
+    from advocc_ros.kinematics.ik import GoalSampler, start_configuration
     from advocc_ros.model.robot import load_robot
 
     if args.ik_attempts < 1:
@@ -142,7 +142,7 @@ def _request_validity(path: str, scene, robot, world) -> dict:
     joints outside the planning group locked at the task's robot state)."""
     import numpy as np
 
-    from advocc_ros.model.mbm import load_request
+    from advocc_ros.formats.mbm_scene import load_request
 
     request = load_request(path, robot)
     names = [o.id for o in scene.objects for _ in o.shapes]
@@ -172,7 +172,7 @@ def _convert(args) -> int:
 
 
 def _vary(args) -> int:
-    from advocc_ros.model.scenegen import VariationConfig, write_variation
+    from advocc_ros.scenes.variations import VariationConfig, write_variation
 
     if args.count < 1:
         raise UserError('--count must be >= 1')
@@ -200,7 +200,7 @@ def _vary(args) -> int:
 
 
 def _sense(args) -> int:
-    from advocc_ros.model.sensing import SensingConfig, write_sensed_scene
+    from advocc_ros.scenes.sensing import SensingConfig, write_sensed_scene
 
     if not (args.spacing > 0 and args.noise >= 0):
         raise UserError('--spacing must be > 0 and --noise >= 0')

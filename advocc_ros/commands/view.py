@@ -33,12 +33,12 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from advocc_ros.attack import load_obstacles
-    from advocc_ros.evaluation.view import (audit_view_html, load_witness_path, plan_path,
+    from advocc_ros.view.scene_page import (audit_view_html, load_witness_path, plan_path,
                                             scene_view_html, witness_beside)
     from advocc_ros.fileio import atomic_write_text
     from advocc_ros.heatmap import HeatmapError, load_heatmap
-    from advocc_ros.model import load_robot
-    from advocc_ros.planning import PlanningConfig, planner_class_name
+    from advocc_ros.model.robot import load_robot
+    from advocc_ros.planning.types import PlanningConfig, planner_class_name
 
     if args.obstacles and args.audit:
         raise UserError('give --obstacles or --audit, not both (an audit has its own boxes)')

@@ -13,7 +13,9 @@ from advocc_ros.evaluation.outcomes import INTERNAL_ERROR, outcome
 from advocc_ros.model.collision import CollisionWorld
 from advocc_ros.model.robot import load_robot
 from advocc_ros.model.scene import Scene
-from advocc_ros.planning import Planner, PlanningConfig, start_configuration
+from advocc_ros.planning.worker import Planner
+from advocc_ros.planning.types import PlanningConfig
+from advocc_ros.kinematics.ik import start_configuration
 
 
 def machine() -> dict:

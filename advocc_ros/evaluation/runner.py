@@ -25,7 +25,9 @@ def evaluate_planner(scene, planner_id: str, trials: int, time_budget_s: float =
     called after each trial. A success whose path collides is recorded as ``INTERNAL_ERROR``.
     """
     from advocc_ros.model.robot import load_robot
-    from advocc_ros.planning import Planner, PlanningConfig, start_configuration
+    from advocc_ros.planning.worker import Planner
+    from advocc_ros.planning.types import PlanningConfig
+    from advocc_ros.kinematics.ik import start_configuration
 
     if scene.goal is None:
         raise ValueError(f'scene {scene.name!r} has no goal region')

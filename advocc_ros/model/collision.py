@@ -32,7 +32,7 @@ from scipy.spatial import ConvexHull
 
 from advocc_ros.model.cloud import cloud_octree
 from advocc_ros.model.robot import RobotModel
-from advocc_ros.model.scene import Shape
+from advocc_ros.model.shapes import Shape
 from advocc_ros.model.voxels import VoxelGrid, occupied_mask
 
 

@@ -16,7 +16,7 @@ import numpy as np
 import trimesh
 
 from advocc_ros.model.cloud import points_in_cloud
-from advocc_ros.model.scene import Shape
+from advocc_ros.model.shapes import Shape
 
 
 @dataclasses.dataclass(frozen=True)

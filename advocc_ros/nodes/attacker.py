@@ -36,7 +36,8 @@ from visualization_msgs.msg import MarkerArray
 
 from advocc_ros.attack.methods import SERVER_METHODS
 from advocc_ros.attack.types import DEFAULT_METHOD, POLICIES, AttackConfig
-from advocc_ros.model.scene import Operation, SceneError, SceneObject
+from advocc_ros.model.scene import Operation, SceneObject
+from advocc_ros.model.pose import SceneError
 from advocc_ros.nodes import run
 from advocc_ros.ros.clouds import (CLOUD_PARAMETERS, CLOUD_TOPIC, cloud_msg,
                                    cloud_shape_from_node_params, markers_with_scene)

@@ -46,7 +46,8 @@ from advocc_ros.nodes import run
 from advocc_ros.paths import allowed_dirs, confine
 from advocc_ros.model.robot import RobotError, RobotSpec, load_robot, resolve_path
 from advocc_ros.model.cloud import DEFAULT_RESOLUTION_M
-from advocc_ros.model.scene import SceneError, SceneObject
+from advocc_ros.model.pose import SceneError
+from advocc_ros.model.scene import SceneObject
 from advocc_ros.ros.clouds import cloud_msg, cloud_shape_from_msg
 from advocc_ros.ros.params import INT_MAX, Param, declare
 from advocc_ros.ros.qos import LATCHED_QOS

@@ -46,10 +46,12 @@ from advocc_ros.ros.clouds import CLOUD_PARAMETERS, CLOUD_TOPIC, cloud_shape_fro
 from advocc_ros.ros.params import INT_MAX, Param, declare
 from advocc_ros.ros.qos import COLLISION_OBJECT_TOPIC, LATCHED_QOS
 from advocc_ros.paths import allowed_dirs, confine, scene_path
-from advocc_ros.planning import PLANNERS, Planner, PlanningConfig, PlanStatus
+from advocc_ros.planning.types import PLANNERS, PlanningConfig, PlanStatus
+from advocc_ros.planning.worker import Planner
 from advocc_ros.model.robot import RobotError, resolve_path
-from advocc_ros.model.scene import (Scene, SceneError, SceneObject, apply_operation, load_scene,
+from advocc_ros.model.scene import (Scene, SceneObject, apply_operation, load_scene,
                                     referenced_files)
+from advocc_ros.model.pose import SceneError
 
 # Parameters that map onto PlanningConfig fields (defaults come from the dataclass): their
 # description, and the closed range when PlanningConfig's check is one.

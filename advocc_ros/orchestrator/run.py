@@ -231,7 +231,7 @@ class Orchestrator:
     def _run_scene(self, scene_name: str, units: list[Unit], heatmap: pathlib.Path | None
                    ) -> None:
         from advocc_ros.paths import scene_path
-        from advocc_ros.planning import start_configuration
+        from advocc_ros.kinematics.ik import start_configuration
         from advocc_ros.model.robot import load_robot
         from advocc_ros.model.scene import load_scene
 

@@ -139,7 +139,7 @@ class PlanQuery:
 
     def done(self, answer: PlanAnswer, nq: int) -> None:
         """Turn a shim's answer into the ``PlanResult`` the optimiser expects."""
-        from advocc_ros.planning import PlanResult, PlanStatus
+        from advocc_ros.planning.types import PlanResult, PlanStatus
 
         try:
             status = PlanStatus(int(answer.error_code))

@@ -186,7 +186,7 @@ class AttackSources:
     def obstacles(self, spec: AttackSpec) -> tuple:
         """The attack's boxes: from the run folder, or generated now and cached there."""
         from advocc_ros.attack import load_obstacles, save_obstacles
-        from advocc_ros.model.scene import SceneError
+        from advocc_ros.model.pose import SceneError
 
         path = attack_path(self.run_dir, spec)
         if path.exists():

@@ -12,9 +12,9 @@ import time
 import numpy as np
 
 from advocc_ros.model.collision import CollisionWorld
-from advocc_ros.model.ik import GoalSampler
+from advocc_ros.kinematics.ik import GoalSampler
 from advocc_ros.model.robot import RobotModel
-from advocc_ros.model.scene import GoalRegion
+from advocc_ros.model.goal import GoalRegion
 from advocc_ros.planning.motion import make_motion_validator
 from advocc_ros.planning.types import (PlanningConfig, PlanResult, PlanStatus, _fail,
                                        planner_class_name, validate_request)

@@ -9,7 +9,7 @@ import math
 import numpy as np
 
 from advocc_ros.model.robot import RobotModel
-from advocc_ros.model.scene import GoalRegion
+from advocc_ros.model.goal import GoalRegion
 
 
 class PlanStatus(enum.IntEnum):

@@ -36,8 +36,9 @@ import pinocchio as pin
 
 from advocc_ros.model.collision import CollisionWorld
 from advocc_ros.model.robot import RobotModel
-from advocc_ros.model.scene import (GoalRegion, Scene, SceneError, SceneObject, read_yaml,
-                                    save_yaml_atomic, task_hash)
+from advocc_ros.model.goal import GoalRegion
+from advocc_ros.model.scene import Scene, SceneObject, read_yaml, save_yaml_atomic, task_hash
+from advocc_ros.model.pose import SceneError
 from advocc_ros.planning.types import PlanningConfig, PlanStatus
 
 log = logging.getLogger(__name__)

@@ -52,7 +52,8 @@ from typing import Any
 import numpy as np
 
 from advocc_ros.model.robot import RobotError, load_robot
-from advocc_ros.model.scene import GoalRegion, Scene, scene_from_data
+from advocc_ros.model.goal import GoalRegion
+from advocc_ros.model.scene import Scene, scene_from_data
 from advocc_ros.planning.solve import _ompl, solve
 from advocc_ros.planning.types import (PlanningConfig, PlanResult, PlanStatus, _fail,
                                        validate_request)

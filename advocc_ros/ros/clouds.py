@@ -17,7 +17,9 @@ from visualization_msgs.msg import Marker, MarkerArray
 
 from advocc_ros.limits import MAX_CLOUD_POINTS, MAX_CLOUD_RESOLUTION_M, MIN_CLOUD_RESOLUTION_M
 from advocc_ros.model.cloud import make_cloud_shape
-from advocc_ros.model.scene import Pose, SceneError, SceneObject, Shape
+from advocc_ros.model.pose import Pose, SceneError
+from advocc_ros.model.scene import SceneObject
+from advocc_ros.model.shapes import Shape
 from advocc_ros.model.shapes import cloud_cells
 from advocc_ros.ros.params import Param
 

@@ -22,8 +22,10 @@ from advocc_ros.attack.types import DEFAULT_METHOD
 from advocc_ros.limits import (MAX_JOINTS, MAX_MESH_TRIANGLES, MAX_MESH_VERTICES, MAX_OBJECTS,
                                MAX_SCENE_VERTICES, MAX_SHAPES)
 from advocc_ros.model.robot import RobotError, RobotModel
-from advocc_ros.model.scene import (GoalRegion, Operation, Pose, Scene, SceneError, SceneObject,
-                                    Shape, make_box, objects_to_data)
+from advocc_ros.model.goal import GoalRegion
+from advocc_ros.model.scene import Operation, Scene, SceneObject, make_box, objects_to_data
+from advocc_ros.model.pose import Pose, SceneError
+from advocc_ros.model.shapes import Shape
 from advocc_ros.model.shapes import make_mesh_shape
 from advocc_ros.ros.clouds import cloud_msg, scene_cloud, without_clouds
 from advocc_ros.ros.errors import code_name

@@ -121,15 +121,15 @@ def setup(context: dict) -> dict:
 
 def _parse(family: str, path: pathlib.Path, state: dict, rng: random.Random) -> str | None:
     """Parse ``path`` as ``family``; returns why an accepted result is wrong, or None."""
-    from advocc_ros.model.scene import Pose
+    from advocc_ros.model.pose import Pose
     if family == 'scene_yaml':
         from advocc_ros.model.scene import load_scene
         load_scene(path)
     elif family == 'mbm_scene':
-        from advocc_ros.model.mbm import load_mbm_scene
+        from advocc_ros.formats.mbm_scene import load_mbm_scene
         load_mbm_scene(path)
     elif family == 'mbm_request':
-        from advocc_ros.model.mbm import load_request
+        from advocc_ros.formats.mbm_scene import load_request
         req = load_request(path, state['robot'])
         if req.goal is not None and set(req.goal) != set(state['robot'].joint_names):
             return f'joint goal over {sorted(req.goal)}'
@@ -156,7 +156,7 @@ def _parse(family: str, path: pathlib.Path, state: dict, rng: random.Random) -> 
 def run(state: dict, job: tuple[str, int]) -> tuple[str, str]:
     """Generate, write and parse one input; its category and a short detail."""
     from advocc_ros.heatmap import HeatmapError
-    from advocc_ros.model.scene import SceneError
+    from advocc_ros.model.pose import SceneError
     family, index = job
     item = generate(family, index, state['seed'], state['base'], state['workdir'])
     folder = state['workdir'] / f'{family}_{index}'

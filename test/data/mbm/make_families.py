@@ -13,9 +13,11 @@ import pinocchio as pin
 import yaml
 
 from advocc_ros.model.collision import CollisionWorld
-from advocc_ros.model.ik import goal_configuration
+from advocc_ros.kinematics.ik import goal_configuration
 from advocc_ros.model.robot import RobotSpec, load_robot
-from advocc_ros.model.scene import GoalRegion, Pose, load_scene
+from advocc_ros.model.goal import GoalRegion
+from advocc_ros.model.pose import Pose
+from advocc_ros.model.scene import load_scene
 
 HERE = pathlib.Path(__file__).parent
 REPO = HERE.parents[2]
@@ -114,7 +116,8 @@ def _grasp(objects, grasp):
 
 
 def main():
-    from advocc_ros.model.scene import SceneObject, Shape
+    from advocc_ros.model.scene import SceneObject
+    from advocc_ros.model.shapes import Shape
     robot_closed = load_robot(RobotSpec())
     open_spec = RobotSpec(locked=(('panda_finger_joint1', 0.04), ('panda_finger_joint2', 0.04)))
     robot_open = load_robot(open_spec)

@@ -1,17 +1,17 @@
 """An audit's report: the answer, the per-budget table, ``audit.md``, ``audit.json`` and the
-figures (``advocc_ros.evaluation.audit`` computes the audit). No ROS."""
+figures (``advocc_ros.audit.audit`` computes the audit). No ROS."""
 
 from __future__ import annotations
 
 import pathlib
 
-from advocc_ros.evaluation.audit import ANSWER_THRESHOLD
+from advocc_ros.audit.audit import ANSWER_THRESHOLD
 from advocc_ros.evaluation.hardness import pt_ratio
 
 
 def planner_label(planner_id: str) -> str:
     """``RRTConnect``, ``PRM*``, ``BKPIECE1``: the OMPL class name, ``star`` as ``*``."""
-    from advocc_ros.planning import planner_class_name
+    from advocc_ros.planning.types import planner_class_name
 
     name = planner_class_name(planner_id) or planner_id
     return name.replace('star', '*')
@@ -192,7 +192,7 @@ def write_audit(audit: dict, out_dir: str | pathlib.Path, heatmap, scene) -> dic
 
     from advocc_ros.evaluation.figures import plot_audit_psr, plot_heatmap_slices
     from advocc_ros.fileio import atomic_write_text
-    from advocc_ros.model import make_box
+    from advocc_ros.model.scene import make_box
     from advocc_ros.model.scene import save_yaml_atomic
 
     out = pathlib.Path(out_dir)

@@ -29,13 +29,15 @@ from typing import Any
 import numpy as np
 import pinocchio as pin
 
-from advocc_ros.model.mbm_fields import (ADD_OPERATIONS, WORLD_FRAMES, as_list, as_mapping,
-                                         base_frame, joint_state, numbers, pose_se3,
-                                         primitive_shape, virtual_joint)
-from advocc_ros.model.mbm_request import (GoalTolerance, goal_region_at, load_request,
-                                          parse_goal_tolerance)
+from advocc_ros.formats.mbm_fields import (ADD_OPERATIONS, WORLD_FRAMES, as_list, as_mapping,
+                                           base_frame, joint_state, numbers, pose_se3,
+                                           primitive_shape, virtual_joint)
+from advocc_ros.formats.mbm_request import (GoalTolerance, goal_region_at, load_request,
+                                            parse_goal_tolerance)
 from advocc_ros.model.robot import RobotSpec, load_robot
-from advocc_ros.model.scene import Pose, Scene, SceneError, SceneObject, Shape, read_yaml
+from advocc_ros.model.pose import Pose, SceneError
+from advocc_ros.model.scene import Scene, SceneObject, read_yaml
+from advocc_ros.model.shapes import Shape
 from advocc_ros.model.shapes import make_mesh_shape
 
 

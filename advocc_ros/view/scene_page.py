@@ -18,8 +18,9 @@ import numpy as np
 import pinocchio as pin
 import trimesh
 
-from advocc_ros.evaluation.view_page import ViewBuilder, legend_html, page_html, png_data_uri
-from advocc_ros.model.scene import Scene, SceneError, SceneObject, make_box
+from advocc_ros.view.page import ViewBuilder, legend_html, page_html, png_data_uri
+from advocc_ros.model.scene import Scene, SceneObject, make_box
+from advocc_ros.model.pose import SceneError
 
 TOP_PERCENTILE = 90.0
 """Heatmap voxels drawn: those at or above this percentile of the non-zero H (the top 10 %)."""
@@ -68,7 +69,9 @@ def load_witness_path(path: str | pathlib.Path, robot) -> RobotPath:
 def plan_path(scene: Scene, planner_id: str = 'rrtconnect', time_s: float = 2.0,
               seed: int = 0) -> RobotPath | str:
     """A path of ``planner_id`` on ``scene`` (in a watched worker process), or why none."""
-    from advocc_ros.planning import Planner, PlanningConfig, start_configuration
+    from advocc_ros.planning.worker import Planner
+    from advocc_ros.planning.types import PlanningConfig
+    from advocc_ros.kinematics.ik import start_configuration
 
     with Planner(scene, PlanningConfig()) as planner:
         robot_q = start_configuration(scene, planner.robot)
@@ -170,7 +173,8 @@ def scene_view_html(scene: Scene, boxes: tuple[SceneObject, ...] = (), heatmap=N
     """The page for ``scene`` with ``boxes`` (pick order) and whatever else is given;
     ``planned`` may be the reason no path was planned. ``extra_html`` (trusted) goes under
     the legend."""
-    from advocc_ros.model import goal_configuration, load_robot, start_configuration
+    from advocc_ros.kinematics.ik import goal_configuration, start_configuration
+    from advocc_ros.model.robot import load_robot
 
     robot = load_robot(scene.robot)
     view = ViewBuilder()
@@ -228,7 +232,7 @@ def audit_view_html(audit_dir: str | pathlib.Path, scene: Scene, heatmap=None,
                     planned: RobotPath | str | None = None,
                     witness: RobotPath | None = None) -> str:
     """The page of an audit folder: its boxes, the answer and the PSR-per-budget figure."""
-    from advocc_ros.evaluation.audit_report import audit_answer
+    from advocc_ros.audit.report import audit_answer
 
     folder = pathlib.Path(audit_dir)
     try:
@@ -252,7 +256,7 @@ def write_audit_view(audit_dir: str | pathlib.Path, scene: Scene, heatmap=None,
     """Write ``audit.html`` into the audit folder (with a planned path, and the witness
     ``audit.witness.yaml`` when the folder has one); returns its path."""
     from advocc_ros.fileio import atomic_write_text
-    from advocc_ros.model import load_robot
+    from advocc_ros.model.robot import load_robot
 
     folder = pathlib.Path(audit_dir)
     witness_file = witness_beside(folder / 'audit.yaml')

@@ -87,7 +87,8 @@ def run_audit(scene, heatmap, cfg: AuditConfig = AuditConfig(),
     from advocc_ros.attack import AttackConfig
     from advocc_ros.attack.methods import REGISTRY
     from advocc_ros.evaluation.perf import machine
-    from advocc_ros.model import load_robot, start_configuration
+    from advocc_ros.model.robot import load_robot
+    from advocc_ros.kinematics.ik import start_configuration
 
     if scene.goal is None or scene.start is None:
         raise ValueError(f'scene {scene.name!r} needs a start and a goal to be audited')

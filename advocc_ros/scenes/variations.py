@@ -28,8 +28,10 @@ import pinocchio as pin
 
 from advocc_ros.model.collision import CollisionWorld
 from advocc_ros.model.robot import load_robot
-from advocc_ros.model.scene import (GoalRegion, Pose, Scene, SceneError, SceneObject, Shape,
-                                    save_yaml_atomic)
+from advocc_ros.model.goal import GoalRegion
+from advocc_ros.model.pose import Pose, SceneError
+from advocc_ros.model.scene import Scene, SceneObject, save_yaml_atomic
+from advocc_ros.model.shapes import Shape
 
 log = logging.getLogger(__name__)
 
@@ -168,7 +170,7 @@ def vary_scene(scene: Scene, index: int, seed: int,
 
     Raises ``SceneError`` if ``config.max_draws`` draws give no valid variation.
     """
-    from advocc_ros.model.ik import GoalSampler, start_configuration
+    from advocc_ros.kinematics.ik import GoalSampler, start_configuration
 
     robot = load_robot(scene.robot)
     q_init = start_configuration(scene, robot)

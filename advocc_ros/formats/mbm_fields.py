@@ -13,7 +13,8 @@ import numpy as np
 import pinocchio as pin
 
 from advocc_ros.model.robot import RobotError, RobotModel
-from advocc_ros.model.scene import Pose, SceneError, Shape, finite_array
+from advocc_ros.model.pose import Pose, SceneError, finite_array
+from advocc_ros.model.shapes import Shape
 
 PRIMITIVES = {'box': 'box', 'sphere': 'sphere', 'cylinder': 'cylinder',
               1: 'box', 2: 'sphere', 3: 'cylinder'}

@@ -19,7 +19,9 @@ import numpy as np
 import pinocchio as pin
 
 from advocc_ros.model.robot import RobotModel
-from advocc_ros.model.scene import GoalRegion, Scene, SceneError
+from advocc_ros.model.goal import GoalRegion
+from advocc_ros.model.scene import Scene
+from advocc_ros.model.pose import SceneError
 
 log = logging.getLogger(__name__)
 

@@ -33,11 +33,13 @@ from typing import Any
 import numpy as np
 import pinocchio as pin
 
-from advocc_ros.model.mbm_fields import (WORLD_FRAMES, as_list, as_mapping, base_frame,
-                                         joint_state, numbers, pose_se3, primitive_shape,
-                                         virtual_joint)
+from advocc_ros.formats.mbm_fields import (WORLD_FRAMES, as_list, as_mapping, base_frame,
+                                           joint_state, numbers, pose_se3, primitive_shape,
+                                           virtual_joint)
 from advocc_ros.model.robot import RobotModel
-from advocc_ros.model.scene import GoalRegion, Pose, SceneError, read_yaml
+from advocc_ros.model.goal import GoalRegion
+from advocc_ros.model.pose import Pose, SceneError
+from advocc_ros.model.scene import read_yaml
 
 log = logging.getLogger(__name__)
 

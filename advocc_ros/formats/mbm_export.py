@@ -32,7 +32,7 @@ from typing import Sequence
 import numpy as np
 
 from advocc_ros.model.goal import GoalRegion
-from advocc_ros.model.mbm_fields import as_list, as_mapping, base_frame, floats
+from advocc_ros.formats.mbm_fields import as_list, as_mapping, base_frame, floats
 from advocc_ros.model.pose import Pose, SceneError
 from advocc_ros.model.robot import RobotModel, RobotSpec
 from advocc_ros.model.scene import Scene, SceneObject, read_yaml, save_yaml_atomic

@@ -1,0 +1,1 @@
+"""Inverse kinematics: goal-region IK, goal sampling and the task's start configuration. No ROS."""
