@@ -13,7 +13,7 @@ def _relative_links(page: pathlib.Path) -> list[str]:
 
 def test_readme_is_a_front_door():
     lines = (REPO / 'README.md').read_text().splitlines()
-    assert len(lines) <= 250, f'README.md has {len(lines)} lines (at most 250: details go to docs/)'
+    assert len(lines) <= 250, f'README.md has {len(lines)} lines (<= 250: details go to docs/)'
     linked = {pathlib.Path(t).name for t in _relative_links(REPO / 'README.md')}
     missing = sorted(p.name for p in (REPO / 'docs').glob('*.md') if p.name not in linked)
     assert not missing, f'docs pages the README does not link: {missing}'

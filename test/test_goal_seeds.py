@@ -6,10 +6,10 @@ import pathlib
 import numpy as np
 
 from advocc_ros.model.collision import CollisionWorld
-from advocc_ros.kinematics.ik import GoalSampler
+from advocc_ros.kinematics.ik import (GoalSampler, goal_configuration, seed_configurations,
+                                      start_configuration)
 from advocc_ros.formats.mbm_scene import load_any_scene
 from advocc_ros.model.robot import load_robot
-from advocc_ros.kinematics.ik import goal_configuration, seed_configurations, start_configuration
 from advocc_ros.model.goal import GoalRegion
 from advocc_ros.model.pose import SceneError
 from advocc_ros.model.scene import scene_from_data

@@ -18,8 +18,7 @@ import pytest
 from advocc_ros.attack import AttackConfig, AttackStatus, attack, load_obstacles
 from advocc_ros.attack.solvable import assess, probe_goal
 from advocc_ros.heatmap import HeatmapConfig, build_heatmap, save_heatmap
-from advocc_ros.model.collision import CollisionWorld
-from advocc_ros.model.collision import coal_geometry
+from advocc_ros.model.collision import CollisionWorld, coal_geometry
 from advocc_ros.model.robot import load_robot
 from advocc_ros.model.pose import SceneError
 from advocc_ros.model.scene import make_box

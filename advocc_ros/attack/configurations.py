@@ -14,6 +14,7 @@ from scipy import sparse
 
 from advocc_ros.attack.coverage import box_sum
 from advocc_ros.attack.region import SearchRegion
+from advocc_ros.attack.types import AttackConfig
 from advocc_ros.heatmap import link_tables, placement_arrays
 from advocc_ros.heatmap.build import in_link, link_voxel_box
 from advocc_ros.model.collision import CollisionWorld
@@ -111,8 +112,8 @@ def _dense_to_csr(dense):
 
 def greedy_configurations(cover: sparse.spmatrix | np.ndarray, weights: np.ndarray,
                           centers_m: np.ndarray, budget: int, d_min_m: float, accept=None,
-                          max_rejections: int = 500, bonus: np.ndarray | None = None,
-                          feasible=None) -> tuple[list[int], int]:
+                          max_rejections: int = AttackConfig.max_rejections,
+                          bonus: np.ndarray | None = None, feasible=None) -> tuple[list[int], int]:
     """Greedy budgeted maximum coverage: up to ``budget`` candidate columns of ``cover``
     (configurations x candidates, 0/1), >= ``d_min_m`` apart, maximizing the ``weights`` of
     the configurations covered (each once) plus a modular ``bonus`` per candidate; and how

@@ -16,6 +16,8 @@ from typing import Callable
 import numba
 import numpy as np
 
+from advocc_ros.attack.types import AttackConfig
+
 log = logging.getLogger(__name__)
 
 
@@ -202,7 +204,8 @@ Accept = Callable[[np.ndarray], bool]
 
 
 def greedy_cover(weights: np.ndarray, candidates: np.ndarray, k: int, budget: int,
-                 d_min_vox: float, accept: Accept | None = None, max_rejections: int = 500
+                 d_min_vox: float, accept: Accept | None = None,
+                 max_rejections: int = AttackConfig.max_rejections
                  ) -> tuple[list[tuple[np.ndarray, float]], int]:
     """Algorithm 1 on arrays: up to ``budget`` (index, marginal mass) picks, and rejections.
 
@@ -240,7 +243,8 @@ def greedy_cover(weights: np.ndarray, candidates: np.ndarray, k: int, budget: in
 
 def random_cover(weights: np.ndarray, candidates: np.ndarray, k: int, budget: int,
                  d_min_vox: float, rng: np.random.Generator, accept: Accept | None = None,
-                 max_rejections: int = 500) -> tuple[list[tuple[np.ndarray, float]], int]:
+                 max_rejections: int = AttackConfig.max_rejections
+                 ) -> tuple[list[tuple[np.ndarray, float]], int]:
     """Random baseline: candidates uniformly at random (without replacement) under the same
     constraints as :func:`greedy_cover`; masses are the marginal coverage, as for greedy."""
     cov = _Coverage(weights, candidates, k, d_min_vox)

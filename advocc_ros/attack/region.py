@@ -16,6 +16,7 @@ import pinocchio as pin
 from advocc_ros.attack.coverage import box_distance, box_half_voxels
 from advocc_ros.attack.types import AttackConfig
 from advocc_ros.heatmap import Heatmap, link_tables
+from advocc_ros.heatmap.build import HeatmapConfig, weight_config
 from advocc_ros.model.collision import coal_geometry, shared_world
 from advocc_ros.kinematics.ik import goal_configuration
 from advocc_ros.model.robot import RobotModel
@@ -67,6 +68,8 @@ class SearchRegion:
     guard: Any = None
     """The goal policy's guard (set by ``attack``): ``GoalGuard`` (``reachable``, commits the
     boxes it accepts) or ``WitnessGuard`` (``solvable``); ``admit(center_m)`` and ``reason``."""
+    weight_config: HeatmapConfig = HeatmapConfig()
+    """w(q)'s parameters, the heatmap's own (methods that weigh configurations use them)."""
 
     def center_m(self, c: np.ndarray) -> np.ndarray:
         return self.grid.centers(np.asarray(c) + self.lo)
@@ -150,7 +153,7 @@ def search_region(heatmap: Heatmap, robot: RobotModel, objects: tuple[SceneObjec
         empty = np.zeros((0, 0, 0))
         stats['candidates'] = 0
         return SearchRegion(grid, lo, lo, empty, empty.astype(bool), k, s, cfg.d_min_m, [],
-                            stats, heatmap.lut_pitch_m)
+                            stats, heatmap.lut_pitch_m, weight_config=weight_config(heatmap))
     win = tuple(slice(lo[a], hi[a]) for a in range(3))
     sub = VoxelGrid(tuple(grid.centers(lo) - grid.voxel_m / 2), grid.voxel_m, tuple(hi - lo))
 
@@ -209,7 +212,7 @@ def search_region(heatmap: Heatmap, robot: RobotModel, objects: tuple[SceneObjec
                 f'scene object {o.id}') for o in objects for sh in o.shapes]
     stats['candidates'] = int(cand.sum())
     return SearchRegion(grid, lo, hi, weights, cand, k, s, cfg.d_min_m, checks, stats,
-                        heatmap.lut_pitch_m)
+                        heatmap.lut_pitch_m, weight_config=weight_config(heatmap))
 
 
 def _near_box(grid: VoxelGrid, T_c: pin.SE3, half_m: np.ndarray, within_m: float

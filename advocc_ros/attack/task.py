@@ -33,6 +33,7 @@ first M of budget M + 1's, which ``advocc audit`` relies on.
 from __future__ import annotations
 
 import dataclasses
+import os
 import time
 
 import numpy as np
@@ -44,7 +45,7 @@ from advocc_ros.attack.methods import MethodContext, register_method
 from advocc_ros.attack.region import SearchRegion
 from advocc_ros.attack.solvable import WitnessGuard
 from advocc_ros.attack.types import AttackConfig
-from advocc_ros.heatmap import HeatmapConfig, placement_arrays, sample_weights
+from advocc_ros.heatmap import placement_arrays, sample_weights
 from advocc_ros.model.collision import CollisionWorld, shared_world
 from advocc_ros.kinematics.ik import GOAL_SET_CAP_S, goal_set
 
@@ -81,8 +82,8 @@ class TaskOptions:
                              'sampling_cap_s > 0')
 
 
-THREADS = 2
-"""Threads of the batched collision passes (C++; the machines here have 2 cores)."""
+THREADS = os.cpu_count() or 1
+"""Threads of the batched collision passes (C++): every core; the flags do not depend on it."""
 
 
 def approach_samples(world: CollisionWorld, q_init: np.ndarray, Q_goal: np.ndarray,
@@ -163,7 +164,7 @@ def _select_task(region: SearchRegion, budget: int, seed: int, cfg: AttackConfig
                                                     opts.tube_samples, opts.tube_rad, rng)])
     Q = np.concatenate([Q_goal, Q_app])
     n_goal = len(Q_goal)
-    w = sample_weights(robot, world, Q, HeatmapConfig(), THREADS) if len(Q) else np.zeros(0)
+    w = sample_weights(robot, world, Q, region.weight_config, THREADS) if len(Q) else np.zeros(0)
     t_sample = time.perf_counter()
     R, t = placement_arrays(world, Q)
     cover = cover_matrix(robot, world, Q, region, placements=(R, t))

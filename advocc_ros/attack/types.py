@@ -9,6 +9,7 @@ from typing import Any
 
 import numpy as np
 
+from advocc_ros.heatmap.build import HeatmapConfig
 from advocc_ros.model.scene import SceneObject, objects_to_data
 
 
@@ -33,7 +34,7 @@ class AttackConfig:
     """s: edge of every adversarial box [m]."""
     corridor_radius_m: float = 0.3
     """r_corr: candidate centres lie within this distance of the start-goal segment [m]."""
-    d_safe_m: float = 0.1
+    d_safe_m: float = HeatmapConfig.d_safe_m
     """Clearance of every box from the robot at q_init and from the goal region [m]."""
     d_min_m: float = 0.05
     """Minimum distance between box centres [m]."""

@@ -192,8 +192,7 @@ def write_audit(audit: dict, out_dir: str | pathlib.Path, heatmap, scene) -> dic
 
     from advocc_ros.evaluation.figures import plot_audit_psr, plot_heatmap_slices
     from advocc_ros.fileio import atomic_write_text
-    from advocc_ros.model.scene import make_box
-    from advocc_ros.model.scene import save_yaml_atomic
+    from advocc_ros.model.scene import make_box, save_yaml_atomic
 
     out = pathlib.Path(out_dir)
     names = ('audit.json', 'audit.md', 'audit_slices.png', 'audit_psr.png')

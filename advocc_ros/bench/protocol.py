@@ -22,6 +22,7 @@ import yaml
 
 from advocc_ros.attack.methods import REGISTRY
 from advocc_ros.attack.types import POLICIES
+from advocc_ros.heatmap.build import HeatmapConfig
 from advocc_ros.limits import MAX_TRIALS
 
 log = logging.getLogger(__name__)
@@ -77,7 +78,7 @@ class BenchConfig:
     """Local planner_shim processes per scene."""
     external_shims: bool = False
     """Also use planner shims of the same ROS domain found by their ``*/plan`` services."""
-    heatmap_samples: int = 15_000
+    heatmap_samples: int = HeatmapConfig.samples
     heatmap_robot_only: bool = False
     heatmap_workers: int = 2
     box_size_m: float = 0.0

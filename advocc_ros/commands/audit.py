@@ -22,7 +22,6 @@ from advocc_ros.cli import UserError
 from advocc_ros.commands.common import (add_bag_arg, add_scene_args, check_bag_arg,
                                         scene_from_args)
 
-HEATMAP_SAMPLES = 15000
 """Samples of the heatmap the audit builds when none is given (~5-9 s on 2 cores)."""
 
 
@@ -93,8 +92,9 @@ def audit_config(args: argparse.Namespace):
 
 
 def audit_heatmap(scene, out: pathlib.Path, heatmap_file: str | None, workers: int,
-                  samples: int = HEATMAP_SAMPLES, log=print):
-    """The heatmap of ``--heatmap``, or ``out/heatmap_<scene>.npz`` (built there if missing)."""
+                  samples: int | None = None, log=print):
+    """The heatmap of ``--heatmap``, or ``out/heatmap_<scene>.npz`` (built there if missing, with
+    ``samples`` or the default sample count)."""
     from advocc_ros.heatmap import (HeatmapConfig, HeatmapError, build_heatmap, load_heatmap,
                                     save_heatmap)
     from advocc_ros.model.robot import load_robot
@@ -109,7 +109,8 @@ def audit_heatmap(scene, out: pathlib.Path, heatmap_file: str | None, workers: i
     except HeatmapError as exc:
         raise UserError(str(exc)) from None
     t0 = time.perf_counter()
-    heatmap = build_heatmap(scene, HeatmapConfig(samples=samples), seed=0, workers=workers)
+    cfg = HeatmapConfig() if samples is None else HeatmapConfig(samples=samples)
+    heatmap = build_heatmap(scene, cfg, seed=0, workers=workers)
     save_heatmap(heatmap, path)
     log(f'heatmap: built {path} ({samples} samples) in {time.perf_counter() - t0:.1f} s')
     return heatmap

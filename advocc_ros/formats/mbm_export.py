@@ -41,8 +41,6 @@ PRIMITIVE_TYPES = {'box': 1, 'sphere': 2, 'cylinder': 3}
 """shape_msgs/SolidPrimitive type values."""
 ROTATION_VECTOR = 1
 """moveit_msgs/OrientationConstraint.ROTATION_VECTOR."""
-MOVEIT_GROUP = 'panda_arm'
-"""The Panda's planning group in MoveIt's configuration (ours is the SRDF's ``arm``)."""
 JOINT_GOAL_TOLERANCE_RAD = 1e-3
 """Tolerance of the joint goal written for a region seed [rad]: the seed is a point goal."""
 
@@ -189,7 +187,7 @@ def request_data(scene: Scene, robot: RobotModel, planning_time_s: float = 5.0,
         'goal_constraints': goal_constraints_data(scene.goal, base_frame(robot)),
         'path_constraints': _constraints(),
         'trajectory_constraints': {'constraints': []}, 'reference_trajectories': [],
-        'pipeline_id': '', 'planner_id': planner_id, 'group_name': MOVEIT_GROUP,
+        'pipeline_id': '', 'planner_id': planner_id, 'group_name': scene.robot.moveit_group,
         'num_planning_attempts': 1, 'allowed_planning_time': float(planning_time_s),
         'max_velocity_scaling_factor': 1.0, 'max_acceleration_scaling_factor': 1.0,
         'cartesian_speed_end_effector_link': '', 'max_cartesian_speed': 0.0}

@@ -37,8 +37,7 @@ from advocc_ros.formats.mbm_request import (GoalTolerance, goal_region_at, load_
 from advocc_ros.model.robot import RobotSpec, load_robot
 from advocc_ros.model.pose import Pose, SceneError
 from advocc_ros.model.scene import Scene, SceneObject, read_yaml
-from advocc_ros.model.shapes import Shape
-from advocc_ros.model.shapes import make_mesh_shape
+from advocc_ros.model.shapes import Shape, make_mesh_shape
 
 
 def is_mbm_scene(data: Any) -> bool:
@@ -89,7 +88,7 @@ def _posed_parts(obj: dict, where: str, T_obj: pin.SE3, items: str, poses: str
             for k, p in enumerate(parts)]
 
 
-def objects_from_planning_scene(data: Any, where: str, base_frame: str = 'panda_link0',
+def objects_from_planning_scene(data: Any, where: str, base_frame: str = RobotSpec.base_frame,
                                 T_world_base: pin.SE3 | None = None
                                 ) -> tuple[SceneObject, ...]:
     """Collision objects of a ``PlanningScene`` mapping, in the robot base frame.

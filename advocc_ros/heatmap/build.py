@@ -30,7 +30,7 @@ from typing import Callable
 import numba
 import numpy as np
 
-from advocc_ros.heatmap.store import DEFAULT_LUT_PITCH_FRACTION, Heatmap
+from advocc_ros.heatmap.store import DEFAULT_LUT_PITCH_FRACTION, Heatmap, HeatmapError
 from advocc_ros.model.collision import CollisionWorld
 from advocc_ros.model.robot import RobotModel, load_robot
 from advocc_ros.model.scene import Scene
@@ -73,6 +73,20 @@ class HeatmapConfig:
             value = getattr(self, name)
             if not ok or not np.isfinite(float(value)):
                 raise ValueError(f'heatmap parameter {name}={value!r} is out of range')
+
+
+_WEIGHT_PARAMS = ('kappa', 'd_safe_m', 'gamma_man', 'gamma_clr')
+
+
+def weight_config(heatmap: Heatmap) -> HeatmapConfig:
+    """The w(q) parameters ``heatmap`` was built with, so that an attack weighs configurations
+    as the heatmap did (a file that records none was built with the defaults)."""
+    params = heatmap.meta.get('params')
+    params = params if isinstance(params, dict) else {}
+    try:
+        return HeatmapConfig(**{k: float(params[k]) for k in _WEIGHT_PARAMS if k in params})
+    except (TypeError, ValueError) as exc:
+        raise HeatmapError(f'heatmap params: {exc}') from None
 
 
 # --------------------------------------------------------------------------------------------

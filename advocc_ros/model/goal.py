@@ -10,6 +10,7 @@ import pinocchio as pin
 
 from advocc_ros.limits import MAX_GOAL_DISTANCE_M
 from advocc_ros.model.pose import Pose, SceneError, finite_array
+from advocc_ros.model.robot import RobotSpec
 
 
 def _rotation_error(R_center: np.ndarray, R: np.ndarray) -> np.ndarray:
@@ -30,7 +31,7 @@ class GoalRegion:
     center: Pose
     position_tolerance_m: tuple[float, float, float] = (0.02, 0.02, 0.02)
     orientation_tolerance_rad: tuple[float, float, float] = (0.1, 0.1, 0.1)
-    link: str = 'panda_hand'
+    link: str = RobotSpec.ee_link
     tool_offset: Pose = Pose()
     """Pose of the tool point in ``link``; the region constrains the tool point."""
     seed_joints: tuple[str, ...] = ()
@@ -73,7 +74,9 @@ class GoalRegion:
         return names, tuple(seeds)
 
     @classmethod
-    def from_data(cls, data: Any, where: str = 'goal') -> 'GoalRegion':
+    def from_data(cls, data: Any, where: str = 'goal', default_link: str = RobotSpec.ee_link
+                  ) -> 'GoalRegion':
+        """``default_link``: the link of a region that names none (the robot's ``ee_link``)."""
         if not isinstance(data, dict):
             raise SceneError(f'{where}: expected a mapping')
         known = {'link', 'center', 'position_tolerance', 'orientation_tolerance', 'tool_offset',
@@ -84,7 +87,7 @@ class GoalRegion:
                              f'known: {sorted(known)}')
         if 'center' not in data:
             raise SceneError(f'{where}.center: missing')
-        link = data.get('link', 'panda_hand')
+        link = data.get('link', default_link)
         if not isinstance(link, str) or not link:
             raise SceneError(f'{where}.link: expected a link name, got {link!r}')
         seed_joints, seeds = cls._seeds_from_data(data.get('seeds'), f'{where}.seeds')

@@ -56,6 +56,10 @@ class RobotSpec:
     """SRDF group whose joints are planned; other joints are locked. Empty: every joint."""
     ee_link: str = 'panda_hand'
     """End-effector link for goal regions, manipulability and corridors."""
+    base_frame: str = 'panda_link0'
+    """Frame of the robot's base: poses of scenes, requests and messages are in it."""
+    moveit_group: str = 'panda_arm'
+    """The planning group's name in the robot's MoveIt configuration (exported requests)."""
     group_state: str = 'default'
     """SRDF group state giving the values of locked joints (missing ones: 0)."""
     locked: tuple[tuple[str, float], ...] = ()

@@ -59,10 +59,13 @@ class Scene:
     goal: GoalRegion | None = None
     robot: RobotSpec = RobotSpec()
     name: str = 'scene'
-    frame: str = 'panda_link0'
+    frame: str | None = None
+    """Frame of every pose in the scene (``None``: the robot's ``base_frame``)."""
 
     def __post_init__(self):
         object.__setattr__(self, 'robot', with_state(self.robot, self.start))
+        if self.frame is None:
+            object.__setattr__(self, 'frame', self.robot.base_frame)
 
     @property
     def shapes(self) -> list[Shape]:
@@ -237,10 +240,11 @@ def scene_from_data(data: Any, where: str, base_dir: pathlib.Path | None = None)
     return Scene(
         objects=objects_from_data(data.get('objects'), f'{where}.objects', base_dir),
         start=_start_from_data(data['start'], f'{where}.start') if 'start' in data else None,
-        goal=GoalRegion.from_data(data['goal'], f'{where}.goal') if 'goal' in data else None,
+        goal=GoalRegion.from_data(data['goal'], f'{where}.goal', robot.ee_link)
+        if 'goal' in data else None,
         robot=robot,
         name=str(data.get('name', pathlib.Path(where).stem)),
-        frame=str(data.get('frame', 'panda_link0')))
+        frame=str(data['frame']) if 'frame' in data else None)
 
 
 def load_scene(path: str | pathlib.Path) -> Scene:

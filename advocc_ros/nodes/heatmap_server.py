@@ -92,7 +92,7 @@ PARAMETERS = (
             read_only=True) for param, field in _ROBOT_PARAMS.items()),
     Param('robot_locked', [''], "joint=value of the joints outside the group (['']: the "
           "heatmap file's values)", read_only=True),
-    Param('base_frame', 'panda_link0', "frame of every request's poses (no tf here)",
+    Param('base_frame', RobotSpec.base_frame, "frame of every request's poses (no tf here)",
           read_only=True),
     Param('allowed_dirs', [''], "directories the node may read files from (['']: the "
           'defaults, see README "Security")', read_only=True),
@@ -288,7 +288,7 @@ class HeatmapServer(Node):
                         f'{list(gmsg.position_tolerance)}, orientation '
                         f'{list(gmsg.orientation_tolerance)}')
         try:
-            goal = goal_region_from_msg(gmsg)
+            goal = goal_region_from_msg(gmsg, self._spec.ee_link)
         except SceneError as exc:
             return fail(ErrorCodes.INVALID_GOAL_CONSTRAINTS, str(exc))
         # Budget, box size, method and policy are checked by the core (errors are data).

@@ -240,7 +240,7 @@ class PlannerShim(Node):
                         f'goal_region frame {frame!r} is not the planning frame '
                         f'{self._static.frame!r}')
         try:
-            goal = goal_region_from_msg(gmsg)
+            goal = goal_region_from_msg(gmsg, robot.spec.ee_link)
         except SceneError as exc:
             return fail(PlanStatus.INVALID_GOAL_CONSTRAINTS, str(exc))
         budget = request.time_budget_s

@@ -19,8 +19,7 @@ from advocc_ros.limits import MAX_CLOUD_POINTS, MAX_CLOUD_RESOLUTION_M, MIN_CLOU
 from advocc_ros.model.cloud import make_cloud_shape
 from advocc_ros.model.pose import Pose, SceneError
 from advocc_ros.model.scene import SceneObject
-from advocc_ros.model.shapes import Shape
-from advocc_ros.model.shapes import cloud_cells
+from advocc_ros.model.shapes import Shape, cloud_cells
 from advocc_ros.ros.params import Param
 
 CLOUD_TOPIC = '/advocc/cloud'

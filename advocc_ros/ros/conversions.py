@@ -25,8 +25,7 @@ from advocc_ros.model.robot import RobotError, RobotModel
 from advocc_ros.model.goal import GoalRegion
 from advocc_ros.model.scene import Operation, Scene, SceneObject, make_box, objects_to_data
 from advocc_ros.model.pose import Pose, SceneError
-from advocc_ros.model.shapes import Shape
-from advocc_ros.model.shapes import make_mesh_shape
+from advocc_ros.model.shapes import Shape, make_mesh_shape
 from advocc_ros.ros.clouds import cloud_msg, scene_cloud, without_clouds
 from advocc_ros.ros.errors import code_name
 
@@ -44,9 +43,11 @@ def pose_to_msg(pose: Pose) -> PoseMsg:
                    orientation=Quaternion(x=float(qx), y=float(qy), z=float(qz), w=float(qw)))
 
 
-def goal_region_from_msg(msg: GoalRegionMsg, where: str = 'goal_region') -> GoalRegion:
+def goal_region_from_msg(msg: GoalRegionMsg, default_link: str, where: str = 'goal_region'
+                         ) -> GoalRegion:
+    """``default_link``: the link of a message that names none (the node's robot's ee link)."""
     return GoalRegion.from_data({
-        'link': msg.link_name or 'panda_hand',
+        'link': msg.link_name or default_link,
         'center': {'position': [msg.center.position.x, msg.center.position.y,
                                 msg.center.position.z],
                    'orientation': [msg.center.orientation.x, msg.center.orientation.y,

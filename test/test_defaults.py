@@ -1,0 +1,58 @@
+"""Names and numbers with one source: the robot spec names the robot's frames and links, the
+heatmap's own parameters weigh the attack's configurations."""
+
+import dataclasses
+
+import numpy as np
+
+from advocc_ros.heatmap import HeatmapConfig, build_heatmap
+from advocc_ros.heatmap.build import weight_config
+from advocc_ros.model.robot import RobotSpec
+from advocc_ros.model.scene import scene_from_data
+
+UR5 = {'urdf': 'example-robot-data://ur_description/urdf/ur5_robot.urdf',
+       'srdf': 'example-robot-data://ur_description/srdf/ur5.srdf', 'group': '',
+       'ee_link': 'tool0', 'base_frame': 'base_link'}
+GOAL = {'center': {'position': [0.45, 0.15, 0.3], 'orientation': [1.0, 0.0, 0.0, 0.0]}}
+
+
+def test_a_scene_without_frame_or_goal_link_takes_them_from_its_robot():
+    scene = scene_from_data({'robot': UR5, 'goal': GOAL}, 'ur5.yaml')
+    assert scene.frame == 'base_link'
+    assert scene.goal.link == 'tool0'
+    panda = scene_from_data({'goal': GOAL}, 'panda.yaml')
+    assert (panda.frame, panda.goal.link) == (RobotSpec.base_frame, RobotSpec.ee_link)
+    named = scene_from_data({'robot': UR5, 'frame': 'world',
+                             'goal': {**GOAL, 'link': 'wrist_3_link'}}, 'ur5.yaml')
+    assert (named.frame, named.goal.link) == ('world', 'wrist_3_link')
+
+
+def test_a_goal_message_without_link_takes_the_robots_end_effector():
+    from advocc_msgs.msg import GoalRegion as GoalRegionMsg
+    from advocc_ros.ros.conversions import goal_region_from_msg
+    msg = GoalRegionMsg()
+    msg.center.orientation.w = 1.0
+    msg.position_tolerance = [0.02, 0.02, 0.02]
+    msg.orientation_tolerance = [0.1, 0.1, 0.1]
+    assert goal_region_from_msg(msg, 'tool0').link == 'tool0'
+    msg.link_name = 'flange'
+    assert goal_region_from_msg(msg, 'tool0').link == 'flange'
+
+
+def test_the_attack_weighs_with_the_heatmaps_own_parameters(table_scene):
+    cfg = HeatmapConfig(samples=20, kappa=0.05, d_safe_m=0.2, gamma_man=2.0, gamma_clr=0.5)
+    heatmap = build_heatmap(table_scene, cfg, seed=1)
+    assert weight_config(heatmap) == dataclasses.replace(HeatmapConfig(), kappa=0.05,
+                                                         d_safe_m=0.2, gamma_man=2.0,
+                                                         gamma_clr=0.5)
+    heatmap.meta['params'] = {}  # a file that records none was built with the defaults
+    assert weight_config(heatmap) == HeatmapConfig()
+    from advocc_ros.attack import AttackConfig
+    from advocc_ros.attack.region import search_region
+    from advocc_ros.model.robot import load_robot
+    robot = load_robot(table_scene.robot)
+    heatmap.meta['params'] = dataclasses.asdict(cfg)
+    region = search_region(heatmap, robot, table_scene.objects,
+                           np.array([table_scene.start[n] for n in robot.joint_names]),
+                           table_scene.goal, AttackConfig())
+    assert region.weight_config.kappa == 0.05 and region.weight_config.gamma_clr == 0.5
