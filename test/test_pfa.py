@@ -14,8 +14,8 @@ import pytest
 
 from advocc_ros.attack import METHODS, AttackConfig, AttackStatus, attack, search_region
 from advocc_ros.heatmap import HeatmapConfig, build_heatmap
-from advocc_ros.attack.pfa import (RETRY_SEED_OFFSET, PfaConfig, PfaOptions, _Decoder,
-                                   exact_goal, optimise)
+from advocc_ros.attack.pfa import RETRY_SEED_OFFSET, PfaConfig, PfaOptions, exact_goal
+from advocc_ros.attack.pfa_search import Decoder, optimise
 from advocc_ros.planning.pool import LocalPlanners
 from advocc_ros.planning.types import PlanStatus
 from advocc_ros.kinematics.ik import start_configuration
@@ -53,7 +53,7 @@ def test_optimiser_is_reproducible_and_respects_the_budget():
     runs = []
     for seed in (3, 3, 4):
         obj = _Distance(centers, (0.2, 0.05, 0.11), budget=60)
-        res = optimise(_Decoder(centers, 0.05), obj, 2, seed)
+        res = optimise(Decoder(centers, 0.05), obj, 2, seed)
         assert obj.calls == res.scored <= 60
         runs.append(res)
     assert runs[0].history == runs[1].history and runs[0].best == runs[1].best
@@ -66,7 +66,7 @@ def test_optimiser_is_reproducible_and_respects_the_budget():
 def test_decoder_keeps_d_min_and_the_exact_check():
     centers = _lattice(8, 0.02)
     vetoed = {i for i in range(len(centers)) if i % 3 == 0}
-    dec = _Decoder(centers, 0.05, lambda row: row not in vetoed)
+    dec = Decoder(centers, 0.05, lambda row: row not in vetoed)
     rng = np.random.default_rng(0)
     for _ in range(50):
         p = dec.decode(rng.random(9))
