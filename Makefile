@@ -8,7 +8,7 @@ OUT    ?= out/demo
 PYTEST_ARGS ?=
 FUZZ_INPUTS ?= 10000
 
-.PHONY: install demo test fuzz perf clean
+.PHONY: install demo test test-fast fuzz perf clean
 
 install: $(STAMP)
 
@@ -33,6 +33,11 @@ demo: $(STAMP)
 
 test: $(STAMP)
 	$(PY) -m pytest $(PYTEST_ARGS)
+
+# The core tests without processes (no nodes, planning workers or CLI runs) and without the
+# long ones (marked slow): a contributor's fast lane. `make test` (what CI runs) stays the whole suite.
+test-fast: $(STAMP)
+	ADVOCC_FAST_LANE=1 $(PY) -m pytest -m 'not processes and not slow' $(PYTEST_ARGS)
 
 # Generated malformed inputs against every parser and both services (test/fuzz); fails on any
 # crash, hang or wrongly accepted input. Report: out/fuzz/report.json.

@@ -9,6 +9,28 @@ import numpy as np
 import pytest
 
 REPO = pathlib.Path(__file__).resolve().parents[1]
+FAST_LANE_ENV = 'ADVOCC_FAST_LANE'
+"""Set by ``make test-fast``: tests marked ``processes`` are deselected, and any other test that
+starts a process fails, naming itself, so the marks stay true."""
+
+
+def pytest_configure(config):
+    if os.environ.get(FAST_LANE_ENV) == '1':
+        _refuse_processes()
+
+
+def _refuse_processes():
+    import multiprocessing.util
+    import subprocess
+
+    def refuse(*args, **kwargs):
+        raise RuntimeError(f'this test starts a process: mark it @pytest.mark.processes '
+                           f'(module: pytestmark), the fast lane ({FAST_LANE_ENV}=1) runs none')
+
+    subprocess.Popen._execute_child = refuse
+    os.fork = refuse
+    os.posix_spawn = refuse
+    multiprocessing.util.spawnv_passfds = refuse
 
 
 @pytest.fixture(autouse=True, scope='session')

@@ -11,6 +11,8 @@ from advocc_ros.model.scene import load_scene
 from conftest import REPO
 from test_attack_nodes import _call, _start, _stop, _wait_service
 
+pytestmark = pytest.mark.processes  # nodes, workers or CLI runs
+
 UR5 = ('robot_urdf:=example-robot-data://ur_description/urdf/ur5_robot.urdf',
        'robot_srdf:=example-robot-data://ur_description/srdf/ur5.srdf', "robot_group:=''",
        'robot_ee_link:=tool0', 'base_frame:=base_link')

@@ -10,6 +10,8 @@ import time
 import numpy as np
 import pytest
 
+pytestmark = pytest.mark.processes  # nodes, workers or CLI runs
+
 
 def _start(module, env, *params):
     args = [sys.executable, '-m', f'advocc_ros.nodes.{module}', '--ros-args']

@@ -4,7 +4,11 @@ late answer to the abandoned request is ignored."""
 
 import time
 
+import pytest
+
 from test_attack_nodes import _start, _stop
+
+pytestmark = pytest.mark.processes  # nodes, workers or CLI runs
 
 
 def test_a_server_that_never_answers_times_out_and_is_asked_again(

@@ -8,6 +8,8 @@ import pytest
 
 from test_attack_nodes import _call, _start, _stop, _wait_service
 
+pytestmark = pytest.mark.processes  # nodes, workers or CLI runs
+
 
 @pytest.fixture(scope='module')
 def sensed_table(table_scene):

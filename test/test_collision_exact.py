@@ -30,6 +30,7 @@ def _all_pairs(world: CollisionWorld, Q: np.ndarray) -> np.ndarray:
                                                       False), dtype=bool)
 
 
+@pytest.mark.slow  # 100,000 configurations per scene, checked twice
 @pytest.mark.parametrize('path', SCENES, ids=[p.stem for p in SCENES])
 def test_broad_phase_matches_all_pairs(path):
     scene = load_scene(path)

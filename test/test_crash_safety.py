@@ -15,7 +15,11 @@ import subprocess
 import sys
 import time
 
+import pytest
+
 from conftest import REPO
+
+pytestmark = pytest.mark.processes  # nodes, workers or CLI runs
 
 ENV = dict(os.environ, PYTHONUNBUFFERED='1',
            PYTHONPATH=os.pathsep.join(filter(None, [str(REPO), os.environ.get('PYTHONPATH')])))

@@ -11,9 +11,12 @@ import subprocess
 import sys
 import time
 
+import pytest
 from conftest import REPO
 from fuzz.classify import classify_exception
 from fuzz.pool import run_pool
+
+pytestmark = pytest.mark.processes  # nodes, workers or CLI runs
 
 
 def setup(context):

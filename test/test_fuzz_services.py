@@ -22,6 +22,8 @@ from hypothesis import HealthCheck, given, settings, strategies as st
 
 from conftest import REPO
 
+pytestmark = pytest.mark.processes  # nodes, workers or CLI runs
+
 CASES: dict[str, int] = {}
 SCENE = REPO / 'config' / 'scenes' / 'table_pick.yaml'
 SETTINGS = dict(deadline=None, derandomize=True, database=None,

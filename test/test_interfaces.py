@@ -5,11 +5,14 @@ import sys
 import textwrap
 import time
 
+import pytest
 import rclpy
 from rclpy.node import Node
 
 from advocc_msgs.msg import CollisionObject, ErrorCodes, GoalRegion, Obstacle
 from advocc_msgs.srv import Attack, GetInfo, Plan
+
+pytestmark = pytest.mark.processes  # nodes, workers or CLI runs
 
 SERVER = textwrap.dedent('''
     import rclpy

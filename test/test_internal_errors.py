@@ -16,6 +16,8 @@ import pytest
 
 from conftest import REPO
 
+pytestmark = pytest.mark.processes  # nodes, workers or CLI runs
+
 
 def _evaluate_cmd(trials: int, *extra: str) -> list[str]:
     return [sys.executable, '-m', 'advocc_ros.cli', 'evaluate', '--scene', 'table_pick',

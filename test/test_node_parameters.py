@@ -12,6 +12,8 @@ import yaml
 
 from conftest import REPO
 
+pytestmark = pytest.mark.processes  # nodes, workers or CLI runs
+
 
 def _yaml(node):
     data = yaml.safe_load((REPO / 'config' / f'{node}.yaml').read_text())

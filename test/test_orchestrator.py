@@ -16,6 +16,8 @@ import pytest
 
 from advocc_ros.bench import RecordStore
 
+pytestmark = pytest.mark.processes  # nodes, workers or CLI runs
+
 PLANNERS = ('rrtconnect', 'bkpiece1')
 
 

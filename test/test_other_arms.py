@@ -15,6 +15,8 @@ from advocc_ros.model.robot import load_robot
 from advocc_ros.model.scene import load_scene
 from advocc_ros.kinematics.ik import start_configuration
 
+pytestmark = pytest.mark.processes  # nodes, workers or CLI runs
+
 REPO = pathlib.Path(__file__).resolve().parents[1]
 ARMS = ('ur5_table', 'xarm7_table')
 METHODS = ('task', 'ours', 'random')

@@ -2,6 +2,10 @@
 succeeds (a plan that times out or fails is not served), every latency measured, node memory
 sampled. The full run is a benchmark, not this test."""
 
+import pytest
+
+pytestmark = pytest.mark.processes  # nodes, workers or CLI runs
+
 
 def test_load_scaled_down(ros_env, monkeypatch):
     from advocc_ros.commands.perf_load import run_load

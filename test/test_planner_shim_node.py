@@ -12,6 +12,8 @@ import pytest
 
 from conftest import REPO
 
+pytestmark = pytest.mark.processes  # nodes, workers or CLI runs
+
 SCENE = REPO / 'config' / 'scenes' / 'table_pick.yaml'
 FAULT_SEED = 77
 """The shim's planning worker raises on this seed (``ADVOCC_PLANNING_FAULT``)."""

@@ -3,6 +3,10 @@
 import threading
 import time
 
+import pytest
+
+pytestmark = pytest.mark.processes  # nodes, workers or CLI runs
+
 
 def test_set_scene_waits_for_the_request_in_flight(table_scene):
     """PRM* plans for its whole budget; a scene change meanwhile takes effect after it."""

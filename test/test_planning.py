@@ -16,6 +16,8 @@ from advocc_ros.model.pose import Pose
 from advocc_ros.model.scene import SceneObject, make_box
 from advocc_ros.model.shapes import Shape
 
+pytestmark = pytest.mark.processes  # nodes, workers or CLI runs
+
 BUDGET = 1.0
 
 

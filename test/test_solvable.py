@@ -26,6 +26,8 @@ from advocc_ros.planning import witness as witness_mod
 from advocc_ros.planning.witness import (Witness, certify, find_witness, load_witness,
                                          save_witness, witness_file, witness_states)
 
+pytestmark = pytest.mark.processes  # nodes, workers or CLI runs
+
 
 @pytest.fixture(scope='module')
 def task(table_scene):

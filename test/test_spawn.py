@@ -6,8 +6,12 @@ import subprocess
 import sys
 import time
 
+import pytest
+
 from advocc_ros.ros.spawn import PARENT_ENV, Child
 from conftest import REPO
+
+pytestmark = pytest.mark.processes  # nodes, workers or CLI runs
 
 _PROBE = 'from advocc_ros.ros.spawn import die_with_parent; die_with_parent(); print("alive")'
 

@@ -15,7 +15,8 @@ import pytest
 from conftest import REPO
 from test_attack_nodes import _call, _request, _stop
 
-pytestmark = pytest.mark.slow  # one colcon build of both packages: ~1 min of C/C++ on 2 cores
+# one colcon build of both packages: ~1 min of C/C++ on 2 cores
+pytestmark = [pytest.mark.slow, pytest.mark.processes]
 
 # colcon does not look inside a package for more packages, and the repository root is one:
 # msg_defs/ is named as a second base path (README).
