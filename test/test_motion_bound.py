@@ -106,3 +106,14 @@ def test_pair_bound_counts_only_joints_between_the_links(panda):
     assert bound.pair_m_per_rad(link1, link2) == pytest.approx(bound.lever_m[1, link2])
     assert bound.pair_m_per_rad(hand, finger) == 0.0  # both on joint 7
     assert bound.pair_m_per_rad(link1, hand) < bound.link_m_per_rad[hand]
+
+
+def test_planner_motion_step_cannot_step_over_a_box(arm):
+    """What ``PlanningConfig.motion_step_rad`` claims: between two checked states no point of
+    any shipped arm moves as far as the default box edge."""
+    from advocc_ros.attack.types import AttackConfig
+    from advocc_ros.planning.types import PlanningConfig
+
+    _, robot, _ = arm
+    step = PlanningConfig().motion_step_rad
+    assert robot.motion_bound.max_m_per_rad * step < AttackConfig().box_size_m
