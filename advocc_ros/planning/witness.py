@@ -12,7 +12,8 @@ search is deterministic for its seed only in a process of its own (``Planner`` g
 its watchdog). The search checks motions at ``WITNESS_STEP_RAD`` (discrete); a path it returns
 that the continuous certificate cannot prove on the unattacked scene (it grazes an object closer
 than the floor between two checked states: measured on bookshelf, 0.085 mm) is dropped and the
-next seed searched, up to ``WITNESS_TRIES`` seeds.
+next seed searched, up to ``WITNESS_TRIES`` seeds; a search that finds no path ends the task's
+search (None).
 
 A found witness is kept twice: in this process, and on disk (``witness_cache_dir``) so that
 the next process (another ``advocc attack``, a restarted node) skips the search; a witness read
@@ -55,7 +56,7 @@ WITNESS_STEP_RAD = 0.005
 0.01). The certificate does not use it: it proves the continuous path."""
 WITNESS_TRIES = 4
 """Seeds searched (``seed``, ``seed + 1``, ...) until one gives a path the continuous
-certificate proves on the unattacked scene."""
+certificate proves on the unattacked scene (a search that finds no path stops the sequence)."""
 START_TOLERANCE_RAD = 1e-9
 """Largest difference [rad] between a witness's first waypoint and the task's start (and
 between its locked values and the robot's)."""
@@ -274,11 +275,12 @@ def _search_certified(robot: RobotModel, world: CollisionWorld,
                       objects: tuple[SceneObject, ...], q_init: np.ndarray, goal: GoalRegion,
                       seed: int, time_s: float) -> Witness | None:
     """The first search result of seeds ``seed``, ``seed + 1``, ... that ``certify`` proves on
-    the unattacked scene (``world``)."""
+    the unattacked scene (``world``). A search that finds no path ends it: another seed would
+    spend its whole budget too."""
     for k in range(WITNESS_TRIES):
         witness = _search(robot, objects, q_init, goal, seed + k, time_s)
         if witness is None:
-            continue
+            return None
         why = certify(robot, world, goal, witness, q_init,
                       shape_names=object_shape_names(objects)).why
         if why is None:
