@@ -44,4 +44,7 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == '__main__':
-    sys.exit(main())
+    # ``python -m advocc_ros.cli``: run the package module's main, whose UserError is the class
+    # the commands raise (this __main__ copy defines another one, which would not catch it).
+    from advocc_ros import cli
+    sys.exit(cli.main())

@@ -211,9 +211,12 @@ def test_server_answers_bad_requests_and_keeps_serving(ros, ros_env, heatmap_fil
         (bad(start_state__name=[f'joint{i}' for i in range(1, 8)]),
          ErrorCodes.INVALID_ROBOT_STATE, 'missing joints'),
         (bad(start_state__position=[0.0, -0.785, 0, -2.356, 0, 1.571, 9.0]),
-         ErrorCodes.INVALID_ROBOT_STATE, 'limits'),
+         ErrorCodes.INVALID_ROBOT_STATE, 'panda_joint7 = 9 not in'),
+        # The task check names what collides (issue 25): a scene pair, a self pair.
         (bad(start_state__position=[0.0, 1.5, 0, -0.2, 0, 1.571, 0.785]),
-         ErrorCodes.START_STATE_IN_COLLISION, 'collision'),
+         ErrorCodes.START_STATE_IN_COLLISION, 'in collision with the scene: panda_'),
+        (bad(start_state__position=[0.0, 0.5, 0.0, -3.0, 0.0, 0.5, 0.785]),
+         ErrorCodes.START_STATE_IN_COLLISION, 'self collision: panda_link'),
     ]
     for req, code, words in cases:
         res = _call(executor, client, req)

@@ -153,7 +153,15 @@ def test_planner_shim_end_to_end(ros, table_scene):
     wrong_names = JointState(name=[f'j{i}' for i in range(7)], position=[0.0] * 7)
     inverted = goal_region_to_msg(table_scene.goal, 'panda_link0')
     inverted.position_tolerance = [-0.01, 0.02, 0.02]
+    start = dict(table_scene.start)
+    outside = JointState(name=list(start), position=list(dict(start, panda_joint4=0.5).values()))
+    on_table = JointState(name=list(start), position=[0.0, 1.5, 0, -0.2, 0, 1.571, 0.785])
     bad = [
+        # An invalid task is refused with the reason (issue 25): the joint, the colliding pair.
+        (request(start_state=outside), ErrorCodes.INVALID_ROBOT_STATE,
+         'panda_joint4 = 0.5 not in'),
+        (request(start_state=on_table), ErrorCodes.START_STATE_IN_COLLISION,
+         'in collision with the scene: panda_'),
         (request(planner_id='no_such_planner'), ErrorCodes.UNKNOWN_METHOD, 'unknown planner'),
         (request(start_state=nan_state), ErrorCodes.INVALID_REQUEST, 'non-finite'),
         (request(start_state=wrong_names), ErrorCodes.INVALID_ROBOT_STATE, 'missing joints'),

@@ -3,7 +3,8 @@
 The witness of every ``solvable`` attack is re-checked here independently of the code that
 certified it: pinocchio's all-pairs ``computeCollisions`` on the robot's original collision
 meshes (not the convex hulls the planners use), every SRDF self pair and every (link, object)
-pair, at 0.005 rad steps.
+pair, at the guard's step (0.00083 rad for the Panda), and the boxes' distance to the hulls at
+those states is at least the guard margin.
 """
 
 import json
@@ -16,7 +17,7 @@ import pinocchio as pin
 import pytest
 
 from advocc_ros.attack import AttackConfig, AttackStatus, attack, load_obstacles
-from advocc_ros.attack.solvable import assess, probe_goal
+from advocc_ros.attack.solvable import CERTIFICATE, WitnessBodies, assess, probe_goal
 from advocc_ros.heatmap import HeatmapConfig, build_heatmap, save_heatmap
 from advocc_ros.model.collision import CollisionWorld, coal_geometry
 from advocc_ros.model.robot import load_robot
@@ -154,25 +155,29 @@ def test_attack_cli_reuses_the_witness_of_an_earlier_run(task, tmp_path):
 @pytest.mark.parametrize('method', ['task', 'random', 'ours'])
 def test_solvable_attacks_stay_certified_under_an_independent_check(task, method):
     scene, robot, q0, heatmap = task
+    witness = find_witness(robot, scene.objects, q0, scene.goal)
     result = attack(heatmap, robot, scene.objects, q0, scene.goal, 10, method,
-                    goal_policy='solvable', seed=3)
+                    goal_policy='solvable', seed=3, witness=witness)
     assert result.status.ok and len(result.obstacles) >= 5, result.message
     assert result.solvable.verdict == 'certified', result.solvable.message
-    states = witness_states(result.witness.configurations(robot), 0.005)
+    states = WitnessBodies(robot, CollisionWorld(robot), result.witness).states
     hits = independent_collisions(robot, scene.objects + result.obstacles, states)
     assert not hits.any(), f'states {np.flatnonzero(hits)[:5]} collide'
     data = robot.create_data()
     pin.framesForwardKinematics(robot.model, data, states[-1])
     assert scene.goal.contains(data.oMf[robot.model.getFrameId(scene.goal.link)]
                                * scene.goal.tool_offset.to_se3())
-    # The clearance is real: every box keeps >= 1 cm from the robot at every witness state.
+    # The clearance is real: every box keeps the guard margin (1 mm) from the robot's hulls at
+    # every guard state.
     world = CollisionWorld(robot, [sh for o in result.obstacles for sh in o.shapes])
-    assert not world.near_scene_batch(states, 0.0099).any()
+    assert not world.near_scene_batch(states, CERTIFICATE.guard_margin_m * (1 - 1e-6)).any()
 
 
 def test_the_paper_policy_blocks_the_goal_and_says_so(task):
     scene, robot, q0, heatmap = task
-    result = attack(heatmap, robot, scene.objects, q0, scene.goal, 5, 'task', seed=3)
+    witness = find_witness(robot, scene.objects, q0, scene.goal)
+    result = attack(heatmap, robot, scene.objects, q0, scene.goal, 5, 'task', seed=3,
+                    witness=witness)
     verdict = result.solvable
     assert verdict.verdict == 'goal blocked', verdict.message
     assert verdict.goal_probe['converged'] >= 500 and verdict.goal_probe['free'] == 0
@@ -190,9 +195,14 @@ def test_certify_finds_a_box_on_the_witness(task):
     hand = data.oMf[robot.model.getFrameId('panda_hand')].translation
     box = make_box('on_path', hand, (0.05, 0.05, 0.05))
     world = CollisionWorld(robot, [sh for o in scene.objects + (box,) for sh in o.shapes])
-    why, checked = certify(robot, world, scene.goal, witness)
-    assert why is not None and 'in collision' in why and 0 < checked <= k + 1
-    verdict = assess(robot, scene.objects, (box,), scene.goal, witness)
+    why, proof = certify(robot, world, scene.goal, witness, q0)
+    assert why is not None and 'below the 0.1 mm floor' in why
+    Q = witness.configurations(robot)
+    arc = np.concatenate([[0], np.cumsum(np.linalg.norm(np.diff(Q, axis=0), axis=1))])
+    stop = arc[proof.segment] + proof.fraction * (arc[proof.segment + 1] - arc[proof.segment])
+    assert 0 < stop <= np.sum(np.linalg.norm(np.diff(states[:k + 1], axis=0), axis=1))
+    verdict = assess(robot, scene.objects, (box,), scene.goal, witness, q0)
+    assert 'on_path' in verdict.message
     assert verdict.verdict == 'unknown'  # one box on the path leaves free goal poses
     assert verdict.goal_probe['free'] == 1
 
@@ -223,13 +233,14 @@ def test_witness_file_round_trip_and_errors(tmp_path, task):
         with pytest.raises(SceneError, match=field):
             Witness.from_data(bad)
     wrong = Witness(('a', 'b'), np.zeros((2, 2)), {})
-    assert 'not the robot' in certify(robot, CollisionWorld(robot), scene.goal, wrong)[0]
+    assert 'not the robot' in certify(robot, CollisionWorld(robot), scene.goal, wrong, q0)[0]
 
 
 def test_solvable_is_refused_for_planner_in_the_loop_methods(task):
     scene, robot, q0, heatmap = task
+    witness = find_witness(robot, scene.objects, q0, scene.goal)
     result = attack(heatmap, robot, scene.objects, q0, scene.goal, 2, 'pfa',
-                    goal_policy='solvable')
+                    goal_policy='solvable', witness=witness)
     assert result.status == AttackStatus.INVALID_REQUEST and 'solvable' in result.message
 
 
@@ -249,7 +260,7 @@ def test_cli_writes_the_witness_beside_the_obstacles(tmp_path, task):
     boxes, meta = load_obstacles(out)
     assert meta['solvable']['verdict'] == 'certified' and len(boxes) == 4
     world = CollisionWorld(robot, [sh for o in scene.objects + boxes for sh in o.shapes])
-    assert certify(robot, world, scene.goal, witness)[0] is None
+    assert certify(robot, world, scene.goal, witness, q0)[0] is None
 
 
 def test_attack_config_accepts_the_policy():

@@ -3,6 +3,16 @@
 Given a heatmap H, the scene E, the start ``q_init`` and a goal region G, place at most M
 axis-aligned boxes of edge s that cover as much heatmap mass as possible.
 
+**No planner is queried here** (the paper's threat model): ``attack`` starts no process and
+imports no planner. PFA and PFA++ are the exception by design: the planner is their method, and
+their caller hands the planners in (``method_options``). The ``solvable`` policy and the
+``certified`` verdict need the task's *witness* (a collision-free path from ``q_init`` into G on
+the unattacked scene); it is data handed in (``witness=``), found once per task by the tool at
+the edges with one RRTConnect run (``advocc_ros.attack.edges``: the CLI, the heatmap server, the
+audit, the benchmark, the export), never by the victim. Without a witness, ``solvable`` is
+refused (``NO_WITNESS``) and the verdict of the other policies is judged without one: ``goal
+blocked`` (the goal probe, IK only) or ``unknown``, never ``certified``.
+
 Search region (constraints C1-C3), all on the heatmap's voxel grid (box centres are voxel
 centres, ``U(c)`` = voxels whose centres lie in the closed box):
 
@@ -50,18 +60,29 @@ from advocc_ros.model.robot import RobotError, RobotModel
 from advocc_ros.model.goal import GoalRegion
 from advocc_ros.model.pose import SceneError
 from advocc_ros.model.scene import SceneObject, make_box
-from advocc_ros.planning.witness import find_witness
+from advocc_ros.model.task_check import TaskProblem, check_task
 
 log = logging.getLogger(__name__)
+
+_TASK_STATUS = {TaskProblem.START_INVALID: AttackStatus.INVALID_START,
+                TaskProblem.START_IN_COLLISION: AttackStatus.START_IN_COLLISION,
+                TaskProblem.GOAL_INVALID: AttackStatus.INVALID_LINK}
 
 
 # --------------------------------------------------------------------------------------------
 # Entry point
 
+def box_size(cfg: AttackConfig, requested_m: float | None) -> float:
+    """The box edge of a request [m]: ``requested_m``, or ``cfg.box_size_m`` for None or 0."""
+    return cfg.box_size_m if requested_m is None or requested_m == 0 else float(requested_m)
+
+
 def validate_request(heatmap: Heatmap, robot: RobotModel, objects: tuple[SceneObject, ...],
                      q_init: np.ndarray, goal: GoalRegion, budget: int, method: str,
-                     box_size_m: float, cfg: AttackConfig) -> None:
-    """Raise ``AttackError`` with the status and a clear message for a bad request."""
+                     box_size_m: float, cfg: AttackConfig, goal_policy: str | None = None
+                     ) -> None:
+    """Raise ``AttackError`` with the status and a clear message for a bad request (the task
+    check of ``model.task_check`` included: start limits, self and scene collision by pair)."""
     if not load_method(method):
         raise AttackError(AttackStatus.UNKNOWN_METHOD,
                           f'unknown attack method {method!r}; known: {sorted(METHODS)}')
@@ -76,25 +97,25 @@ def validate_request(heatmap: Heatmap, robot: RobotModel, objects: tuple[SceneOb
     if expected is not None and expected != robot.hash:
         raise AttackError(AttackStatus.ROBOT_MISMATCH,
                           f'the heatmap was built for robot {expected}, not {robot.hash}')
-    try:
-        q_init = robot.check_q(q_init, 'start state')
-    except RobotError as exc:
-        raise AttackError(AttackStatus.INVALID_START, str(exc)) from None
-    if not robot.within_limits(q_init):
-        raise AttackError(AttackStatus.INVALID_START,
-                          f'start state outside the joint limits: {np.round(q_init, 4).tolist()}')
-    if not robot.model.existFrame(goal.link):
-        raise AttackError(AttackStatus.INVALID_LINK,
-                          f'goal link {goal.link!r} is not a frame of the robot')
+    _check_policy(goal_policy or cfg.goal_policy, method)
     if not any(goal.position_tolerance_m) and not any(goal.orientation_tolerance_rad):
         raise AttackError(AttackStatus.INVALID_GOAL,
                           'goal region is empty: every tolerance is 0 (an unset message?); '
                           'give position half-extents and orientation tolerances')
     _check_object_ids(objects)
-    world = shared_world(robot, [sh for o in objects for sh in o.shapes])
-    if world.in_collision(q_init):
-        raise AttackError(AttackStatus.START_IN_COLLISION,
-                          'start state is in collision (self or with the scene)')
+    fault = check_task(robot, objects, q_init, goal)
+    if fault is not None:
+        raise AttackError(_TASK_STATUS[fault.problem], fault.message)
+
+
+def _check_policy(policy: str, method: str) -> None:
+    if policy not in POLICIES:
+        raise AttackError(AttackStatus.INVALID_REQUEST,
+                          f'unknown goal policy {policy!r}; known: {list(POLICIES)}')
+    if policy != 'paper' and method in ('pfa', 'pfa++'):
+        raise AttackError(AttackStatus.INVALID_REQUEST,
+                          f'goal policy {policy} applies to the coverage methods, not '
+                          f'{method} (its planner queries already see a blocked goal)')
 
 
 def _check_object_ids(objects: tuple[SceneObject, ...]) -> None:
@@ -116,39 +137,33 @@ def attack(heatmap: Heatmap, robot: RobotModel, objects: tuple[SceneObject, ...]
            q_init: np.ndarray, goal: GoalRegion, budget: int, method: str = DEFAULT_METHOD,
            cfg: AttackConfig = AttackConfig(), box_size_m: float | None = None,
            seed: int = 0, method_options: Any = None, goal_policy: str | None = None,
-           certify: bool = True) -> AttackResult:
-    """Place at most ``budget`` boxes for one task. Never raises for a bad request: the result
-    carries the status and message instead. ``method_options``: settings of a method
-    (``advocc_ros.attack.pfa.PfaOptions``, ``advocc_ros.attack.task.TaskOptions``);
-    ``goal_policy``: ``paper``, ``reachable`` or ``solvable`` (None or '': ``cfg.goal_policy``);
-    ``certify``: also say whether the task keeps a solution (``result.solvable``; finds the
-    task's witness once, see ``attack.solvable``)."""
+           certify: bool = True, witness: Any = None) -> AttackResult:
+    """Place at most ``budget`` boxes for one task; starts no planner (module docstring).
+    Never raises for a bad request: the result carries the status and message instead.
+
+    ``method_options``: settings of a method (``advocc_ros.attack.pfa.PfaOptions``,
+    ``advocc_ros.attack.task.TaskOptions``); ``goal_policy``: ``paper``, ``reachable`` or
+    ``solvable`` (None or '': ``cfg.goal_policy``); ``witness``: the task's witness
+    (``planning.witness.Witness``, found on the unattacked scene; ``advocc_ros.attack.edges``
+    finds it), required by ``solvable``; ``certify``: also say whether the task keeps a
+    solution (``result.solvable``), judged with ``witness`` (``certified`` needs one)."""
     link_tables(robot, heatmap.lut_pitch_m)  # model loading (~1 s once), not attack time
     t0 = time.perf_counter()
-    s = cfg.box_size_m if box_size_m is None or box_size_m == 0 else float(box_size_m)
+    s = box_size(cfg, box_size_m)
     policy = goal_policy or cfg.goal_policy
     base = dict(method=method, budget=int(budget) if isinstance(budget, (int, np.integer))
                 else 0, box_size_m=s, goal_policy=policy)
     objects = tuple(objects)
-    witness = None
     try:
-        validate_request(heatmap, robot, objects, q_init, goal, budget, method, s, cfg)
-        if policy not in POLICIES:
-            raise AttackError(AttackStatus.INVALID_REQUEST,
-                              f'unknown goal policy {policy!r}; known: {list(POLICIES)}')
-        if policy != 'paper' and method in ('pfa', 'pfa++'):
-            raise AttackError(AttackStatus.INVALID_REQUEST,
-                              f'goal policy {policy} applies to the coverage methods, not '
-                              f'{method} (its planner queries already see a blocked goal)')
+        validate_request(heatmap, robot, objects, q_init, goal, budget, method, s, cfg, policy)
         q_init = np.asarray(q_init, dtype=float)
         region = search_region(heatmap, robot, objects, q_init, goal, cfg, s)
         if policy == 'reachable':  # the goal samples are part of the attack: timed
             region.guard = GoalGuard(goal_samples(robot, objects, goal), s,
                                      cfg.reachable_fraction)
         elif policy == 'solvable':
-            witness = _witness(robot, objects, q_init, goal, region.stats)
-            t0 += region.stats['witness_search_ms'] / 1e3  # reported apart, not attack time
-            region.guard = WitnessGuard(witness_bodies(robot, shared_world(robot), witness), s)
+            region.guard = WitnessGuard(witness_bodies(robot, shared_world(robot),
+                                                       _required(witness)), s)
             region.guard.prune(region, heatmap.lut_pitch_m)
         extra = {}
         if method in CONTEXT_METHODS:
@@ -183,10 +198,8 @@ def attack(heatmap: Heatmap, robot: RobotModel, objects: tuple[SceneObject, ...]
     stats['goal_samples_time_cap_hit'] = samples.time_cap_hit
     solvable = None
     if certify:
-        if witness is None:  # none found: the verdict says so (never raise after placing)
-            witness = _witness(robot, objects, q_init, goal, stats, required=False)
         t1 = time.perf_counter()
-        solvable = assess(robot, objects, obstacles, goal, witness)
+        solvable = assess(robot, objects, obstacles, goal, witness, q_init)
         stats['solvable_ms'] = round((time.perf_counter() - t1) * 1e3, 3)
     result = AttackResult(status, message, obstacles, masses, float(sum(masses)), compute_s,
                           stats=stats, goal_valid_fraction=fraction, solvable=solvable,
@@ -197,15 +210,12 @@ def attack(heatmap: Heatmap, robot: RobotModel, objects: tuple[SceneObject, ...]
     return result
 
 
-def _witness(robot: RobotModel, objects: tuple[SceneObject, ...], q_init: np.ndarray,
-             goal: GoalRegion, stats: dict, required: bool = True):
-    """The task's witness (cached per task); its search time goes to ``stats``. None found:
-    ``AttackError`` if ``required`` (the solvable policy needs one), else None."""
-    t0 = time.perf_counter()
-    witness = find_witness(robot, objects, np.asarray(q_init, dtype=float), goal)
-    stats['witness_search_ms'] = round((time.perf_counter() - t0) * 1e3, 3)
-    if witness is None and required:
-        raise AttackError(AttackStatus.INVALID_GOAL,
-                          'no witness: RRTConnect found no path into the goal region on the '
-                          'unattacked scene, so no attack can be certified to keep a solution')
+def _required(witness):
+    """The ``solvable`` policy's witness; ``AttackError`` (``NO_WITNESS``) without one."""
+    if witness is None:
+        raise AttackError(AttackStatus.NO_WITNESS,
+                          'the solvable policy needs the task\'s witness and none was given: '
+                          'it keeps a witness path valid, and without one no attack can be '
+                          'certified to keep a solution (the tool finds it on the unattacked '
+                          'scene with RRTConnect: advocc_ros.attack.edges)')
     return witness

@@ -1,70 +1,91 @@
 """Does the attacked task still have a solution? Certificates, goal probes, the witness guard.
 
 A planner that fails a task with no solution has not been beaten, so every attack says which of
-three things holds for its boxes:
+three things holds for its boxes (``Verdict``):
 
-- ``certified``: the task's witness (``advocc_ros.planning.witness``) is still valid: every
-  state of every segment, cut at ``WITNESS_STEP_RAD``, is collision-free and the last one lies in
-  the goal region. A solution exists; this is a proof.
+- ``certified``: the task's witness (``advocc_ros.planning.witness``) is proven a solution with
+  the boxes: it starts at the task's start, the continuous path between its waypoints keeps
+  every self and scene pair more than half the clearance floor apart (conservative advancement,
+  ``advocc_ros.planning.certificate``) and it ends in the goal region. A solution exists.
 - ``goal blocked``: among at least ``GOAL_PROBE_CONVERGED`` goal-region IK solutions from random
   seeds that converged, none is collision-free. Strong evidence (not a proof) that no solution
   exists, with the counts to judge it.
 - ``unknown``: neither (e.g. the witness is blocked but a free goal configuration exists).
 
 The ``solvable`` goal policy keeps the witness valid by construction: a candidate box is
-refused when it comes within ``WITNESS_CLEARANCE_M`` of the robot's body at any witness state.
-Between two states 0.005 rad apart a Panda link point moves at most 8.5 mm (1.70 m/rad, see
-``PlanningConfig.motion_step_rad``), so that clearance keeps the boxes off the whole continuous
-sweep, not only off the checked states. Candidates are first pruned on the voxel lattice (the
-swept volume rasterized like the heatmap), and every pick is then checked exactly with coal.
+refused when it comes within ``CertificateConfig.guard_margin_m`` (m) of the robot's body at any
+guard state, the witness cut at ``h = CertificateConfig.guard_step_rad(L)`` (L2), L the robot's
+motion bound (``RobotModel.motion_bound``). Every point of the path is within ``h / 2`` of a
+guard state, where a body point has moved at most ``L h / 2 = m - 2 floor``, so every box keeps
+``2 floor`` from the whole continuous sweep and the certificate (floor at every state it
+measures) proves the witness again with the boxes. Candidates are first pruned on the voxel
+lattice (the guard states' swept volume rasterized like the heatmap), and every pick is then
+checked exactly with coal.
 """
 
 from __future__ import annotations
 
 import collections
 import dataclasses
+import enum
+import math
 import threading
+import time
 
+import coal
 import numpy as np
 
 from advocc_ros.attack.coverage import box_distance
-from advocc_ros.attack.goals import GoalSamples
 from advocc_ros.heatmap import link_tables, placement_arrays
 from advocc_ros.model.collision import CollisionWorld
 from advocc_ros.kinematics.ik import GoalSampler, IkConfig
 from advocc_ros.model.robot import RobotModel
 from advocc_ros.model.goal import GoalRegion
 from advocc_ros.model.scene import SceneObject
-from advocc_ros.planning.witness import Witness, certify, witness_states
+from advocc_ros.planning.certificate import CertificateConfig
+from advocc_ros.planning.witness import (WITNESS_STEP_RAD, Witness, certify,
+                                         object_shape_names, witness_states)
 
-VERDICTS = ('certified', 'goal blocked', 'unknown')
+
+class Verdict(enum.StrEnum):
+    """Whether an attacked task keeps a solution; the values are the words files carry."""
+
+    CERTIFIED = 'certified'
+    GOAL_BLOCKED = 'goal blocked'
+    UNKNOWN = 'unknown'
+
+
+VERDICTS = tuple(v.value for v in Verdict)
 GOAL_PROBE_CONVERGED = 500
 """Converged goal IK solutions a ``goal blocked`` verdict needs, all in collision."""
 GOAL_PROBE_MAX_ATTEMPTS = 5000
 """IK attempts the probe may spend before it answers ``unknown``."""
 GOAL_PROBE_SEED = 9_100_001
-WITNESS_CLEARANCE_M = 0.01
-"""Distance every ``solvable`` box keeps from the robot at each witness state [m]."""
+CERTIFICATE = CertificateConfig()
+"""The certificate's and the guard's settings (floor, guard margin)."""
 
 
 @dataclasses.dataclass(frozen=True)
 class Solvability:
     """Whether an attacked task keeps a solution (see the module docstring)."""
 
-    verdict: str
+    verdict: Verdict
     message: str
     goal_probe: dict | None = None
     """``attempts``, ``converged``, ``colliding``, ``free`` of the goal probe (when it ran)."""
     witness_states: int = 0
-    """States of the witness the certificate checked."""
+    """States at which the continuous certificate measured distances."""
+    certificate_ms: float = 0.0
+    """Time the certificate took [ms]."""
 
     @property
     def certified(self) -> bool:
-        return self.verdict == 'certified'
+        return self.verdict == Verdict.CERTIFIED
 
     def to_json(self) -> dict:
-        return {'verdict': self.verdict, 'message': self.message,
-                'goal_probe': self.goal_probe, 'witness_states': self.witness_states}
+        return {'verdict': self.verdict.value, 'message': self.message,
+                'goal_probe': self.goal_probe, 'witness_states': self.witness_states,
+                'certificate_ms': round(self.certificate_ms, 3)}
 
 
 def probe_goal(robot: RobotModel, world: CollisionWorld, goal: GoalRegion,
@@ -85,63 +106,106 @@ def probe_goal(robot: RobotModel, world: CollisionWorld, goal: GoalRegion,
 
 
 def assess(robot: RobotModel, objects: tuple[SceneObject, ...], boxes: tuple[SceneObject, ...],
-           goal: GoalRegion, witness: Witness | None) -> Solvability:
-    """The verdict for the task ``objects`` + ``boxes`` (see the module docstring)."""
-    world = CollisionWorld(robot, [sh for o in tuple(objects) + tuple(boxes) for sh in o.shapes])
-    why, states = ('no witness was found on the unattacked scene', 0) if witness is None \
-        else certify(robot, world, goal, witness)
+           goal: GoalRegion, witness: Witness | None, q_init: np.ndarray) -> Solvability:
+    """The verdict for the task (start ``q_init``) on ``objects`` + ``boxes`` (module
+    docstring)."""
+    everything = tuple(objects) + tuple(boxes)
+    world = CollisionWorld(robot, [sh for o in everything for sh in o.shapes])
+    names = object_shape_names(everything)
+    t0 = time.perf_counter()
+    if witness is None:
+        why, states = 'no witness was found on the unattacked scene', 0
+    else:
+        why, proof = certify(robot, world, goal, witness, q_init, CERTIFICATE, names)
+        states = proof.states if proof is not None else 0
+    ms = (time.perf_counter() - t0) * 1e3
     if why is None:
-        return Solvability('certified', f'the witness ({states} states) stays collision-free '
-                           'and ends in the goal region', None, states)
+        return Solvability(Verdict.CERTIFIED, f'the witness is proven collision-free as a '
+                           f'continuous path ({states} states) and ends in the goal region',
+                           None, states, ms)
     probe = probe_goal(robot, world, goal)
     if probe['free']:
-        return Solvability('unknown', f'{why}; a collision-free goal configuration exists '
-                           f'(found after {probe["attempts"]} IK attempts)', probe, states)
+        return Solvability(Verdict.UNKNOWN, f'{why}; a collision-free goal configuration '
+                           f'exists (found after {probe["attempts"]} IK attempts)', probe,
+                           states, ms)
     if probe['converged'] >= GOAL_PROBE_CONVERGED:
-        return Solvability('goal blocked', f'{why}; all {probe["converged"]} converged goal IK '
-                           f'solutions ({probe["attempts"]} attempts) are in collision', probe,
-                           states)
-    return Solvability('unknown', f'{why}; the goal probe converged only {probe["converged"]} '
-                       f'times in {probe["attempts"]} attempts, all in collision', probe, states)
+        return Solvability(Verdict.GOAL_BLOCKED, f'{why}; all {probe["converged"]} converged '
+                           f'goal IK solutions ({probe["attempts"]} attempts) are in collision',
+                           probe, states, ms)
+    return Solvability(Verdict.UNKNOWN, f'{why}; the goal probe converged only '
+                       f'{probe["converged"]} times in {probe["attempts"]} attempts, all in '
+                       'collision', probe, states, ms)
 
 
 class WitnessBodies:
-    """The robot's body at every witness state: exact box tests and the lattice swept volume
-    (built once per task and kept: ``witness_bodies``)."""
+    """The robot's body at every guard state of the witness: exact box tests and the lattice
+    swept volume (built once per task and kept: ``witness_bodies``)."""
 
-    def __init__(self, robot: RobotModel, world: CollisionWorld, witness: Witness):
+    def __init__(self, robot: RobotModel, world: CollisionWorld, witness: Witness,
+                 config: CertificateConfig = CERTIFICATE):
         self.robot = robot
-        self.states = witness_states(witness.configurations(robot))
-        self.bodies = GoalSamples(world, self.states)
+        self.step_rad = config.guard_step_rad(robot.motion_bound.max_m_per_rad)
+        """Largest joint-space distance between guard states [rad] (L2)."""
+        self.states = witness_states(witness.configurations(robot), self.step_rad)
         self._R, self._t = placement_arrays(world, self.states)
+        self.links = [g.geometry for g in world.geom_model.geometryObjects[:world.n_links]]
+        lo, hi = np.empty((len(self.links), 3)), np.empty((len(self.links), 3))
+        for k, geometry in enumerate(self.links):
+            geometry.computeLocalAABB()
+            lo[k], hi[k] = geometry.aabb_local.min_, geometry.aabb_local.max_
+        self.centres_m = np.einsum('nlij,lj->nli', self._R, (lo + hi) / 2) + self._t
+        """(states, links, 3) centre of each link's bounding box at each guard state."""
+        self.radii_m = np.linalg.norm(hi - lo, axis=1) / 2
+        """(links,) radius of each link's bounding sphere [m]."""
+        # The lattice prune may use any subset of the states (it only drops boxes the exact
+        # test would refuse): every k-th, about the witness search's step apart, and the last.
+        k = max(int(WITNESS_STEP_RAD / self.step_rad), 1)
+        self._lattice = np.unique(np.r_[np.arange(0, len(self.states), k), len(self.states) - 1])
         self._swept: dict = {}
+        self._request = coal.CollisionRequest()
+
+    def touched_by(self, center_m: np.ndarray, box_size_m: float) -> bool:
+        """Whether the axis-aligned cube of edge ``box_size_m`` at ``center_m`` touches the body
+        at any guard state (coal, on the bounding spheres' nearest pairs first)."""
+        center_m = np.asarray(center_m, dtype=float)
+        gap = np.linalg.norm(self.centres_m - center_m, axis=-1) - self.radii_m
+        near = np.flatnonzero(gap.ravel() <= box_size_m * math.sqrt(3) / 2)
+        near = near[np.argsort(gap.ravel()[near], kind='stable')]
+        box = coal.Box(box_size_m, box_size_m, box_size_m)
+        tf = coal.Transform3s(np.eye(3), center_m)
+        for s, li in zip(*np.unravel_index(near, gap.shape)):
+            link_tf = coal.Transform3s(self._R[s, li], self._t[s, li])
+            if coal.collide(box, tf, self.links[li], link_tf, self._request,
+                            coal.CollisionResult()):
+                return True
+        return False
 
     def swept_mask(self, grid, lo: np.ndarray, hi: np.ndarray, pitch_m: float) -> np.ndarray:
-        """Voxel centres of the window ``[lo, hi)`` of ``grid`` inside the robot at some witness
-        state (computed once per window)."""
+        """Voxel centres of the window ``[lo, hi)`` of ``grid`` inside the robot at some guard
+        state of the lattice subset (computed once per window)."""
         key = (grid, tuple(lo), tuple(hi), pitch_m)
         if key not in self._swept:
             origin = np.asarray(grid.origin_m) + np.asarray(lo) * grid.voxel_m
             mask = np.zeros(tuple(np.asarray(hi) - lo), dtype=bool)
             self._swept[key] = link_tables(self.robot, pitch_m).rasterize(
-                mask, origin, grid.voxel_m, self._R, self._t)
+                mask, origin, grid.voxel_m, self._R[self._lattice], self._t[self._lattice])
         return self._swept[key]
 
 
 class WitnessGuard:
-    """The ``solvable`` policy for one request: refuses boxes within ``clearance_m`` of the
-    robot at any witness state (exact, coal, on the cube grown by the clearance on each side,
-    which only refuses more)."""
+    """The ``solvable`` policy for one request: refuses boxes within ``clearance_m`` (default
+    the guard margin, module docstring) of the robot at any guard state (exact, coal, on the
+    cube grown by the clearance on each side, which only refuses more)."""
 
     reason = 'the solvable policy (the box would come too close to the witness path)'
 
     def __init__(self, bodies: WitnessBodies, box_size_m: float,
-                 clearance_m: float = WITNESS_CLEARANCE_M):
+                 clearance_m: float = CERTIFICATE.guard_margin_m):
         self.bodies, self.box_size_m, self.clearance_m = bodies, box_size_m, clearance_m
 
     def admit(self, center_m: np.ndarray) -> bool:
         grown = self.box_size_m + 2 * self.clearance_m
-        return not self.bodies.bodies.touched_by(center_m, grown)
+        return not self.bodies.touched_by(center_m, grown)
 
     def prune(self, region, pitch_m: float) -> None:
         """Drop ``region``'s candidates whose box comes within the clearance of the swept
@@ -174,6 +238,6 @@ def witness_bodies(robot: RobotModel, world: CollisionWorld, witness: Witness
     return bodies
 
 
-__all__ = ['GOAL_PROBE_CONVERGED', 'VERDICTS', 'WITNESS_CLEARANCE_M', 'Solvability',
+__all__ = ['CERTIFICATE', 'GOAL_PROBE_CONVERGED', 'VERDICTS', 'Solvability', 'Verdict',
            'WitnessBodies', 'WitnessGuard', 'assess', 'certify', 'probe_goal',
            'witness_bodies']

@@ -12,7 +12,12 @@ by the paper's w(q):
   (``kinematics.ik.goal_set``);
 - approach configurations: collision-free points on the final half of joint-space approaches
   from ``q_init`` to each goal solution (the straight segment, and ``detours`` paths through a
-  perturbed midpoint). The first half lies near q_init, where C3 forbids boxes anyway.
+  perturbed midpoint). The first half lies near q_init, where C3 forbids boxes anyway;
+- under the ``solvable`` policy, tube configurations: ``tube_samples`` draws at witness states
+  spread evenly along the path, each perturbed by N(0, ``tube_rad``) per joint (those outside
+  the limits or in collision dropped), covered like approaches. The witness is data handed to
+  the attack (found once per task by the tool at the edges, ``attack.edges``): ``task`` itself
+  queries no planner under any policy.
 
 Objective, lexicographic through its weights (still one weighted coverage, monotone and
 submodular, so the greedy's guarantees of ``docs/greedy.md`` apply to the weighted objective):

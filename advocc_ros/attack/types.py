@@ -52,6 +52,12 @@ class AttackConfig:
     """Under ``reachable``: share of the fixed goal samples that must stay valid."""
     max_rejections: int = 500
     """Picks that fail the exact coal check before a method gives up (then PARTIAL)."""
+    search_witness: bool = False
+    """Under ``paper`` / ``reachable``: the edges (CLI, heatmap server, export) also find the
+    task's witness (one RRTConnect run on the unattacked scene, in a planning worker, cached per
+    task: ``attack.edges``) so the verdict can be ``certified``. Off: no planner is started and
+    the verdict is judged without a witness. ``solvable`` always finds one; the audit and the
+    benchmark always do (their tables count certified attacks)."""
 
     def __post_init__(self):
         checks = {'box_size_m': 0 < self.box_size_m <= self.max_box_m,
@@ -82,6 +88,7 @@ class AttackStatus(enum.Enum):
     INVALID_LINK = 'invalid_link'            # goal link not in the robot
     ROBOT_MISMATCH = 'robot_mismatch'        # heatmap built for another robot
     INTERNAL_ERROR = 'internal_error'        # a planner-in-the-loop backend kept failing
+    NO_WITNESS = 'no_witness'                # solvable policy without the task's witness
 
     @property
     def ok(self) -> bool:
@@ -114,8 +121,8 @@ class AttackResult:
     """``attack.solvable.Solvability``: certified / goal blocked / unknown (None: not
     assessed)."""
     witness: Any = None
-    """``planning.witness.Witness`` the verdict was judged with (None: none found or not
-    assessed)."""
+    """``planning.witness.Witness`` handed to the attack, the one the verdict was judged with
+    (None: none was given)."""
 
     @property
     def centers_m(self) -> np.ndarray:

@@ -81,11 +81,18 @@ def run_audit(scene, heatmap, cfg: AuditConfig = AuditConfig(),
     ``advocc_ros.attack.solvable``); ``min_budget_solvable`` counts only certified prefixes.
     ``impossible`` answers how few boxes block the goal: the prefixes of a paper-policy attack
     (this one when the policy is paper) up to the first one whose verdict is ``goal blocked``.
-    ``progress(m, planner, row)`` is called after each evaluation. Raises ``ValueError`` when an
-    attack cannot run (its status and message) or the scene has no start or goal.
+    ``progress(m, planner, row)`` is called after each evaluation. Raises ``ValueError`` when
+    the task is refused (``model.task_check``: the reason, before any planner runs), an attack
+    cannot run (its status and message) or the scene has no start or goal.
+
+    Planners run in two places only: the task's witness, found once (one RRTConnect run on the
+    unattacked scene, cached; ``witness_search_s``), and the evaluated victims. The attacks
+    themselves query none.
     """
     from advocc_ros.attack import AttackConfig
+    from advocc_ros.attack.edges import task_witness
     from advocc_ros.attack.methods import REGISTRY
+    from advocc_ros.model.task_check import require_valid_task
     from advocc_ros.evaluation.perf import machine
     from advocc_ros.model.robot import load_robot
     from advocc_ros.kinematics.ik import start_configuration
@@ -98,9 +105,10 @@ def run_audit(scene, heatmap, cfg: AuditConfig = AuditConfig(),
     t_start = time.perf_counter()
     robot = load_robot(scene.robot)
     q_init = start_configuration(scene, robot)
-    task = _Task(scene, robot, q_init)
+    require_valid_task(robot, scene.objects, q_init, scene.goal)
+    search = task_witness(robot, scene.objects, q_init, scene.goal)
+    task = _Task(scene, robot, q_init, search.witness)
     result = _attack(task, heatmap, cfg, cfg.policy, attack_cfg)
-    task = dataclasses.replace(task, witness=result.witness)
     log.info('audit %s: %d boxes (%s), evaluating prefixes', scene.name,
              len(result.obstacles), result.status.value)
     budgets, psr, stop_reason = _sweep(task, result, cfg, progress, planning_config)
@@ -121,6 +129,7 @@ def run_audit(scene, heatmap, cfg: AuditConfig = AuditConfig(),
                                   ('valid_samples', 'scene_name', 'build_s')}),
         'attack': _attack_json(result),
         'witness': None if result.witness is None else result.witness.to_data(),
+        'witness_search_s': round(search.search_s, 3),
         'boxes': _boxes_json(result),
         'budgets': budgets,
         'psr': psr,
@@ -135,7 +144,8 @@ def run_audit(scene, heatmap, cfg: AuditConfig = AuditConfig(),
 
 @dataclasses.dataclass(frozen=True)
 class _Task:
-    """The task under audit: its scene, robot, start and the attack's witness (None: none)."""
+    """The task under audit: its scene, robot, start and witness (None: the search found
+    none)."""
 
     scene: Any
     robot: Any
@@ -147,18 +157,23 @@ class _Task:
         from advocc_ros.attack.solvable import assess
 
         return assess(self.robot, self.scene.objects, tuple(boxes), self.scene.goal,
-                      self.witness).to_json()
+                      self.witness, self.q_init).to_json()
 
 
 def _attack(task: _Task, heatmap, cfg: AuditConfig, policy: str, attack_cfg):
-    """The audit's attack at budget ``cfg.max_budget`` under goal policy ``policy``."""
-    from advocc_ros.attack import attack
+    """The audit's attack at budget ``cfg.max_budget`` under goal policy ``policy``, with the
+    task's witness (found once by ``run_audit``)."""
+    from advocc_ros.attack import AttackStatus, attack
+    from advocc_ros.attack.edges import no_witness_message
 
     result = attack(heatmap, task.robot, task.scene.objects, task.q_init, task.scene.goal,
-                    cfg.max_budget, cfg.method, attack_cfg, seed=cfg.seed, goal_policy=policy)
+                    cfg.max_budget, cfg.method, attack_cfg, seed=cfg.seed, goal_policy=policy,
+                    witness=task.witness)
     if not result.status.ok:
+        why = (no_witness_message() if result.status == AttackStatus.NO_WITNESS
+               else result.message)
         raise ValueError(f'attack {cfg.method} (goal policy {policy}) failed: '
-                         f'{result.status.value}: {result.message}')
+                         f'{result.status.value}: {why}')
     return result
 
 

@@ -282,6 +282,26 @@ def variation_scenes(cfg: BenchConfig, run_dir: str | pathlib.Path) -> dict[str,
     return out
 
 
+def check_tasks(scenes: Iterable[str]) -> None:
+    """``BenchError`` naming the scene and the reason when a scene's task is refused by
+    ``model.task_check`` (start outside the limits or in collision, naming the pair): checked
+    before any heatmap, node or trial, so a wrong task is never scored as internal errors."""
+    from advocc_ros.kinematics.ik import start_configuration
+    from advocc_ros.model.robot import load_robot
+    from advocc_ros.model.scene import load_scene
+    from advocc_ros.model.task_check import check_task
+    from advocc_ros.paths import scene_path
+
+    for name in scenes:
+        scene = load_scene(scene_path(name))
+        if scene.start is None or scene.goal is None:
+            raise BenchError(f'scene {name}: a benchmark scene needs a start and a goal')
+        robot = load_robot(scene.robot)
+        fault = check_task(robot, scene.objects, start_configuration(scene, robot), scene.goal)
+        if fault is not None:
+            raise BenchError(f'scene {name}: the task is refused: {fault.message}')
+
+
 def plan_units(cfg: BenchConfig, available: Iterable[str] | None = None,
                variations: dict[str, list[str]] | None = None
                ) -> tuple[list[Unit], list[str]]:

@@ -1,4 +1,11 @@
-"""``advocc attack``: place adversarial boxes for a scene's task from a heatmap file."""
+"""``advocc attack``: place adversarial boxes for a scene's task from a heatmap file.
+
+Where a planner is used: never by ``task``, ``ours`` or ``random`` themselves. The task's witness
+(needed by ``--policy solvable``, and by ``--certify`` for a verdict that can say ``certified``)
+is found first, once per task, by one RRTConnect run on the unattacked scene
+(``advocc_ros.attack.edges``; reported apart as ``witness_search_ms``). PFA and PFA++ query
+planners by design (``--workers`` local processes).
+"""
 
 from __future__ import annotations
 
@@ -6,11 +13,12 @@ import argparse
 import json
 import sys
 
-from advocc_ros.attack import (KNOWN_METHODS, AttackConfig, AttackStatus, attack, load_method,
+from advocc_ros.attack import (KNOWN_METHODS, AttackConfig, AttackStatus, load_method,
                                obstacles_data, save_obstacles)
+from advocc_ros.attack.edges import attack_task
 from advocc_ros.attack.types import DEFAULT_METHOD, POLICIES
 from advocc_ros.cli import UserError
-from advocc_ros.commands.common import add_bag_arg, check_bag_arg
+from advocc_ros.commands.common import add_bag_arg, check_bag_arg, refuse_invalid_task
 from advocc_ros.heatmap import HeatmapError, load_heatmap
 from advocc_ros.paths import scene_path
 from advocc_ros.model.robot import RobotError, load_robot
@@ -36,6 +44,11 @@ def register(sub: argparse._SubParsersAction) -> None:
                    '(keep --reachable-fraction of fixed goal samples valid) or solvable (keep '
                    'the task\'s witness path valid: the task stays certified solvable); '
                    'default %(default)s')
+    p.add_argument('--certify', action='store_true',
+                   help='under --policy paper/reachable: also find the task\'s witness (one '
+                   'RRTConnect run on the unattacked scene, cached per task) so the verdict can '
+                   'say certified; without it no planner is started and the verdict is goal '
+                   'blocked or unknown (--policy solvable always finds the witness)')
     p.add_argument('--reachable-fraction', type=float, default=defaults.reachable_fraction,
                    help='under --policy reachable (default %(default)s)')
     p.add_argument('--size', type=float, default=defaults.box_size_m,
@@ -74,7 +87,8 @@ def _attack(args: argparse.Namespace) -> int:
     try:
         cfg = AttackConfig(box_size_m=args.size, corridor_radius_m=args.corridor,
                            d_safe_m=args.d_safe, d_min_m=args.d_min, goal_policy=args.policy,
-                           reachable_fraction=args.reachable_fraction)
+                           reachable_fraction=args.reachable_fraction,
+                           search_witness=args.certify)
     except ValueError as exc:
         raise UserError(str(exc)) from None
     try:
@@ -87,6 +101,7 @@ def _attack(args: argparse.Namespace) -> int:
                                     f'{args.scene}.start')
     except (SceneError, HeatmapError, RobotError) as exc:
         raise UserError(str(exc)) from None
+    refuse_invalid_task(scene, args.scene)  # before any planner (PFA's, the witness search)
     if heatmap.meta.get('scene_hash') not in (None, scene.objects_hash()):
         print(f'advocc attack: warning: {args.heatmap} was built for scene '
               f'{heatmap.meta.get("scene_name")!r}, not {scene.name!r}; the current scene is '
@@ -96,8 +111,8 @@ def _attack(args: argparse.Namespace) -> int:
         result = _attack_in_the_loop(args, heatmap, robot, scene, q_init, cfg)
         extra['pfa'] = result.stats.get(args.method, {})
     else:
-        result = attack(heatmap, robot, scene.objects, q_init, scene.goal, args.budget,
-                        args.method, cfg, seed=args.seed)
+        result = attack_task(heatmap, robot, scene.objects, q_init, scene.goal, args.budget,
+                             args.method, cfg, seed=args.seed)
     if not result.status.ok:
         raise UserError(f'{result.status.value}: {result.message}')
     data = obstacles_data(result, heatmap, scene.name, scene.objects_hash(), extra)
@@ -123,6 +138,9 @@ def _attack(args: argparse.Namespace) -> int:
             print(f'  goal poses still valid: {100 * result.goal_valid_fraction:.0f} % of '
                   f'{result.stats["goal_samples"]} fixed goal samples (policy '
                   f'{result.goal_policy})')
+        if 'witness_search_ms' in result.stats:
+            print(f'  witness search (RRTConnect on the unattacked scene, cached per task, '
+                  f'not attack time): {result.stats["witness_search_ms"]:.0f} ms')
         if result.solvable is not None:
             print(f'  solvable: {result.solvable.verdict} ({result.solvable.message})'
                   + (f'; witness -> {witness_out}' if witness_out else ''))
@@ -160,10 +178,10 @@ def _attack_in_the_loop(args: argparse.Namespace, heatmap, robot, scene, q_init,
                 victim = pcfg.planner_id if args.method == 'pfa++' else PFA_PLANNER
                 bar = progress_bar(pcfg.queries, f'{args.method} ({victim})', 'query',
                                    file=sys.stderr)
-            return attack(heatmap, robot, scene.objects, q_init, scene.goal, args.budget,
-                          args.method, cfg, seed=args.seed,
-                          method_options=PfaOptions(planners, pcfg,
-                                                    progress if bar is not None else None))
+            return attack_task(heatmap, robot, scene.objects, q_init, scene.goal, args.budget,
+                               args.method, cfg, seed=args.seed,
+                               method_options=PfaOptions(
+                                   planners, pcfg, progress if bar is not None else None))
     finally:
         if bar is not None:
             bar.close()

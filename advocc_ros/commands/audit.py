@@ -20,7 +20,7 @@ import time
 
 from advocc_ros.cli import UserError
 from advocc_ros.commands.common import (add_bag_arg, add_scene_args, check_bag_arg,
-                                        scene_from_args)
+                                        refuse_invalid_task, scene_from_args)
 
 """Samples of the heatmap the audit builds when none is given (~5-9 s on 2 cores)."""
 
@@ -148,6 +148,7 @@ def run(args: argparse.Namespace) -> int:
     scene = scene_from_args(args)
     if scene.start is None or scene.goal is None:
         raise UserError(f'{args.scene}: the scene needs a start and a goal to be audited')
+    refuse_invalid_task(scene, args.scene)  # before the heatmap, the witness, any trial
     out = pathlib.Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     log = (lambda text: print(text, file=sys.stderr)) if args.json else print

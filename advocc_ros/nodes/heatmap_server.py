@@ -12,8 +12,12 @@ stops the node at start-up with a clear message and exit code 1.
 Services:
 - ``~/attack`` (advocc_msgs/srv/Attack): scene objects, start state, goal region, budget,
   method, box size, seed -> error code (MoveIt values + advocc's own) + message + obstacles +
-  covered mass + compute time. Every bad request gets a code and a message; nothing raises out
-  of a callback, so the node keeps serving.
+  covered mass + compute time. Every bad request gets a code and a message (a task whose start
+  is outside the joint limits or in collision: the joint or the colliding pair); nothing raises
+  out of a callback, so the node keeps serving. The attack itself queries no planner; the
+  task's witness (``solvable`` requests, and every request with ``search_witness``) is found
+  first by one RRTConnect run in a planning worker, cached per task (``attack.edges``), and its
+  time is logged, not counted in ``compute_time_s``.
 - ``~/get_info`` (advocc_msgs/srv/GetInfo): robot, grid, heatmap summary, parameters as JSON.
 
 Topics: ``~/heatmap`` (sensor_msgs/PointCloud2, latched, published once at start-up): x, y, z,
@@ -36,7 +40,8 @@ from rcl_interfaces.msg import SetParametersResult
 from rclpy.node import Node
 from sensor_msgs.msg import PointCloud2
 
-from advocc_ros.attack import AttackConfig, AttackStatus, attack, available_methods
+from advocc_ros.attack import AttackConfig, AttackStatus, available_methods
+from advocc_ros.attack.edges import attack_task
 from advocc_ros.attack.types import DEFAULT_METHOD, POLICIES
 from advocc_ros.ros.conversions import (goal_region_from_msg, obstacle_to_msg, q_from_joint_state,
                                         scene_from_msgs)
@@ -73,6 +78,9 @@ _CONFIG_DOC = {  # description, then (low, high) or constraints AttackConfig che
                            'must stay valid', (0.0, 1.0)),
     'max_rejections': ('picks failing the exact check before a method gives up',
                        (0, INT_MAX)),
+    'search_witness': ('paper/reachable requests: also find the task\'s witness (one '
+                       'RRTConnect run on the unattacked scene, cached) so the verdict can be '
+                       'certified; off: no planner is started', ''),
 }
 
 
@@ -111,6 +119,7 @@ STATUS_CODES = {
     AttackStatus.INVALID_LINK: ErrorCodes.INVALID_LINK_NAME,
     AttackStatus.ROBOT_MISMATCH: ErrorCodes.INVALID_ROBOT_STATE,
     AttackStatus.INTERNAL_ERROR: ErrorCodes.INTERNAL_ERROR,
+    AttackStatus.NO_WITNESS: ErrorCodes.PLANNING_FAILED,  # the tool's witness search found none
 }
 
 
@@ -292,9 +301,13 @@ class HeatmapServer(Node):
         except SceneError as exc:
             return fail(ErrorCodes.INVALID_GOAL_CONSTRAINTS, str(exc))
         # Budget, box size, method and policy are checked by the core (errors are data).
-        result = attack(self.heatmap, self.robot, objects, q_init, goal, int(request.budget),
-                        method, self.cfg, box_size_m=request.box_size or None,
-                        seed=request.seed, goal_policy=request.goal_policy or None)
+        result = attack_task(self.heatmap, self.robot, objects, q_init, goal,
+                             int(request.budget), method, self.cfg,
+                             box_size_m=request.box_size or None, seed=request.seed,
+                             goal_policy=request.goal_policy or None)
+        if 'witness_search_ms' in result.stats:
+            self.get_logger().info(f'witness search: {result.stats["witness_search_ms"]:.0f} '
+                                   'ms (RRTConnect on the unattacked scene, cached per task)')
         response.error_code.val = STATUS_CODES.get(result.status, ErrorCodes.FAILURE)
         response.message = result.message
         response.obstacles = [obstacle_to_msg(o, m)

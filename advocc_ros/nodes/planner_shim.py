@@ -12,9 +12,12 @@ xyz in the planning frame): cropped to ``cloud_crop_min/max``, it becomes one oc
 
 Services:
 - ``~/plan`` (advocc_msgs/srv/Plan): start state, goal region, planner id, budget, seed ->
-  MoveIt error code + message + trajectory + planning time. Requests run in a watched worker
-  process (``advocc_ros.planning.worker.Planner``): a request never holds the node longer than its
-  budget + ``watchdog_margin_s``; bad requests get an error code and the node keeps serving.
+  MoveIt error code + message + trajectory + planning time. A task whose start is outside the
+  joint limits or in collision (self or with the current scene) is refused before planning with
+  the reason (``model.task_check``: the joint, or the colliding pair). Requests run in a
+  watched worker process (``advocc_ros.planning.worker.Planner``): a request never holds the
+  node longer than its budget + ``watchdog_margin_s``; bad requests get an error code and the
+  node keeps serving.
 - ``~/get_info`` (advocc_msgs/srv/GetInfo): what is loaded, as JSON.
 
 Parameters: :data:`PARAMETERS` (the same defaults in ``config/planner_shim.yaml``;
@@ -49,6 +52,7 @@ from advocc_ros.paths import allowed_dirs, confine, scene_path
 from advocc_ros.planning.types import PLANNERS, PlanningConfig, PlanStatus
 from advocc_ros.planning.worker import Planner
 from advocc_ros.model.robot import RobotError, resolve_path
+from advocc_ros.model.task_check import TaskProblem, check_task
 from advocc_ros.model.scene import (Scene, SceneObject, apply_operation, load_scene,
                                     referenced_files)
 from advocc_ros.model.pose import SceneError
@@ -71,6 +75,9 @@ _CONFIG_DOC = {
     'watchdog_margin_s': ('the planning worker is killed after budget + margin [s]', None),
 }
 _CONFIG_PARAMS = tuple(_CONFIG_DOC)
+_TASK_STATUS = {TaskProblem.START_INVALID: PlanStatus.INVALID_ROBOT_STATE,
+                TaskProblem.START_IN_COLLISION: PlanStatus.START_STATE_IN_COLLISION,
+                TaskProblem.GOAL_INVALID: PlanStatus.INVALID_GOAL_CONSTRAINTS}
 
 
 def _config_param(name: str) -> Param:
@@ -247,11 +254,15 @@ class PlannerShim(Node):
         if not math.isfinite(budget) or budget < 0:
             return fail(PlanStatus.INVALID_REQUEST,
                         f'time_budget_s must be >= 0 (0: default), got {budget}')
+        scene = self._scene()
+        fault = check_task(robot, scene.objects, q_start, goal)
+        if fault is not None:  # a wrong task, not a planner outcome: refused with the reason
+            return fail(_TASK_STATUS[fault.problem], fault.message)
         config = self._config()
         budget = budget or config.time_budget_s
         planner_id = request.planner_id or self.get_parameter('default_planner').value
         self._planner.config = config
-        self._planner.set_scene(self._scene())
+        self._planner.set_scene(scene)
         result = self._planner.plan(q_start, goal, planner_id, budget, request.seed)
         response.error_code.val = int(result.status)
         response.message = result.message

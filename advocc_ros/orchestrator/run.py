@@ -40,8 +40,8 @@ from typing import Callable
 
 import numpy as np
 
-from advocc_ros.bench.protocol import (BenchConfig, BenchError, Trial, Unit, plan_units,
-                                       variation_scenes)
+from advocc_ros.bench.protocol import (BenchConfig, BenchError, Trial, Unit, check_tasks,
+                                       plan_units, variation_scenes)
 from advocc_ros.bench.records import RecordStore, check_run_config, progress_summary, run_lock
 from advocc_ros.bench.report import internal_error_summary, write_report
 from advocc_ros.bench.tables import cell_rows
@@ -120,6 +120,7 @@ class Orchestrator:
             available = self._available_methods()
             units, self.notes = plan_units(self.cfg, available,
                                            variation_scenes(self.cfg, self.run_dir))
+            check_tasks(dict.fromkeys(u.scene for u in units))
             self._write_config()
             old = {s: signal.signal(s, self.signals.on_signal) for s in SignalGate.SIGNALS}
             try:

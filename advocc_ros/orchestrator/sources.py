@@ -126,9 +126,11 @@ class AttackSources:
         stem = node_name(self.task.scene_file.stem)
         # The heatmap lives in the run folder, wherever --out put it: allow that folder too.
         dirs = [str(d) for d in default_allowed_dirs()] + [str(self.run_dir.resolve())]
+        # search_witness: the tables count certified attacks, so every attack gets the task's
+        # witness (found once per scene in the server, cached), not only solvable ones.
         self.server = Child(f'advocc_heatmap_{stem}', 'heatmap_server',
-                            {'heatmap_file': str(heatmap), 'allowed_dirs': dirs}, self.env,
-                            self.run_dir / 'logs')
+                            {'heatmap_file': str(heatmap), 'allowed_dirs': dirs,
+                             'search_witness': True}, self.env, self.run_dir / 'logs')
         self.server.start()
         self.children.append(self.server)
         self._reset_server_clients()
@@ -271,10 +273,10 @@ class AttackSources:
 
         def work() -> None:
             try:
-                outcome['result'] = attack(
+                outcome['result'] = attack(  # no verdict: its file records none
                     self.heatmap, task.robot, task.scene.objects, task.q_init, task.scene.goal,
                     spec.budget, spec.method, AttackConfig(),
-                    box_size_m=self.cfg.box_size_m or None, seed=spec.seed,
+                    box_size_m=self.cfg.box_size_m or None, seed=spec.seed, certify=False,
                     method_options=PfaOptions(queries, pcfg, lambda n, total: None))
             except BaseException as exc:  # noqa: BLE001 - re-raised in the main thread
                 outcome['error'] = exc

@@ -66,13 +66,14 @@ class PlanningConfig:
     max_time_budget_s: float = 600.0
     """Largest budget a request may ask for [s]."""
     motion_step_rad: float = 0.01
-    """Joint-space distance between validity checks along a motion [rad]. OMPL's resolution is
-    set to ``motion_step_rad / max_extent`` (7.7e-4 for the Panda, extent 13.04 rad). Any
-    point of the Panda moves at most 1.70 m per rad of joint motion (bound sqrt(sum r_j^2) over
-    the per-joint lever arms of the collision hulls; 1.17 m/rad observed), so between two checks
-    a link point travels <= 17 mm and can enter an obstacle by at most half that (8.5 mm): a path
-    cannot tunnel through a 5 cm box. MoveIt's default (0.005 * extent = 65 mm of joint motion,
-    up to 11 cm of link motion) could."""
+    """Joint-space distance between validity checks along a motion [rad] (L2, OMPL's
+    ``validSegmentCount`` rule). OMPL's resolution is set to ``motion_step_rad / max_extent``.
+    The planners check states only: how far a link point can move between two checks is
+    ``RobotModel.motion_bound.max_m_per_rad`` times this step (computed per robot when the
+    model loads). For every shipped arm that distance is below the default box edge, so a
+    motion cannot step over a box (test_motion_bound checks it); MoveIt's default resolution
+    (0.005 * extent) could. A witness is not trusted to this step:
+    ``advocc_ros.planning.certificate`` proves the continuous path."""
     ik_goals: int = 8
     """Goal configurations sampled by IK before planning starts."""
     max_goals: int = 64

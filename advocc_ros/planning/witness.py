@@ -3,17 +3,23 @@
 A failure on a task with no solution says nothing about the planner, so an attack counts only
 while the task keeps one. The proof is a *witness*: a joint path from ``q_init`` into the goal
 region, found once on the unattacked scene by a long RRTConnect run (simplified, seeded) and then
-checked against every set of boxes (``advocc_ros.attack.solvable.certify``).
+certified against every set of boxes (``certify``): the path as a continuous motion, not a list
+of states (``advocc_ros.planning.certificate``: conservative advancement with the robot's
+motion bound, exact distances on the planners' hulls, a clearance floor).
 
 Why a fresh worker process per search: OMPL's RNG can be seeded only once per process, so a
 search is deterministic for its seed only in a process of its own (``Planner`` gives one, with
-its watchdog). The search checks motions at ``WITNESS_STEP_RAD``, half the planners' step, so
-the witness also passes the finer re-check that certificates use.
+its watchdog). The search checks motions at ``WITNESS_STEP_RAD`` (discrete); a path it returns
+that the continuous certificate cannot prove on the unattacked scene (it grazes an object closer
+than the floor between two checked states: measured on bookshelf, 0.085 mm) is dropped and the
+next seed searched, up to ``WITNESS_TRIES`` seeds; a search that finds no path ends the task's
+search (None).
 
 A found witness is kept twice: in this process, and on disk (``witness_cache_dir``) so that
 the next process (another ``advocc attack``, a restarted node) skips the search; a witness read
-from disk is certified again on the unattacked scene before it is used, so a stale or damaged
-file costs a search, never a wrong verdict.
+from disk is certified again on the unattacked scene, from the task's start, before it is used,
+so a stale or damaged file costs a search, never a wrong verdict. A failed search is not kept:
+the next call searches again.
 
 File (``<obstacles>.witness.yaml`` beside an obstacles file): ``joint_names`` (the planned
 joints), ``waypoints`` (rad; the path is the linear interpolation in joint space between them),
@@ -30,6 +36,7 @@ import math
 import os
 import pathlib
 import threading
+import typing
 
 import numpy as np
 import pinocchio as pin
@@ -39,14 +46,21 @@ from advocc_ros.model.robot import RobotModel
 from advocc_ros.model.goal import GoalRegion
 from advocc_ros.model.scene import Scene, SceneObject, read_yaml, save_yaml_atomic, task_hash
 from advocc_ros.model.pose import SceneError
+from advocc_ros.planning.certificate import CertificateConfig, PathCertificate, certify_path
 from advocc_ros.planning.types import PlanningConfig, PlanStatus
 
 log = logging.getLogger(__name__)
 
 WITNESS_FORMAT = 'advocc_witness'
 WITNESS_STEP_RAD = 0.005
-"""Joint-space step of the certificate's checks [rad]: half the planners' default 0.01, so a
-witness valid here is valid at the planners' resolution's finer re-checks too."""
+"""Joint-space step of the witness search's motion checks [rad] (half the planners' default
+0.01). The certificate does not use it: it proves the continuous path."""
+WITNESS_TRIES = 4
+"""Seeds searched (``seed``, ``seed + 1``, ...) until one gives a path the continuous
+certificate proves on the unattacked scene (a search that finds no path stops the sequence)."""
+START_TOLERANCE_RAD = 1e-9
+"""Largest difference [rad] between a witness's first waypoint and the task's start (and
+between its locked values and the robot's)."""
 WITNESS_PLANNER = 'rrtconnect'
 WITNESS_SEED = 0
 """Seed of the witness search: the witness belongs to the task, not to one attack's seed."""
@@ -113,8 +127,9 @@ class Witness:
 
 
 def witness_states(waypoints: np.ndarray, step_rad: float = WITNESS_STEP_RAD) -> np.ndarray:
-    """Every state a certificate checks: each segment cut into ``ceil(length / step)`` equal
-    parts (OMPL's ``validSegmentCount`` rule), endpoints included once. (K, nq)."""
+    """States at most ``step_rad`` apart (L2) along the path: each segment cut into
+    ``ceil(length / step)`` equal parts (OMPL's ``validSegmentCount`` rule), endpoints included
+    once. (K, nq). The ``solvable`` guard checks its boxes against the body at these states."""
     waypoints = np.asarray(waypoints, float)
     parts = [waypoints[:1]]
     for a, b in zip(waypoints[:-1], waypoints[1:]):
@@ -129,35 +144,67 @@ def _tool_pose(robot: RobotModel, data, q: np.ndarray, goal: GoalRegion) -> pin.
     return data.oMf[robot.model.getFrameId(goal.link)] * goal.tool_offset.to_se3()
 
 
-def certify(robot: RobotModel, world: CollisionWorld, goal: GoalRegion, witness: Witness,
-            step_rad: float = WITNESS_STEP_RAD, q_init: np.ndarray | None = None
-            ) -> tuple[str | None, int]:
-    """(None if ``witness`` is a valid solution in ``world`` else why, states checked).
+class Certified(typing.NamedTuple):
+    """``certify``'s answer: ``why`` is None when the witness is proven, else the reason."""
 
-    ``world``: the scene with the boxes. Checks the joint names, the locked joints' values,
-    the start (when ``q_init`` is given), joint limits, every state at ``step_rad`` (self and
-    scene collision, exact) and that the last state lies in ``goal``.
-    """
+    why: str | None
+    proof: PathCertificate | None
+    """The continuous check (None when an earlier check failed): states, queries, time."""
+
+    @property
+    def states(self) -> int:
+        return self.proof.states if self.proof is not None else 0
+
+
+def _identity_error(robot: RobotModel, witness: Witness, q_init) -> tuple[str | None, object]:
+    """(why the witness is not one of this robot's from ``q_init``, its waypoints)."""
     try:
         Q = witness.configurations(robot)
     except SceneError as exc:
-        return str(exc), 0
-    if q_init is not None and not np.allclose(Q[0], q_init, atol=1e-9):
-        return 'the witness does not start at the start state', 0
+        return str(exc), None
+    q_init = np.asarray(q_init, float)
+    if q_init.shape != (robot.nq,) or not np.all(np.isfinite(q_init)):
+        return f'the task\'s start must be {robot.nq} finite joint values', None
+    gap = float(np.max(np.abs(Q[0] - q_init)))
+    if not gap <= START_TOLERANCE_RAD:
+        return (f'the witness does not start at the task\'s start state (largest joint '
+                f'difference {gap:.3g} rad)'), None
     for name, value in robot.locked_values.items():
-        if abs(witness.locked.get(name, np.nan) - value) > 1e-9:
-            return (f'locked joint {name}: witness holds {witness.locked.get(name)}, the task '
-                    f'{value}'), 0
-    states = witness_states(Q, step_rad)
-    outside = ~np.all((states >= robot.lower - 1e-9) & (states <= robot.upper + 1e-9), axis=1)
-    if outside.any():
-        return f'witness state {int(np.argmax(outside))} is outside the joint limits', 0
-    first = world.first_collision(states)
-    if first >= 0:
-        return f'witness state {first} of {len(states)} is in collision', first + 1
-    if not goal.contains(_tool_pose(robot, robot.create_data(), states[-1], goal)):
-        return 'the witness does not end inside the goal region', len(states)
-    return None, len(states)
+        if name not in witness.locked:
+            return f'locked joint {name}: the witness does not give its value', None
+        if not abs(witness.locked[name] - value) <= START_TOLERANCE_RAD:
+            return (f'locked joint {name}: witness holds {witness.locked[name]}, the task '
+                    f'{value}'), None
+    extra = sorted(set(witness.locked) - set(robot.locked_values))
+    if extra:
+        return f'the witness locks joints the robot does not: {extra}', None
+    return None, Q
+
+
+def certify(robot: RobotModel, world: CollisionWorld, goal: GoalRegion, witness: Witness,
+            q_init: np.ndarray, config: CertificateConfig = CertificateConfig(),
+            shape_names: list[str] | None = None) -> Certified:
+    """Whether ``witness`` is a solution of the task in ``world`` (the scene with the boxes),
+    proven: its joints are the robot's planned joints, its first waypoint is ``q_init``
+    (within ``START_TOLERANCE_RAD``), its locked values are the robot's, the continuous path is
+    within the joint limits and free (``certify_path``: every self and scene pair keeps more
+    than ``config.floor_m / 2``) and its last waypoint lies in ``goal``."""
+    why, Q = _identity_error(robot, witness, q_init)
+    if why is not None:
+        return Certified(why, None)
+    proof = certify_path(world, Q, config, shape_names)
+    if not proof.proven:
+        return Certified(proof.message, proof)
+    if not goal.contains(_tool_pose(robot, robot.create_data(), Q[-1], goal)):
+        return Certified('the witness does not end inside the goal region', proof)
+    return Certified(None, proof)
+
+
+def object_shape_names(objects) -> list[str]:
+    """A name for each shape of ``objects`` in world order: the object's id (``id[k]`` when
+    it has several shapes), so a verdict names the object, not ``scene/k``."""
+    return [o.id if len(o.shapes) == 1 else f'{o.id}[{k}]'
+            for o in objects for k in range(len(o.shapes))]
 
 
 def witness_file(obstacles_path: str | pathlib.Path) -> pathlib.Path:
@@ -177,7 +224,7 @@ def load_witness(path: str | pathlib.Path) -> Witness:
     return Witness.from_data(read_yaml(pathlib.Path(path)), str(path))
 
 
-_CACHE: collections.OrderedDict[str, Witness | None] = collections.OrderedDict()
+_CACHE: collections.OrderedDict[str, Witness] = collections.OrderedDict()
 _CACHE_SIZE = 32
 _LOCK = threading.Lock()
 
@@ -197,25 +244,26 @@ def witness_cache_dir() -> pathlib.Path | None:
 def find_witness(robot: RobotModel, objects: tuple[SceneObject, ...] | list,
                  q_init: np.ndarray, goal: GoalRegion, seed: int = WITNESS_SEED,
                  time_s: float = WITNESS_TIME_S) -> Witness | None:
-    """A witness for the task on the scene ``objects`` (None when the search fails), cached
-    per task and seed in this process and on disk. Deterministic for a seed when the search
-    ends before its budget (see the module docstring)."""
+    """A witness for the task on the scene ``objects``, certified there (None when no search
+    of ``WITNESS_TRIES`` seeds found one), cached per task and seed in this process and on disk.
+    Deterministic for a seed when the searches end before their budget (module docstring)."""
     objects = tuple(objects)
     q_init = np.asarray(q_init, float)
     key = task_hash(robot.hash, objects, goal, np.round(q_init, 12).tolist(), seed, time_s,
-                    WITNESS_FORMAT, WITNESS_PLANNER, WITNESS_STEP_RAD)
+                    WITNESS_FORMAT, WITNESS_PLANNER, WITNESS_STEP_RAD, 'continuous', WITNESS_TRIES)
     with _LOCK:
         if key in _CACHE:
             _CACHE.move_to_end(key)
             return _CACHE[key]
     cache_dir = witness_cache_dir()
     disk = cache_dir / f'{key}.yaml' if cache_dir is not None else None
-    witness = _from_disk(disk, robot, objects, q_init, goal) if disk is not None else None
+    world = CollisionWorld(robot, [sh for o in objects for sh in o.shapes])
+    witness = _from_disk(disk, robot, world, q_init, goal) if disk is not None else None
     if witness is None:
-        found, witness = _search(robot, objects, q_init, goal, seed, time_s)
-        if not found:  # an internal error says nothing about the task: not cached
+        witness = _search_certified(robot, world, objects, q_init, goal, seed, time_s)
+        if witness is None:  # not kept: a later call searches again
             return None
-        if witness is not None and disk is not None:
+        if disk is not None:
             _to_disk(disk, witness)
     with _LOCK:
         _CACHE[key] = witness
@@ -224,9 +272,28 @@ def find_witness(robot: RobotModel, objects: tuple[SceneObject, ...] | list,
     return witness
 
 
+def _search_certified(robot: RobotModel, world: CollisionWorld,
+                      objects: tuple[SceneObject, ...], q_init: np.ndarray, goal: GoalRegion,
+                      seed: int, time_s: float) -> Witness | None:
+    """The first search result of seeds ``seed``, ``seed + 1``, ... that ``certify`` proves on
+    the unattacked scene (``world``). A search that finds no path ends it: another seed would
+    spend its whole budget too."""
+    for k in range(WITNESS_TRIES):
+        witness = _search(robot, objects, q_init, goal, seed + k, time_s)
+        if witness is None:
+            return None
+        why = certify(robot, world, goal, witness, q_init,
+                      shape_names=object_shape_names(objects)).why
+        if why is None:
+            return witness
+        log.warning('witness search (seed %d): the path is not proven continuously on the '
+                    'unattacked scene: %s', seed + k, why)
+    return None
+
+
 def _search(robot: RobotModel, objects: tuple[SceneObject, ...], q_init: np.ndarray,
-            goal: GoalRegion, seed: int, time_s: float) -> tuple[bool, Witness | None]:
-    """(the search answered, its witness or None) of one RRTConnect run in a fresh worker."""
+            goal: GoalRegion, seed: int, time_s: float) -> Witness | None:
+    """The path of one RRTConnect run in a fresh worker, or None."""
     from advocc_ros.planning.worker import Planner
 
     config = PlanningConfig(time_budget_s=time_s, motion_step_rad=WITNESS_STEP_RAD,
@@ -236,20 +303,20 @@ def _search(robot: RobotModel, objects: tuple[SceneObject, ...], q_init: np.ndar
         result = planner.plan(q_init, goal, WITNESS_PLANNER, time_s, seed)
     if result.status == PlanStatus.INTERNAL_ERROR:
         log.error('witness search failed internally: %s', result.message)
-        return False, None
+        return None
     if not result.success:
         log.warning('no witness for the task (seed %d): %s', seed, result.message)
-        return True, None
+        return None
     # Rounded as in its file: the witness certified is the one written and the one read back.
     waypoints = np.round(np.asarray(result.path, float), WAYPOINT_DECIMALS)
-    return True, Witness(robot.joint_names, waypoints, dict(robot.locked_values), {
+    return Witness(robot.joint_names, waypoints, dict(robot.locked_values), {
         'planner': WITNESS_PLANNER, 'seed': int(seed), 'time_budget_s': float(time_s),
         'planning_time_s': round(result.planning_time_s, 4),
         'path_length_rad': round(float(result.stats.get('path_length_rad', 0.0)), 6),
         'step_rad': WITNESS_STEP_RAD})
 
 
-def _from_disk(path: pathlib.Path, robot: RobotModel, objects: tuple[SceneObject, ...],
+def _from_disk(path: pathlib.Path, robot: RobotModel, world: CollisionWorld,
                q_init: np.ndarray, goal: GoalRegion) -> Witness | None:
     """The cached witness of ``path`` if it is one for this task (certified again)."""
     if not path.is_file():
@@ -259,8 +326,7 @@ def _from_disk(path: pathlib.Path, robot: RobotModel, objects: tuple[SceneObject
     except (SceneError, OSError) as exc:
         log.warning('witness cache: %s (searching again)', exc)
         return None
-    world = CollisionWorld(robot, [sh for o in objects for sh in o.shapes])
-    why, _ = certify(robot, world, goal, witness, q_init=q_init)
+    why = certify(robot, world, goal, witness, q_init).why
     if why is not None:
         log.warning('witness cache: %s is not a witness of this task: %s (searching again)',
                     path, why)
@@ -276,5 +342,6 @@ def _to_disk(path: pathlib.Path, witness: Witness) -> None:
         log.warning('witness cache: cannot write %s (%s)', path, exc)
 
 
-__all__ = ['CACHE_ENV', 'WITNESS_STEP_RAD', 'Witness', 'certify', 'find_witness', 'load_witness',
-           'save_witness', 'witness_cache_dir', 'witness_file', 'witness_states']
+__all__ = ['CACHE_ENV', 'WITNESS_STEP_RAD', 'Certified', 'Witness', 'certify', 'find_witness',
+           'load_witness', 'object_shape_names', 'save_witness', 'witness_cache_dir',
+           'witness_file', 'witness_states']
