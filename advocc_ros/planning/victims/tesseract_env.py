@@ -122,7 +122,8 @@ def _plugins_yaml(base: str, tip: str) -> tuple[str, str]:
     return kinematics, contact
 
 
-def write_robot_files(robot: RobotModel, folder: pathlib.Path) -> tuple[pathlib.Path, pathlib.Path]:
+def write_robot_files(robot: RobotModel, folder: pathlib.Path
+                      ) -> tuple[pathlib.Path, pathlib.Path]:
     """Write the URDF, SRDF and plugin YAML files Tesseract needs; return (URDF, SRDF)."""
     urdf_text, base, name = _urdf_text(robot)
     kinematics, contact = _plugins_yaml(base, robot.spec.ee_link)
@@ -173,7 +174,7 @@ class TesseractWorld:
         self._locator = tcm.GeneralResourceLocator()  # must outlive the environment
         self.env = te.Environment()
         if not self.env.init(tcm.FilesystemPath(str(urdf)), tcm.FilesystemPath(str(srdf)),
-                               self._locator):
+                             self._locator):
             raise RobotError('Tesseract could not load the robot (see its log above)')
         group = list(self.env.getJointGroup(MANIPULATOR).getJointNames())
         if group != list(robot.joint_names):
