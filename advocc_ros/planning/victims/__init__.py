@@ -41,6 +41,15 @@ class Task:
     """(nq,) start configuration of the planned joints [rad]."""
     goal: GoalRegion
     """Goal region of the end-effector link."""
+    goal_configs: np.ndarray | None = None
+    """(K, nq) goal configurations to hand to victims that take configurations [rad]; None:
+    :func:`goal_configurations` of the trial's seed (our sampler, with the boxes)."""
+
+    def goals(self, robot, world, k: int, seed: int) -> np.ndarray:
+        """The goal list of a trial: the given one, else K sampled from ``seed``."""
+        if self.goal_configs is not None:
+            return np.asarray(self.goal_configs, dtype=float).reshape(-1, robot.nq)
+        return goal_configurations(robot, world, self.goal, k, seed)
 
 
 @dataclasses.dataclass(frozen=True)

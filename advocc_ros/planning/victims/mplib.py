@@ -34,8 +34,8 @@ from advocc_ros.model.collision import CollisionWorld
 from advocc_ros.model.robot import RobotModel, example_robot_data_share, load_robot, \
     resolve_path
 from advocc_ros.planning.types import PlanResult, PlanStatus, _fail, validate_request
-from advocc_ros.planning.victims import (Task, VictimConfig, first_collision_along,
-                                         goal_configurations, path_length_rad)
+from advocc_ros.planning.victims import Task, VictimConfig, first_collision_along, \
+    path_length_rad
 from advocc_ros.planning.worker import WorkerDied, _Worker
 
 log = logging.getLogger(__name__)
@@ -154,7 +154,7 @@ class MplibVictim:
         if world.in_collision(q_start):
             return _fail(PlanStatus.START_STATE_IN_COLLISION, 'start state is in collision', nq)
         t0 = time.monotonic()
-        goals = goal_configurations(robot, world, task.goal, self.config.goal_configs, seed)
+        goals = task.goals(robot, world, self.config.goal_configs, seed)
         stats = {'victim': self.name, 'goal_sampling_s': time.monotonic() - t0,
                  'goal_configs': len(goals)}
         if not len(goals):

@@ -16,6 +16,9 @@ Requests (``op``):
   of the path, interpolated at ``check_step_rad``, that collides in MPlib's model; -1: none).
 - ``check``: ``q`` (N, planned joints) -> ``collides`` (N booleans), MPlib's verdicts.
 - ``stall``: sleep ``seconds`` (diagnostic: tests the parent's watchdog).
+
+Diagnostics: ``ADVOCC_PLANNING_FAULT=kill:SEED[,SEED...]`` makes the worker SIGKILL itself
+when asked to plan with one of those seeds, ``raise:...`` raise (as our planning worker does).
 """
 
 import json
@@ -148,6 +151,14 @@ def _pose_identity():
     return Pose()
 
 
+def _inject_fault(seed: int) -> None:
+    kind, _, seeds = os.environ.get('ADVOCC_PLANNING_FAULT', '').partition(':')
+    if kind in ('kill', 'raise') and str(seed) in seeds.split(','):
+        if kind == 'kill':
+            os.kill(os.getpid(), signal.SIGKILL)
+        raise RuntimeError(f'fault injected by ADVOCC_PLANNING_FAULT for seed {seed}')
+
+
 def _serve(session: Session, req: dict) -> dict:
     op = req.get('op')
     if op == 'stall':
@@ -160,6 +171,7 @@ def _serve(session: Session, req: dict) -> dict:
     if 'objects' in req:
         session.set_objects(req['objects'])
     if op == 'plan':
+        _inject_fault(int(req['seed']))
         return session.plan(req)
     if op == 'check':
         return {'collides': [session.collides(q) for q in req['q']]}

@@ -11,7 +11,7 @@ from __future__ import annotations
 from advocc_ros.model.collision import CollisionWorld
 from advocc_ros.model.robot import load_robot
 from advocc_ros.planning.types import PlanResult, planner_class_name
-from advocc_ros.planning.victims import Task, VictimConfig, goal_configurations
+from advocc_ros.planning.victims import Task, VictimConfig
 from advocc_ros.planning.worker import Planner
 
 
@@ -43,10 +43,10 @@ class OmplVictim:
 
     def plan(self, task: Task, time_budget_s: float, seed: int) -> PlanResult:
         planner = self._planner_for(task)
-        goals = None
-        if self.config.ompl_goal_list:
-            goals = goal_configurations(planner.robot, self._world_for(task, planner.robot),
-                                        task.goal, self.config.goal_configs, seed)
+        goals = task.goal_configs
+        if self.config.ompl_goal_list and goals is None:
+            goals = task.goals(planner.robot, self._world_for(task, planner.robot),
+                               self.config.goal_configs, seed)
         result = planner.plan(task.q_start, task.goal, self.name, time_budget_s, seed, goals)
         result.stats['victim'] = self.name
         return result
