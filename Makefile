@@ -24,7 +24,7 @@ $(PY):
 # ompl 1.7.0's wheel ships a stray second libompl next to the one its extensions link; loading
 # both destroys OMPL's statics twice and every interpreter segfaults at exit: remove the stray.
 $(STAMP): $(PY) setup.py setup.cfg package.xml Makefile $(MSGS)
-	$(PY) -m pip install --quiet --disable-pip-version-check -e '.[build,test]'
+	$(PY) -m pip install --quiet --disable-pip-version-check -e '.[build,test,victims]'
 	rm -f $$($(PY) -c 'import sysconfig; print(sysconfig.get_paths()["purelib"])')/libompl.so*
 	msg_defs/build_into_venv.sh $(VENV) build/advocc_msgs
 	$(PY) -c 'import advocc_msgs.srv, rclpy, pinocchio, coal, ompl.geometric'

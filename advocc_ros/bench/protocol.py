@@ -30,7 +30,7 @@ BASELINE = 'none'
 """Method name of the unattacked baseline (budget 0)."""
 METHOD_LABELS = {name: spec.label for name, spec in REGISTRY.items()} | {BASELINE: 'None'}
 PLANNER_LABELS = {'rrtconnect': 'RRT', 'prmstar': 'PRM*', 'bkpiece1': 'BKPIECE',
-                  'mplib': 'MPlib'}
+                  'mplib': 'MPlib', 'trajopt': 'TrajOpt'}
 MAX_BUDGET = 90
 """Largest budget: one attack's REMOVE + ADDs must fit the latched topic's history (100)."""
 # Settings that change what a trial measures: a run folder refuses to mix them.

@@ -9,6 +9,7 @@ and ``stats['first_solution_s']`` plus victim-specific detail. Names:
   id): :class:`advocc_ros.planning.victims.ompl.OmplVictim`; they sample the goal region
   themselves, or take the goal list (``VictimConfig.ompl_goal_list``);
 - ``mplib``: MPlib 0.2.1's RRTConnect on FCL and the robot's meshes, in its own interpreter;
+- ``trajopt``: Tesseract 0.5.1's TrajOpt (sequential convex optimization), in a worker;
 - outside victims registered by module (imported lazily by name, so a missing optional
   dependency only fails when that victim is asked for).
 
@@ -98,6 +99,7 @@ class Victim(Protocol):
 
 _OUTSIDE: dict[str, str] = {
     'mplib': 'advocc_ros.planning.victims.mplib',
+    'trajopt': 'advocc_ros.planning.victims.trajopt_victim',
 }
 """Outside victims: name -> module defining ``make_victim(name, config) -> Victim``."""
 
