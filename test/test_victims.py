@@ -130,3 +130,15 @@ def test_mplib_dead_worker_is_an_internal_error(task, monkeypatch):
         assert victim.plan(task, BUDGET_S, 1).success
     finally:
         victim.close()
+
+
+def test_evaluate_runs_mplib_like_our_planners(table_scene):
+    """``advocc evaluate --planner mplib``'s runner: the same records and table row."""
+    from advocc_ros.evaluation.runner import evaluate_planner
+
+    row = evaluate_planner(table_scene, 'mplib', trials=3, time_budget_s=BUDGET_S, seed=0)
+    assert row['planner'] == 'mplib' and row['trials'] == 3 and row['internal_errors'] == 0
+    assert row['psr'] >= 2 / 3, [r['message'] for r in row['records']]
+    assert set(row['failures']) >= {'goal invalid for victim', 'model mismatch'}
+    ok = [r for r in row['records'] if r['success']]
+    assert all(r['min_clearance_rad'] is not None and r['first_solution_s'] > 0 for r in ok)

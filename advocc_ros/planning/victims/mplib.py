@@ -20,25 +20,20 @@ is copied into a cache directory with relative mesh paths.
 from __future__ import annotations
 
 import hashlib
-import logging
 import os
 import pathlib
 import re
-import threading
-import time
 
 import numpy as np
 
 from advocc_ros.fileio import atomic_write_text
 from advocc_ros.model.collision import CollisionWorld
-from advocc_ros.model.robot import RobotModel, example_robot_data_share, load_robot, \
-    resolve_path
-from advocc_ros.planning.types import PlanResult, PlanStatus, _fail, validate_request
+from advocc_ros.model.robot import RobotModel, example_robot_data_share, resolve_path
+from advocc_ros.planning.types import PlanResult, PlanStatus, _fail
 from advocc_ros.planning.victims import Task, VictimConfig, first_collision_along, \
     path_length_rad
-from advocc_ros.planning.worker import WorkerDied, _Worker
-
-log = logging.getLogger(__name__)
+from advocc_ros.planning.victims.outside import OutsideVictim
+from advocc_ros.planning.worker import WorkerDied
 
 PYTHON_ENV = 'ADVOCC_MPLIB_PYTHON'
 WORKER_SCRIPT = pathlib.Path(__file__).with_name('mplib_worker.py')
@@ -104,107 +99,27 @@ def objects_data(task: Task, hidden: tuple[str, ...] = ()) -> list[dict]:
     return out
 
 
-class MplibVictim:
+class MplibVictim(OutsideVictim):
     """``Victim`` over MPlib's RRTConnect in a watched worker of the MPlib venv."""
 
+    label = 'MPlib'
+
     def __init__(self, name: str = 'mplib', config: VictimConfig = VictimConfig()):
-        self.name, self.config = name, config
+        super().__init__(name, config)
         self._python = mplib_python(config)
-        self._lock = threading.Lock()
-        self._worker: _Worker | None = None
-        self._sent: dict[str, str] = {}
-        self._model: tuple[str, RobotModel, CollisionWorld] | None = None
 
-    def start(self, scene=None) -> 'MplibVictim':
-        with self._lock:
-            self._ensure_worker()
-        return self
+    def _command(self) -> tuple[list[str], dict]:
+        env = {k: v for k, v in os.environ.items() if k not in ('PYTHONPATH', 'PYTHONHOME')}
+        return [str(self._python), '-P', str(WORKER_SCRIPT)], env
 
-    def _ensure_worker(self) -> _Worker:
-        if self._worker is None or self._worker.proc.poll() is not None:
-            if self._worker is not None:
-                self._worker.kill()
-            env = {k: v for k, v in os.environ.items() if k not in ('PYTHONPATH', 'PYTHONHOME')}
-            self._worker = _Worker(self.config.planning.worker_start_timeout_s,
-                                   [str(self._python), '-P', str(WORKER_SCRIPT)], env,
-                                   what='MPlib worker')
-            self._sent = {}
-        return self._worker
+    def _setup(self, task: Task, robot: RobotModel) -> dict:
+        return {'robot': {'urdf': str(mplib_urdf(robot)),
+                          'srdf': str(resolve_path(robot.spec.srdf).resolve()),
+                          'move_group': robot.spec.ee_link, 'joints': list(robot.joint_names),
+                          'locked': robot.locked_values},
+                'objects': objects_data(task, self.config.hidden_object_ids)}
 
-    def _kill_worker(self) -> None:
-        if self._worker is not None:
-            self._worker.kill()
-            self._worker = None
-
-    def _models(self, task: Task) -> tuple[RobotModel, CollisionWorld]:
-        key = task.scene.objects_hash() + repr(task.scene.robot)
-        if self._model is None or self._model[0] != key:
-            robot = load_robot(task.scene.robot)
-            self._model = (key, robot, CollisionWorld(robot, task.scene.shapes))
-        return self._model[1], self._model[2]
-
-    def plan(self, task: Task, time_budget_s: float, seed: int) -> PlanResult:
-        robot, world = self._models(task)
-        nq = robot.nq
-        error = validate_request(robot, task.q_start, task.goal, 'rrtconnect', time_budget_s,
-                                 self.config.planning)
-        if error is not None:
-            return error
-        q_start = np.asarray(task.q_start, float)
-        if world.in_collision(q_start):
-            return _fail(PlanStatus.START_STATE_IN_COLLISION, 'start state is in collision', nq)
-        t0 = time.monotonic()
-        goals = task.goals(robot, world, self.config.goal_configs, seed)
-        stats = {'victim': self.name, 'goal_sampling_s': time.monotonic() - t0,
-                 'goal_configs': len(goals)}
-        if not len(goals):
-            return _fail(PlanStatus.GOAL_IN_COLLISION, 'our goal sampler found no collision-free '
-                         'goal configuration to hand to MPlib', nq, 0.0, **stats)
-        request = {'op': 'plan', 'q_start': q_start.tolist(), 'goals': goals.tolist(),
-                   'time_s': float(time_budget_s), 'seed': int(seed),
-                   'check_step_rad': self.config.check_step_rad}
-        answer = self._call(request, task, robot, time_budget_s, stats)
-        if isinstance(answer, PlanResult):
-            return answer
-        return self._result(answer, robot, world, q_start, goals, time_budget_s, stats)
-
-    def _call(self, request: dict, task: Task, robot: RobotModel, budget: float, stats: dict):
-        """The worker's answer, or the ``PlanResult`` of a watchdog kill or a dead worker."""
-        nq = robot.nq
-        scene_key = task.scene.objects_hash() + repr(self.config.hidden_object_ids)
-        with self._lock:
-            try:
-                worker = self._ensure_worker()
-                if self._sent.get('robot') != robot.hash:
-                    request['robot'] = {
-                        'urdf': str(mplib_urdf(robot)),
-                        'srdf': str(resolve_path(robot.spec.srdf).resolve()),
-                        'move_group': robot.spec.ee_link, 'joints': list(robot.joint_names),
-                        'locked': robot.locked_values}
-                    self._sent = {}
-                if self._sent.get('scene') != scene_key:
-                    request['objects'] = objects_data(task, self.config.hidden_object_ids)
-                t_sent = time.monotonic()
-                worker.send(request)
-                answer = worker.read(t_sent + budget + self.config.planning.watchdog_margin_s)
-            except WorkerDied as exc:
-                self._kill_worker()
-                log.error('%s', exc)
-                return _fail(PlanStatus.INTERNAL_ERROR, str(exc), nq, 0.0, worker_died=True,
-                             **stats)
-            stats['round_trip_s'] = time.monotonic() - t_sent
-            if answer is None:
-                self._kill_worker()
-                return _fail(PlanStatus.TIMED_OUT, f'watchdog: MPlib gave no answer within '
-                             f'{budget:g} s + {self.config.planning.watchdog_margin_s:g} s; '
-                             'worker killed', nq, stats['round_trip_s'], watchdog=True, **stats)
-            if 'error' in answer:
-                return _fail(PlanStatus.INTERNAL_ERROR, f'MPlib worker: {answer["error"]}', nq,
-                             0.0, **stats)
-            self._sent = {'robot': robot.hash, 'scene': scene_key}
-            return answer
-
-    def _result(self, answer: dict, robot: RobotModel, world: CollisionWorld,
+    def _answer(self, answer: dict, robot: RobotModel, world: CollisionWorld,
                 q_start: np.ndarray, goals: np.ndarray, budget: float, stats: dict
                 ) -> PlanResult:
         """The worker's answer as a ``PlanResult``, the path re-validated in both models."""
@@ -251,17 +166,6 @@ class MplibVictim:
         if isinstance(answer, PlanResult):
             raise WorkerDied(answer.message)
         return np.array(answer['collides'], bool)
-
-    def close(self) -> None:
-        with self._lock:
-            if self._worker is not None:
-                self._worker.close()
-                self._worker = None
-
-    def __del__(self):
-        worker = getattr(self, '_worker', None)
-        if worker is not None:
-            worker.kill()
 
 
 def make_victim(name: str, config: VictimConfig = VictimConfig()) -> MplibVictim:

@@ -9,7 +9,6 @@ like for like (docs/transfer.md).
 from __future__ import annotations
 
 from advocc_ros.model.collision import CollisionWorld
-from advocc_ros.model.robot import load_robot
 from advocc_ros.planning.types import PlanResult, planner_class_name
 from advocc_ros.planning.victims import Task, VictimConfig
 from advocc_ros.planning.worker import Planner
