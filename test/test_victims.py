@@ -142,3 +142,14 @@ def test_evaluate_runs_mplib_like_our_planners(table_scene):
     assert set(row['failures']) >= {'goal invalid for victim', 'model mismatch'}
     ok = [r for r in row['records'] if r['success']]
     assert all(r['min_clearance_rad'] is not None and r['first_solution_s'] > 0 for r in ok)
+
+
+def test_bench_takes_victims_by_name():
+    from advocc_ros.bench.protocol import BenchConfig, BenchError
+
+    cfg = BenchConfig(planners=('rrtconnect', 'mplib'), methods=('task',))
+    assert cfg.planners == ('rrtconnect', 'mplib')
+    with pytest.raises(BenchError, match="unknown \\['nosuch'\\]"):
+        BenchConfig(planners=('nosuch',))
+    with pytest.raises(BenchError, match='pfa\\+\\+:mplib'):  # PFA++ queries our planners only
+        BenchConfig(planners=('rrtconnect', 'mplib'), methods=('task', 'pfa++'))

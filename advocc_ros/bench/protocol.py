@@ -107,11 +107,17 @@ class BenchConfig:
                 fail(f'{name}: expected a non-empty list of names, got {value!r}')
             if len(set(value)) != len(value):
                 fail(f'{name}: duplicates in {list(value)}')
-        from advocc_ros.planning.victims import is_victim
+        from advocc_ros.planning.victims import is_outside, is_victim
         unknown = [p for p in self.planners if not is_victim(p)]
         if unknown:
             fail(f'planners: unknown {unknown}; OMPL planner ids or outside victims '
                  '(advocc_ros.planning.victims)')
+        in_loop = [f'{m}:{p}' for m in self.planner_specific if m in self.methods
+                   for p in self.planners if is_outside(p) and f'{m}:{p}' not in self.skip]
+        if in_loop:
+            fail(f'planners: {in_loop} would put an outside victim in the loop of a '
+                 'planner-specific attack, which queries our OMPL planners only; add them to '
+                 'skip')
         for name in ('budgets', 'sweep_budgets'):
             for b in getattr(self, name):
                 if isinstance(b, bool) or not isinstance(b, int) or not 1 <= b <= MAX_BUDGET:
