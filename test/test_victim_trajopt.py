@@ -1,6 +1,7 @@
 """The TrajOpt victim: the real Tesseract 0.5.1 TrajOpt on small scenes (no mocks)."""
 
 import numpy as np
+import pinocchio as pin
 import pytest
 
 pytest.importorskip('tesseract_robotics', reason='the TrajOpt victim needs the victims extra')
@@ -104,3 +105,28 @@ def test_config_rejects_bad_values():
         TrajOptConfig(waypoints=2)
     with pytest.raises(ValueError, match='collision_margin_m'):
         TrajOptConfig(collision_margin_m=-0.01)
+
+
+def test_a_box_hidden_from_trajopt_is_caught_by_our_checker(panda):
+    """Re-validation: TrajOpt does not see the wall (diagnostic ``hidden_object_ids``) and
+    plans straight through it; our checker in the parent reports a model mismatch, not a
+    success."""
+    from advocc_ros.model.goal import GoalRegion
+    from advocc_ros.model.pose import Pose
+    from advocc_ros.model.scene import Scene
+    q_goal = READY.copy()
+    q_goal[0] += 1.5
+    wall = make_box('wall', panda.ee_pose((READY + q_goal) / 2).translation, (0.1, 0.1, 0.1))
+    T_goal = panda.ee_pose(q_goal)
+    goal = GoalRegion(Pose(tuple(T_goal.translation),
+                           tuple(pin.Quaternion(T_goal.rotation).coeffs())))
+    scene = Scene(objects=(wall,), start=dict(zip(panda.joint_names, READY)), goal=goal)
+    task = Task(scene, READY, goal, goal_configs=q_goal[None])
+    register('trajopt', 'advocc_ros.planning.victims.trajopt_victim')
+    victim = make_victim('trajopt', VictimConfig(hidden_object_ids=('wall',))).start()
+    try:
+        result = victim.plan(task, 5.0, 0)
+    finally:
+        victim.close()
+    assert result.status == PlanStatus.MODEL_MISMATCH, result.message
+    assert result.stats['outcome'] == 'model_mismatch' and not result.success
