@@ -5,7 +5,8 @@ TrajOpt's SQP runs in C++ and cannot be stopped from Python (the bindings' low-l
 ``ConstructProblem`` returns), so the victim plans in a long-lived child process of this
 interpreter (``tesseract-robotics`` imports with our numpy 2): ``OutsideVictim`` starts and
 watches it, samples the goal list and kills a worker that overruns budget + margin (an attempt
-started before the deadline may end after it). The worker re-checks the goal list in
+started before the deadline may end after it). The robot and scene are loaded by a request of
+their own, outside the budget and the watchdog's deadline. The worker re-checks the goal list in
 Tesseract's model, restarts TrajOpt until an attempt passes both dense checks or the budget
 ends, and answers a ``PlanResult``; the parent re-validates the path once more in our model.
 """
@@ -19,6 +20,7 @@ import os
 import pathlib
 import signal
 import sys
+import time
 
 import numpy as np
 
@@ -27,6 +29,7 @@ from advocc_ros.model.robot import RobotModel, load_robot
 from advocc_ros.planning.types import PlanResult, PlanStatus, _fail
 from advocc_ros.planning.victims import Task, VictimConfig, first_collision_along
 from advocc_ros.planning.victims.outside import OutsideVictim
+from advocc_ros.planning.worker import WorkerDied
 
 log = logging.getLogger(__name__)
 
@@ -56,6 +59,9 @@ def _worker_main() -> None:
                         or solver.config != config or solver.check_step_rad != step:
                     solver = TrajOptSolver(robot, config, step)
                 solver.set_objects(scene.shapes)
+            if req.get('op') == 'load':
+                out.write(json.dumps({'loaded': solver.robot.hash}) + '\n')
+                continue
             if solver is None:
                 raise ValueError('worker has no scene for this request')
             result = solver.plan(np.asarray(req['q_start'], float),
@@ -79,6 +85,39 @@ class TrajOptVictim(OutsideVictim):
         super().__init__(name, config)
         self.trajopt = trajopt or TrajOptConfig()
         """``TrajOptConfig`` of the solver."""
+
+    def plan(self, task: Task, time_budget_s: float, seed: int) -> PlanResult:
+        error = self._load(task)
+        return error if error is not None else super().plan(task, time_budget_s, seed)
+
+    def _load(self, task: Task) -> PlanResult | None:
+        """Have the worker load the robot and scene before the budget's clock starts.
+
+        Loading the Tesseract robot takes ~1 s (3 s on a loaded machine); inside a plan
+        request it would count against the watchdog, and a worker killed by the watchdog would
+        pay it again on the next request and be killed again. None, or the error result.
+        """
+        robot, _ = self._models(task)
+        key = task.scene.objects_hash() + repr(task.scene.robot) + repr(
+            self.config.hidden_object_ids)
+        with self._lock:
+            try:
+                worker = self._ensure_worker()
+                if self._sent == key:
+                    return None
+                worker.send(dict(self._setup(task, robot), op='load',
+                                 check_step_rad=self.config.check_step_rad))
+                answer = worker.read(time.monotonic()
+                                     + self.config.planning.worker_start_timeout_s)
+            except WorkerDied as exc:
+                self._kill_worker()
+                return _fail(PlanStatus.INTERNAL_ERROR, str(exc), robot.nq, worker_died=True)
+            if answer is None or 'loaded' not in answer:
+                self._kill_worker()
+                return _fail(PlanStatus.INTERNAL_ERROR, f'TrajOpt worker could not load the '
+                             f'scene: {answer}', robot.nq)
+            self._sent = key
+        return None
 
     def _command(self) -> tuple[list[str], dict]:
         src = str(pathlib.Path(__file__).resolve().parents[3])
