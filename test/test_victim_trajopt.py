@@ -1,19 +1,20 @@
-"""The TrajOpt victim: the real Tesseract 0.5.1 TrajOpt on small scenes (no mocks)."""
+"""The TrajOpt victim on the real Tesseract 0.5.1 TrajOpt, small scenes, no mocks.
+
+``make install`` installs Tesseract (the ``victims`` extra): without it these tests fail.
+"""
 
 import numpy as np
 import pinocchio as pin
 import pytest
 
-pytest.importorskip('tesseract_robotics', reason='the TrajOpt victim needs the victims extra')
-
-from advocc_ros.model.collision import CollisionWorld  # noqa: E402
-from advocc_ros.model.ik import start_configuration  # noqa: E402
-from advocc_ros.model.scene import make_box  # noqa: E402
-from advocc_ros.planning.types import PlanStatus  # noqa: E402
-from advocc_ros.planning.victims import (Task, VictimConfig, first_collision_along,  # noqa: E402
-                                         goal_configurations, make_victim, register)
-from advocc_ros.planning.victims.trajopt import (OptimOutcome, TrajOptConfig,  # noqa: E402
-                                                 TrajOptSolver, _guess)
+from advocc_ros.model.collision import CollisionWorld
+from advocc_ros.model.ik import start_configuration
+from advocc_ros.model.scene import make_box
+from advocc_ros.planning.types import PlanStatus
+from advocc_ros.planning.victims import (Task, VictimConfig, first_collision_along,
+                                         goal_configurations, make_victim)
+from advocc_ros.planning.victims.trajopt import (OptimOutcome, TrajOptConfig, TrajOptSolver,
+                                                 _guess)
 
 READY = np.array([0.0, -0.785, 0.0, -2.356, 0.0, 1.571, 0.785])
 
@@ -39,6 +40,17 @@ def test_guess_runs_through_the_via_point():
     assert straight.shape == (30, 7) and np.allclose(straight[[0, -1]], [q0, q1])
     bent = _guess(q0, q1, via, 30)
     assert bent.shape == (30, 7) and np.allclose(bent[[0, 15, -1]], [q0, via, q1])
+
+
+def test_path_ends_snap_to_start_and_goal_within_tolerance(solver):
+    """TrajOpt stops 1e-3 rad inside a joint limit: a goal at the limit is reached exactly."""
+    q0, q1 = np.zeros(7), np.full(7, 0.5)
+    path = _guess(q0, q1, None, 5)
+    path[-1, 4] -= 1e-3
+    snapped = solver._snap_ends(path, q0, q1)
+    assert np.array_equal(snapped[-1], q1) and np.array_equal(snapped[1:-1], path[1:-1])
+    path[-1, 4] -= 0.01
+    assert solver._snap_ends(path, q0, q1) is None
 
 
 def test_every_goal_configuration_blocked_is_its_own_outcome(panda, solver):
@@ -77,7 +89,6 @@ def test_shapes_it_cannot_take_are_named(panda, solver, table_scene):
 def test_solves_unattacked_table_pick_in_its_worker(panda, table_scene):
     """Through the registry and the worker process, as the evaluation runs it; a rate over
     seeds, every success re-validated here by our exact checker."""
-    register('trajopt', 'advocc_ros.planning.victims.trajopt_victim')
     config = VictimConfig(goal_configs=8)
     q_start = start_configuration(table_scene, panda)
     task = Task(table_scene, q_start, table_scene.goal)
@@ -122,7 +133,6 @@ def test_a_box_hidden_from_trajopt_is_caught_by_our_checker(panda):
                            tuple(pin.Quaternion(T_goal.rotation).coeffs())))
     scene = Scene(objects=(wall,), start=dict(zip(panda.joint_names, READY)), goal=goal)
     task = Task(scene, READY, goal, goal_configs=q_goal[None])
-    register('trajopt', 'advocc_ros.planning.victims.trajopt_victim')
     victim = make_victim('trajopt', VictimConfig(hidden_object_ids=('wall',))).start()
     try:
         result = victim.plan(task, 5.0, 0)
