@@ -7,10 +7,13 @@ MSGS   := $(shell find msg_defs -type f | sort)
 OUT    ?= out/demo
 PYTEST_ARGS ?=
 FUZZ_INPUTS ?= 10000
+# MPlib (an outside victim, issue 28) needs numpy < 2: its own venv, used by one worker process.
+MPLIB_VENV  ?= .venv-mplib
+MPLIB_STAMP := $(MPLIB_VENV)/.advocc-mplib-installed
 
 .PHONY: install demo test test-fast fuzz perf clean
 
-install: $(STAMP)
+install: $(STAMP) $(MPLIB_STAMP)
 
 $(PY):
 	@$(PYTHON) -c 'import sys; assert sys.version_info[:2] == (3, 11), \
@@ -21,17 +24,26 @@ $(PY):
 # ompl 1.7.0's wheel ships a stray second libompl next to the one its extensions link; loading
 # both destroys OMPL's statics twice and every interpreter segfaults at exit: remove the stray.
 $(STAMP): $(PY) setup.py setup.cfg package.xml Makefile $(MSGS)
-	$(PY) -m pip install --quiet --disable-pip-version-check -e '.[build,test]'
+	$(PY) -m pip install --quiet --disable-pip-version-check -e '.[build,test,victims]'
 	rm -f $$($(PY) -c 'import sysconfig; print(sysconfig.get_paths()["purelib"])')/libompl.so*
 	msg_defs/build_into_venv.sh $(VENV) build/advocc_msgs
 	$(PY) -c 'import advocc_msgs.srv, rclpy, pinocchio, coal, ompl.geometric'
 	@echo "advocc_ros installed in $(VENV)"
 	touch $@
 
+# The MPlib victim's interpreter (advocc_ros/planning/victims/mplib_worker.py runs in it).
+$(MPLIB_STAMP): Makefile
+	$(PYTHON) -m venv $(MPLIB_VENV)
+	$(MPLIB_VENV)/bin/python -m pip install --quiet --disable-pip-version-check \
+	  mplib==0.2.1 numpy==1.26.4 toppra==0.6.10 transforms3d==0.4.2
+	$(MPLIB_VENV)/bin/python -c 'import mplib, numpy; assert numpy.__version__ < "2"'
+	@echo "MPlib victim installed in $(MPLIB_VENV)"
+	touch $@
+
 demo: $(STAMP)
 	$(VENV)/bin/advocc demo --out $(OUT)
 
-test: $(STAMP)
+test: $(STAMP) $(MPLIB_STAMP)
 	$(PY) -m pytest $(PYTEST_ARGS)
 
 # The core tests without processes (no nodes, planning workers or CLI runs) and without the
@@ -49,4 +61,4 @@ perf: $(STAMP)
 	$(VENV)/bin/advocc perf attack --json
 
 clean:
-	rm -rf $(VENV) build out .pytest_cache
+	rm -rf $(VENV) $(MPLIB_VENV) build out .pytest_cache

@@ -61,6 +61,9 @@ BUILD = [
 # colcon: the workspace test builds this repository with colcon, as a ROS 2 user does.
 TEST = ['pytest==9.2.0', 'hypothesis==6.170.15', 'flake8==7.3.0',
         'mcap-ros2-support==0.6.0', 'colcon-common-extensions==0.3.0']
+# Outside victims in this interpreter: TrajOpt via Tesseract (0.5.1 imports with numpy 2; the
+# nanobind successor needs a newer libstdc++ than Debian 12's). MPlib has its own venv.
+VICTIMS = ['tesseract-robotics==0.5.1']
 
 setup(
     name=PACKAGE,
@@ -74,7 +77,7 @@ setup(
     ],
     python_requires='>=3.11,<3.12',
     install_requires=RUNTIME,
-    extras_require={'build': BUILD, 'test': TEST},
+    extras_require={'build': BUILD, 'test': TEST, 'victims': VICTIMS},
     zip_safe=True,
     maintainer='advocc_ros maintainers',
     maintainer_email='maintainers@advocc-ros.org',

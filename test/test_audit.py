@@ -5,6 +5,7 @@ import json
 import pytest
 
 from advocc_ros.audit.audit import AuditConfig, minimal_budgets
+from advocc_ros.evaluation.outcomes import FAILURE_MODES
 
 
 def test_minimal_budgets_monotone_curve():
@@ -97,8 +98,7 @@ def test_audit_end_to_end_table_pick(tmp_path, table_scene, small_heatmap):
     for b in budgets:
         assert 0.0 <= b['goal_valid_fraction'] <= 1.0
         row = b['planners']['rrtconnect']
-        modes = {'goal not sampled', 'timed out', 'planning failed', 'invalid path'}
-        assert set(row['failures']) == modes
+        assert set(row['failures']) == set(FAILURE_MODES)
         assert sum(row['failures'].values()) == row['trials'] - row['successes']
     assert budgets[0]['goal_valid_fraction'] == 1.0
     psr = data['psr']['rrtconnect']

@@ -154,6 +154,7 @@ def test_internal_errors_stay_out_of_psr_and_pt_but_are_counted():
     assert row['psr'] == pytest.approx(1 / 3)  # 1 success of the 3 trials that measured it
     assert row['pt'] == pytest.approx((1.0 + 5.0 + 5.0) / 3)
     assert row['failures'] == {'goal not sampled': 0, 'timed out': 0, 'planning failed': 1,
-                               'invalid path': 1}
+                               'invalid path': 1, 'goal invalid for victim': 0,
+                               'model mismatch': 0}
     only_errors = aggregate(recs[3:6], time_budget_s=5.0)
     assert only_errors['psr'] is None and only_errors['pt'] is None

@@ -35,7 +35,7 @@ class AuditConfig:
     """What one audit runs: the attack, the victims and the trials."""
 
     planners: tuple[str, ...] = ('rrtconnect', 'prmstar', 'bkpiece1')
-    """OMPL planner ids evaluated at every prefix."""
+    """Victims evaluated at every prefix: OMPL planner ids or outside victims (``mplib``)."""
     max_budget: int = 5
     """K: boxes of the one attack whose prefixes are evaluated."""
     trials: int = 10

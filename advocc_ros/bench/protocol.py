@@ -30,7 +30,8 @@ log = logging.getLogger(__name__)
 BASELINE = 'none'
 """Method name of the unattacked baseline (budget 0)."""
 METHOD_LABELS = {name: spec.label for name, spec in REGISTRY.items()} | {BASELINE: 'None'}
-PLANNER_LABELS = {'rrtconnect': 'RRT', 'prmstar': 'PRM*', 'bkpiece1': 'BKPIECE'}
+PLANNER_LABELS = {'rrtconnect': 'RRT', 'prmstar': 'PRM*', 'bkpiece1': 'BKPIECE',
+                  'mplib': 'MPlib', 'trajopt': 'TrajOpt'}
 MAX_BUDGET = 90
 """Largest budget: one attack's REMOVE + ADDs must fit the latched topic's history (100)."""
 # Settings that change what a trial measures: a run folder refuses to mix them.
@@ -107,6 +108,17 @@ class BenchConfig:
                 fail(f'{name}: expected a non-empty list of names, got {value!r}')
             if len(set(value)) != len(value):
                 fail(f'{name}: duplicates in {list(value)}')
+        from advocc_ros.planning.victims import is_outside, is_victim
+        unknown = [p for p in self.planners if not is_victim(p)]
+        if unknown:
+            fail(f'planners: unknown {unknown}; OMPL planner ids or outside victims '
+                 '(advocc_ros.planning.victims)')
+        in_loop = [f'{m}:{p}' for m in self.planner_specific if m in self.methods
+                   for p in self.planners if is_outside(p) and f'{m}:{p}' not in self.skip]
+        if in_loop:
+            fail(f'planners: {in_loop} would put an outside victim in the loop of a '
+                 'planner-specific attack, which queries our OMPL planners only; add them to '
+                 'skip')
         for name in ('budgets', 'sweep_budgets'):
             for b in getattr(self, name):
                 if isinstance(b, bool) or not isinstance(b, int) or not 1 <= b <= MAX_BUDGET:

@@ -33,7 +33,8 @@ def register(sub: argparse._SubParsersAction) -> None:
                        description=__doc__.splitlines()[0])
     add_scene_args(p)
     p.add_argument('--planners', default='rrtconnect,prmstar,bkpiece1',
-                   help='comma-separated OMPL planner ids (default %(default)s)')
+                   help='comma-separated OMPL planner ids or outside victims (mplib; '
+                        'docs/transfer.md) (default %(default)s)')
     p.add_argument('--method', default='task', choices=KNOWN_METHODS,
                    help='attack method; greedy ones (task, ours) give nested picks '
                         '(default %(default)s)')
@@ -65,14 +66,16 @@ def audit_config(args: argparse.Namespace):
     from advocc_ros.attack import load_method
     from advocc_ros.audit.audit import AuditConfig
     from advocc_ros.limits import MAX_TRIALS
-    from advocc_ros.planning.types import PlanningConfig, planner_class_name
+    from advocc_ros.planning.types import PlanningConfig
+    from advocc_ros.planning.victims import is_victim, victim_names
 
     planners = tuple(p.strip() for p in args.planners.split(',') if p.strip())
     if not planners:
         raise UserError('--planners: give at least one planner')
-    unknown = [p for p in planners if planner_class_name(p) is None]
+    unknown = [p for p in planners if not is_victim(p)]
     if unknown:
-        raise UserError(f'unknown planner(s) {unknown}; e.g. rrtconnect, prmstar, bkpiece1')
+        raise UserError(f'unknown planner(s) {unknown}; e.g. rrtconnect, prmstar, bkpiece1, '
+                        f'{", ".join(victim_names())}')
     if not 1 <= args.trials <= MAX_TRIALS:
         raise UserError(f'--trials must be in 1..{MAX_TRIALS}, got {args.trials}')
     if not 1 <= args.max_budget <= 100:

@@ -64,3 +64,25 @@ def refuse_invalid_task(scene, what: str) -> None:
     fault = check_task(robot, scene.objects, start_configuration(scene, robot), scene.goal)
     if fault is not None:
         raise UserError(f'{what}: the task is refused: {fault.message}')
+
+
+def add_victim_args(parser: argparse.ArgumentParser) -> None:
+    """Add the victims' goal options (``--goal-list``, ``--goal-configs``)."""
+    from advocc_ros.planning.victims import VictimConfig
+    parser.add_argument('--goal-list', action='store_true',
+                        help='our OMPL planners plan to the same K goal configurations the '
+                             'outside victims get (sampled before the clock starts) instead '
+                             'of sampling the goal region inside their budget')
+    parser.add_argument('--goal-configs', type=int, default=VictimConfig().goal_configs,
+                        metavar='K', help='goal configurations given to victims that take '
+                                          'only configurations (default %(default)s)')
+
+
+def victim_config_from_args(args: argparse.Namespace, planning=None):
+    """The ``VictimConfig`` of ``--goal-list``/``--goal-configs`` (and a ``PlanningConfig``)."""
+    from advocc_ros.planning.types import PlanningConfig
+    from advocc_ros.planning.victims import VictimConfig
+    if args.goal_configs < 1:
+        raise ValueError(f'--goal-configs must be >= 1, got {args.goal_configs}')
+    return VictimConfig(planning=planning or PlanningConfig(), goal_configs=args.goal_configs,
+                        ompl_goal_list=args.goal_list)

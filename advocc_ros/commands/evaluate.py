@@ -14,7 +14,8 @@ import pathlib
 import sys
 
 from advocc_ros.cli import UserError
-from advocc_ros.commands.common import add_scene_args, refuse_invalid_task, scene_from_args
+from advocc_ros.commands.common import (add_scene_args, add_victim_args, refuse_invalid_task,
+                                        scene_from_args, victim_config_from_args)
 
 
 def register(subparsers) -> None:
@@ -24,7 +25,9 @@ def register(subparsers) -> None:
     add_scene_args(p)
     p.add_argument('--obstacles', help='obstacles YAML (an attack result: objects: [...])')
     p.add_argument('--planner', default='rrtconnect',
-                   help='rrtconnect | prmstar | bkpiece1 | another OMPL geometric planner')
+                   help='rrtconnect | prmstar | bkpiece1 | another OMPL geometric planner | '
+                        'an outside victim: mplib (docs/transfer.md)')
+    add_victim_args(p)
     p.add_argument('--trials', type=int, default=20, help='plan requests (default 20)')
     p.add_argument('--time', type=float, default=5.0, help='budget per request [s] (default 5)')
     p.add_argument('--seed', type=int, default=0, help='trial k uses seed SEED + k')
@@ -60,20 +63,22 @@ def run(args: argparse.Namespace) -> int:
     from advocc_ros.evaluation.metrics import format_value
     from advocc_ros.evaluation.outcomes import INTERNAL_ERROR, internal_error_warning, outcome
     from advocc_ros.evaluation.runner import evaluate_planner
-    from advocc_ros.planning.types import PlanningConfig, planner_class_name
+    from advocc_ros.planning.types import PlanningConfig
+    from advocc_ros.planning.victims import is_victim, victim_names
 
     from advocc_ros.limits import MAX_TRIALS
     if not 1 <= args.trials <= MAX_TRIALS:
         raise UserError(f'--trials must be in 1..{MAX_TRIALS}')
     if not 0 < args.time <= PlanningConfig().max_time_budget_s:
         raise UserError(f'--time must be in (0, {PlanningConfig().max_time_budget_s:g}]')
-    if planner_class_name(args.planner) is None:
-        raise UserError(f'unknown planner {args.planner!r}')
+    if not is_victim(args.planner):
+        raise UserError(f'unknown planner {args.planner!r}; outside victims: {victim_names()}')
     if args.workers < 1:
         raise UserError('--workers must be >= 1')
     scene = load_task(args, args.obstacles)
     refuse_invalid_task(scene, args.scene)
     config = dataclasses.replace(PlanningConfig(), simplify=not args.no_simplify)
+    victim_config = victim_config_from_args(args, config)
 
     from advocc_ros.progress import progress_bar
     bar = progress_bar(args.trials, f'{scene.name} {args.planner}', 'plan', file=sys.stderr)
@@ -88,7 +93,7 @@ def run(args: argparse.Namespace) -> int:
 
     try:
         result = evaluate_planner(scene, args.planner, args.trials, args.time, args.seed,
-                                  args.workers, config, progress=progress)
+                                  args.workers, progress=progress, victim_config=victim_config)
     finally:
         bar.close()
     result['obstacles'] = args.obstacles

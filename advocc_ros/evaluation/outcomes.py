@@ -6,7 +6,11 @@ Only the planner's own answers measure the scene: no collision-free goal configu
 is really blocked is the task's ``solvable`` verdict, not the planner's word), out of time
 (``TIMED_OUT``: the paths were occluded), no path found (``PLANNING_FAILED``) or a solution
 with a waypoint in collision (``INVALID_MOTION_PLAN``: the planner's motion check stepped over
-an obstacle; MoveIt's ``ValidateSolution`` adapter refuses such a plan the same way). Anything
+an obstacle; MoveIt's ``ValidateSolution`` adapter refuses such a plan the same way). Outside
+victims (``advocc_ros.planning.victims``) add two of their own: none of the goal configurations
+they were given is valid in their collision model (``GOAL_STATE_INVALID``: the task fails in
+their model, the planner did not), and a path free in their model that collides in ours
+(``MODEL_MISMATCH``: meshes vs convex hulls; not a success, not a planning failure). Anything
 else (``INTERNAL_ERROR`` from a planner that raised or died, a "success" whose path collides
 after all, ``CRASH``/``FAILURE``/an unknown code from a shim, a rejected request, a record that
 contradicts itself) is an internal error: a bug or a dead process must not lower PSR and pass for a
@@ -18,11 +22,13 @@ from __future__ import annotations
 
 SUCCESS = 'success'
 INTERNAL_ERROR = 'internal error'
-FAILURE_MODES = ('goal not sampled', 'timed out', 'planning failed', 'invalid path')
+FAILURE_MODES = ('goal not sampled', 'timed out', 'planning failed', 'invalid path',
+                 'goal invalid for victim', 'model mismatch')
 """The planner's failure modes, in table order."""
 _MODES = {'GOAL_IN_COLLISION': 'goal not sampled', 'NO_IK_SOLUTION': 'goal not sampled',
           'TIMED_OUT': 'timed out', 'PLANNING_FAILED': 'planning failed',
-          'INVALID_MOTION_PLAN': 'invalid path'}
+          'INVALID_MOTION_PLAN': 'invalid path', 'GOAL_STATE_INVALID': 'goal invalid for victim',
+          'MODEL_MISMATCH': 'model mismatch'}
 MAX_INTERNAL_ERROR_FRACTION = 0.05
 """A benchmark cell with a larger share of internal errors fails the run."""
 

@@ -16,24 +16,30 @@ from advocc_ros.model.collision import CollisionWorld
 
 def evaluate_planner(scene, planner_id: str, trials: int, time_budget_s: float = 5.0,
                      seed: int = 0, workers: int = 1, planning_config=None,
-                     metrics_config: MetricsConfig = MetricsConfig(), progress=None
-                     ) -> dict[str, Any]:
+                     metrics_config: MetricsConfig = MetricsConfig(), progress=None,
+                     victim_config=None) -> dict[str, Any]:
     """Run ``trials`` plan requests in ``scene`` and return the table row plus the records.
 
-    ``workers`` planner processes serve the trials in parallel (one ``Planner`` and one
-    ``CollisionWorld`` per thread); trial ``k`` uses seed ``seed + k``. ``progress(record)`` is
-    called after each trial. A success whose path collides is recorded as ``INTERNAL_ERROR``.
+    ``planner_id`` names a victim (``advocc_ros.planning.victims``: an OMPL planner id or an
+    outside victim such as ``mplib``). ``workers`` victims serve the trials in parallel (one
+    worker process and one ``CollisionWorld`` per thread); trial ``k`` uses seed ``seed + k``.
+    ``progress(record)`` is called after each trial. A success whose path collides is recorded
+    as ``INTERNAL_ERROR``.
     """
+    import dataclasses
+
     from advocc_ros.model.robot import load_robot
-    from advocc_ros.planning.worker import Planner
-    from advocc_ros.planning.types import PlanningConfig
     from advocc_ros.kinematics.ik import start_configuration
+    from advocc_ros.planning.victims import Task, VictimConfig, make_victim
 
     if scene.goal is None:
         raise ValueError(f'scene {scene.name!r} has no goal region')
-    planning_config = planning_config or PlanningConfig()
+    victim_config = victim_config or VictimConfig()
+    if planning_config is not None:
+        victim_config = dataclasses.replace(victim_config, planning=planning_config)
     robot = load_robot(scene.robot)
     q_init = start_configuration(scene, robot)
+    task = Task(scene, q_init, scene.goal)
     workers = max(1, min(int(workers), trials))
     planners: queue.Queue = queue.Queue()
     local = threading.local()
@@ -42,7 +48,7 @@ def evaluate_planner(scene, planner_id: str, trials: int, time_budget_s: float =
     def run(k: int) -> TrialRecord:
         planner = planners.get()
         try:
-            res = planner.plan(q_init, scene.goal, planner_id, time_budget_s, seed + k)
+            res = planner.plan(task, time_budget_s, seed + k)
         finally:
             planners.put(planner)
         rec = TrialRecord(k, seed + k, res.success, res.status.name, float(res.planning_time_s),
@@ -66,8 +72,9 @@ def evaluate_planner(scene, planner_id: str, trials: int, time_budget_s: float =
 
     try:
         for _ in range(workers):
-            planner = Planner(scene, planning_config).start()
+            planner = make_victim(planner_id, victim_config)
             started.append(planner)
+            planner.start(scene)
             planners.put(planner)
         with concurrent.futures.ThreadPoolExecutor(workers) as pool:
             records = list(pool.map(run, range(trials)))

@@ -20,6 +20,12 @@ Services:
   node keeps serving.
 - ``~/get_info`` (advocc_msgs/srv/GetInfo): what is loaded, as JSON.
 
+Backends (``backend``, read-only): ``ompl`` (default) serves a request's ``planner_id`` with our
+OMPL planners, or with the outside victim of that name (``mplib``; created on first use); an
+outside victim's name (``backend:=mplib``) serves every request with that victim, whatever the
+``planner_id``, so the orchestrator benchmarks a planner we did not write through ROS exactly
+like ours (``advocc_ros.planning.victims``; docs/transfer.md).
+
 Parameters: :data:`PARAMETERS` (the same defaults in ``config/planner_shim.yaml``;
 ``ros2 param describe``).
 
@@ -51,6 +57,8 @@ from advocc_ros.ros.qos import COLLISION_OBJECT_TOPIC, LATCHED_QOS
 from advocc_ros.paths import allowed_dirs, confine, scene_path
 from advocc_ros.planning.types import PLANNERS, PlanningConfig, PlanStatus
 from advocc_ros.planning.worker import Planner
+from advocc_ros.planning.victims import (Task, VictimConfig, is_outside, is_victim, make_victim,
+                                         victim_names)
 from advocc_ros.model.robot import RobotError, resolve_path
 from advocc_ros.model.task_check import TaskProblem, check_task
 from advocc_ros.model.scene import (Scene, SceneObject, apply_operation, load_scene,
@@ -93,7 +101,11 @@ PARAMETERS = (
     Param('scene_file', 'table_pick', 'static scene: a scene YAML path or a shipped scene name',
           read_only=True),
     Param('default_planner', 'rrtconnect', "used when a request's planner_id is empty",
-          constraints='an OMPL geometric planner id (advocc_ros.planning.PLANNERS)'),
+          constraints='an OMPL geometric planner id (advocc_ros.planning.PLANNERS) or an '
+                      'outside victim (mplib)'),
+    Param('backend', 'ompl', 'ompl: planner_id picks an OMPL planner or an outside victim; '
+          'an outside victim name (mplib): it serves every request', read_only=True,
+          constraints='ompl | ' + ' | '.join(victim_names())),
     Param('allowed_dirs', [''], "directories the node may read files from (['']: the "
           'defaults, see README "Security")', read_only=True),
     *CLOUD_PARAMETERS,
@@ -127,6 +139,13 @@ class PlannerShim(Node):
         self._scene_lock = threading.Lock()
         self._planner = Planner(self._static, self._config())
         self._planner.start()
+        self._victims: dict = {}
+        backend = self.get_parameter('backend').value
+        if backend != 'ompl':
+            if not is_outside(backend):
+                raise ValueError(f'backend {backend!r}: expected ompl or one of '
+                                 f'{victim_names()}')
+            self._victim(backend, self._config())  # start it now: a missing venv fails here
         self._served = 0
         self.get_logger().info(
             f'scene {self._static.name!r} ({len(self._static.objects)} static objects), '
@@ -153,7 +172,7 @@ class PlannerShim(Node):
         ValueError is the reason). Ranges and read-only are the descriptors', checked by rclpy.
         """
         for p in params:
-            if p.name == 'default_planner' and p.value.lower() not in PLANNERS:
+            if p.name == 'default_planner' and not is_victim(p.value):
                 return SetParametersResult(successful=False,
                                            reason=f'unknown planner {p.value!r}')
         changes = {p.name: p.value for p in params if p.name in _CONFIG_PARAMS}
@@ -261,9 +280,15 @@ class PlannerShim(Node):
         config = self._config()
         budget = budget or config.time_budget_s
         planner_id = request.planner_id or self.get_parameter('default_planner').value
-        self._planner.config = config
-        self._planner.set_scene(scene)
-        result = self._planner.plan(q_start, goal, planner_id, budget, request.seed)
+        backend = self.get_parameter('backend').value
+        name = planner_id if backend == 'ompl' else backend
+        if is_outside(name):
+            task = Task(scene, q_start, goal)
+            result = self._victim(name, config).plan(task, budget, request.seed)
+        else:
+            self._planner.config = config
+            self._planner.set_scene(scene)
+            result = self._planner.plan(q_start, goal, planner_id, budget, request.seed)
         response.error_code.val = int(result.status)
         response.message = result.message
         response.planning_time_s = float(result.planning_time_s)
@@ -272,6 +297,16 @@ class PlannerShim(Node):
             response.trajectory = trajectory_to_msg(robot, result.path)
             response.trajectory.header.frame_id = self._static.frame
         return response
+
+    def _victim(self, name: str, config: PlanningConfig):
+        """The outside victim ``name`` (started on first use) with the current settings."""
+        victim = self._victims.get(name)
+        if victim is None:
+            victim = self._victims[name] = make_victim(name, VictimConfig(planning=config))
+            victim.start(self._static)
+            self.get_logger().info(f'outside victim {name!r} started')
+        victim.config = VictimConfig(planning=config)
+        return victim
 
     def _on_get_info(self, request: GetInfo.Request, response: GetInfo.Response
                      ) -> GetInfo.Response:
@@ -289,7 +324,9 @@ class PlannerShim(Node):
                 'sensed_points': sensed,
                 'robot': {'joints': list(robot.joint_names), 'ee_link': robot.spec.ee_link,
                           'hash': robot.hash},
-                'planners': sorted(PLANNERS),
+                'planners': sorted(PLANNERS) + victim_names(),
+                'backend': self.get_parameter('backend').value,
+                'victims_started': sorted(self._victims),
                 'default_planner': self.get_parameter('default_planner').value,
                 'config': dataclasses.asdict(self._config()),
                 'worker_pid': self._planner.worker_pid,
@@ -308,6 +345,8 @@ class PlannerShim(Node):
         planner = getattr(self, '_planner', None)
         if planner is not None:
             planner.close()
+        for victim in getattr(self, '_victims', {}).values():
+            victim.close()
         return super().destroy_node()
 
 

@@ -101,12 +101,14 @@ def joint_space(ob, robot: RobotModel):
 
 def solve(robot: RobotModel, world: CollisionWorld, q_start: np.ndarray, goal: GoalRegion,
           planner_id: str, time_budget_s: float, seed: int,
-          config: PlanningConfig = PlanningConfig()) -> PlanResult:
+          config: PlanningConfig = PlanningConfig(), goal_configs=None) -> PlanResult:
     """Plan in this process (no watchdog: use ``Planner`` unless you are the worker).
 
     ``world`` is the scene's collision model: its ``in_collision`` checks single states and its
     ``first_collision`` the states along a motion. A success's ``stats['first_solution_s']`` is
     the time from the request to the first exact solution (before simplification).
+    ``goal_configs`` (K, nq): plan to this fixed goal list (the victims' like-for-like option:
+    no IK inside the budget, no lazy goal sampling) instead of sampling the region.
     """
     t0 = time.monotonic()
     nq = robot.nq
@@ -126,19 +128,45 @@ def solve(robot: RobotModel, world: CollisionWorld, q_start: np.ndarray, goal: G
         return PlanResult(PlanStatus.SUCCESS, 'start state already inside the goal region',
                           np.stack([q_start, q_start]), elapsed,
                           {'goal_configs': 0, 'first_solution_s': elapsed})
+    if goal_configs is not None:
+        return _solve_to_list(robot, world, q_start, planner_id, time_budget_s, config, t0,
+                              sampler, goal_configs)
     goals = sampler.sample(config.ik_goals, t0 + config.ik_time_fraction * time_budget_s)
     ik_stats = {'ik_attempts': sampler.attempts, 'ik_converged': sampler.converged,
                 'ik_in_collision': sampler.colliding, 'ik_time_s': time.monotonic() - t0}
     if not goals:
         return _no_goal(sampler, nq, ik_stats)
+    return _solve_to(robot, world, q_start, planner_id, time_budget_s, config, t0, sampler,
+                     goals, config.max_goals, ik_stats)
+
+
+def _solve_to_list(robot, world, q_start, planner_id, time_budget_s, config, t0, sampler,
+                   goal_configs) -> PlanResult:
+    """Solve to a given goal list; goals in collision in ``world`` are dropped first."""
+    nq = robot.nq
+    Q = np.asarray(goal_configs, dtype=float).reshape(-1, nq)
+    goals = list(Q[~world.collisions_batch(Q)]) if len(Q) else []
+    stats = {'goal_list': len(Q), 'goal_list_valid': len(goals)}
+    if not goals:
+        return _fail(PlanStatus.GOAL_STATE_INVALID, f'none of the {len(Q)} given goal '
+                     'configurations is valid', nq, time.monotonic() - t0, **stats)
+    return _solve_to(robot, world, q_start, planner_id, time_budget_s, config, t0, sampler,
+                     goals, len(goals), stats)
+
+
+def _solve_to(robot, world, q_start, planner_id, time_budget_s, config, t0, sampler, goals,
+              cap, ik_stats) -> PlanResult:
+    """OMPL's solve from ``q_start`` to ``goals`` (topped up by IK up to ``cap``)."""
+    ob, og, ou = _ompl()
+    nq = robot.nq
     # Simplification gets what the solve leaves, at least this reserve. OMPL's simplifier checks
     # its deadline between passes, so a success can end ~0.1 s past the budget (measured).
     reserve = min(0.15 * time_budget_s, 0.5) if config.simplify else 0.0
     solve_deadline = t0 + time_budget_s - reserve
     checks = [0]
     ss = _simple_setup(ob, og, ou, robot, world, q_start, planner_id, config, checks)
-    goal_obj = _make_goal_class(ob)(ss.getSpaceInformation(), sampler, goals, nq,
-                                    config.max_goals, solve_deadline)
+    goal_obj = _make_goal_class(ob)(ss.getSpaceInformation(), sampler, goals, nq, cap,
+                                    solve_deadline)
     ss.setGoal(goal_obj)
     ss.setup()
     solve_time = solve_deadline - time.monotonic()

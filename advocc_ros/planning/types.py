@@ -25,10 +25,18 @@ class PlanStatus(enum.IntEnum):
     GOAL_IN_COLLISION = -12
     INVALID_GOAL_CONSTRAINTS = -16
     INVALID_ROBOT_STATE = -17
+    GOAL_STATE_INVALID = -27
+    """None of the goal configurations handed to a victim is valid in the victim's own collision
+    model (its model differs from ours): a failure of the task in that model, not of the
+    planner."""
     NO_IK_SOLUTION = -31
     INVALID_REQUEST = -101
     UNKNOWN_METHOD = -102
     INTERNAL_ERROR = -105
+    MODEL_MISMATCH = -106
+    """An outside victim's path is collision-free in its own model (e.g. MPlib's meshes) but
+    collides in ours (the convex hulls the attack and the certificate use): reported on its
+    own, never counted as a success."""
     """The planner itself failed (an exception, a dead worker): the trial says nothing about
     the scene, so it must never count as a planning failure."""
 

@@ -129,7 +129,8 @@ def _worker_main() -> None:
             result = solve(cache['robot'], cache['world'],
                            np.asarray(req['q_start'], float),
                            GoalRegion.from_data(req['goal'], 'goal'), req['planner_id'],
-                           float(req['time_budget_s']), int(req['seed']), config)
+                           float(req['time_budget_s']), int(req['seed']), config,
+                           req.get('goal_configs'))
             reply(result.to_data())
         except Exception as exc:  # a bad request or a bug must not kill the worker
             if isinstance(exc, InjectedFault):
@@ -144,18 +145,27 @@ class WorkerDied(RuntimeError):
     """The worker process exited or could not start."""
 
 
-class _Worker:
-    """One child process and its pipes."""
+def _our_worker_argv() -> tuple[list[str], dict]:
+    """Command and environment of our OMPL worker (this interpreter, this source tree)."""
+    src = str(pathlib.Path(__file__).resolve().parents[2])
+    env = dict(os.environ)
+    env['PYTHONPATH'] = os.pathsep.join(p for p in (src, env.get('PYTHONPATH')) if p)
+    # -P: the working directory must not shadow the parent's code (a checkout's cwd).
+    return [sys.executable, '-P', '-c', 'from advocc_ros.planning.worker import _worker_main; '
+            '_worker_main()'], env
 
-    def __init__(self, timeout_s: float):
-        src = str(pathlib.Path(__file__).resolve().parents[2])
-        env = dict(os.environ)
-        env['PYTHONPATH'] = os.pathsep.join(p for p in (src, env.get('PYTHONPATH')) if p)
-        # -P: the working directory must not shadow the parent's code (a checkout's cwd).
-        self.proc = subprocess.Popen(
-            [sys.executable, '-P', '-c', 'from advocc_ros.planning.worker import _worker_main; '
-             '_worker_main()'], stdin=subprocess.PIPE, stdout=subprocess.PIPE, env=env,
-            close_fds=True)
+
+class _Worker:
+    """One child process and its pipes. ``argv``/``env``: another JSON-line worker (an outside
+    victim's, in its own interpreter); by default our OMPL worker."""
+
+    def __init__(self, timeout_s: float, argv: list[str] | None = None,
+                 env: dict | None = None, what: str = 'planning worker'):
+        if argv is None:
+            argv, env = _our_worker_argv()
+        self.what = what
+        self.proc = subprocess.Popen(argv, stdin=subprocess.PIPE, stdout=subprocess.PIPE,
+                                     env=env, close_fds=True)
         self._buf = b''
         self.scene_key: str | None = None
         try:
@@ -165,7 +175,7 @@ class _Worker:
             raise
         if hello is None or not hello.get('ready'):
             self.kill()
-            raise WorkerDied(f'planning worker did not start within {timeout_s:g} s')
+            raise WorkerDied(f'{what} did not start within {timeout_s:g} s')
         self.pid = int(hello['pid'])
 
     def send(self, data: dict) -> None:
@@ -173,7 +183,7 @@ class _Worker:
             self.proc.stdin.write((json.dumps(data) + '\n').encode())
             self.proc.stdin.flush()
         except (BrokenPipeError, OSError) as exc:
-            raise WorkerDied(f'planning worker is gone ({exc})') from None
+            raise WorkerDied(f'{self.what} is gone ({exc})') from None
 
     def read(self, deadline: float) -> dict | None:
         """Next answer, or None if ``deadline`` (monotonic) passes first."""
@@ -189,7 +199,7 @@ class _Worker:
                     code = self.proc.wait()
                     how = (f'was killed by {signal.Signals(-code).name}' if code < 0
                            else f'exited with code {code}')
-                    raise WorkerDied(f'planning worker {how}')
+                    raise WorkerDied(f'{self.what} {how}')
                 self._buf += chunk
         line, self._buf = self._buf.split(b'\n', 1)
         return json.loads(line)
@@ -269,8 +279,10 @@ class Planner:
             self.restarts += 1
 
     def plan(self, q_start, goal: GoalRegion, planner_id: str = 'rrtconnect',
-             time_budget_s: float | None = None, seed: int = 0) -> PlanResult:
-        """Plan from ``q_start`` (nq,) to any valid configuration with FK inside ``goal``."""
+             time_budget_s: float | None = None, seed: int = 0, goal_configs=None
+             ) -> PlanResult:
+        """Plan from ``q_start`` (nq,) to any valid configuration with FK inside ``goal``, or,
+        with ``goal_configs`` (K, nq), to one of those (``solve``'s goal-list option)."""
         budget = self.config.time_budget_s if time_budget_s is None else time_budget_s
         error = validate_request(self.robot, q_start, goal, planner_id, budget, self.config)
         if error is not None:
@@ -279,6 +291,8 @@ class Planner:
                    'goal': goal.to_data(), 'planner_id': planner_id,
                    'time_budget_s': float(budget), 'seed': int(seed),
                    'config': dataclasses.asdict(self.config)}
+        if goal_configs is not None:
+            request['goal_configs'] = np.asarray(goal_configs, float).tolist()
         with self._lock:
             self.requests += 1
             request['scene_key'] = self._scene_key

@@ -1,0 +1,62 @@
+"""Our OMPL 1.7 planners (RRTConnect, PRM*, BKPIECE1, ...) as a victim: one watched worker.
+
+By default they sample the goal region themselves (IK inside their budget, topped up lazily
+while planning: paper §V-A). With ``VictimConfig.ompl_goal_list`` they plan to the same K goal
+configurations the outside victims get, computed before the clock starts, so the two compare
+like for like (docs/transfer.md).
+"""
+
+from __future__ import annotations
+
+from advocc_ros.model.collision import CollisionWorld
+from advocc_ros.planning.types import PlanResult, planner_class_name
+from advocc_ros.planning.victims import Task, VictimConfig
+from advocc_ros.planning.worker import Planner
+
+
+class OmplVictim:
+    """``Victim`` over our ``Planner`` (its worker process, watchdog and statuses)."""
+
+    def __init__(self, name: str, config: VictimConfig = VictimConfig()):
+        if planner_class_name(name) is None:
+            raise ValueError(f'{name!r} is not an OMPL planner id')
+        self.name, self.config = name, config
+        self._planner: Planner | None = None
+        self._world: tuple[str, CollisionWorld] | None = None
+
+    def _planner_for(self, task: Task) -> Planner:
+        if self._planner is None or self._planner.robot.spec != task.scene.robot:
+            if self._planner is not None:
+                self._planner.close()
+            self._planner = Planner(task.scene, self.config.planning)
+        else:
+            self._planner.set_scene(task.scene)
+        return self._planner
+
+    def start(self, scene) -> 'OmplVictim':
+        if self._planner is None or self._planner.robot.spec != scene.robot:
+            self.close()
+            self._planner = Planner(scene, self.config.planning)
+        self._planner.start()
+        return self
+
+    def plan(self, task: Task, time_budget_s: float, seed: int) -> PlanResult:
+        planner = self._planner_for(task)
+        goals = task.goal_configs
+        if self.config.ompl_goal_list and goals is None:
+            goals = task.goals(planner.robot, self._world_for(task, planner.robot),
+                               self.config.goal_configs, seed)
+        result = planner.plan(task.q_start, task.goal, self.name, time_budget_s, seed, goals)
+        result.stats['victim'] = self.name
+        return result
+
+    def _world_for(self, task: Task, robot) -> CollisionWorld:
+        key = task.scene.objects_hash()
+        if self._world is None or self._world[0] != key:
+            self._world = (key, CollisionWorld(robot, task.scene.shapes))
+        return self._world[1]
+
+    def close(self) -> None:
+        if self._planner is not None:
+            self._planner.close()
+            self._planner = None

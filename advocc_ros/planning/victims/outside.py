@@ -1,0 +1,162 @@
+"""What every outside victim's parent side does: one watched worker, the goal list, the checks.
+
+An outside victim (MPlib, TrajOpt) plans in its own worker process (its own interpreter when
+its dependencies conflict with ours), spoken to in JSON lines through our worker's pipes
+(``advocc_ros.planning.worker._Worker``). The parent keeps what the victim does not have: the
+request's checks (``validate_request``, the start in our model), the goal list (the task's, or
+K sampled with the boxes from the trial's seed, outside the budget), and our collision model to
+re-validate the answer. A worker that does not answer within budget + margin is killed (the
+trial is ``TIMED_OUT``, as for our planners); one that dies or raises is an ``INTERNAL_ERROR``.
+Subclasses say how to start their worker, what to send it when the robot or scene changes, and
+how to read its answer.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+
+import numpy as np
+
+from advocc_ros.model.collision import CollisionWorld
+from advocc_ros.model.robot import RobotModel, load_robot
+from advocc_ros.planning.types import PlanResult, PlanStatus, _fail, validate_request
+from advocc_ros.planning.victims import Task, VictimConfig
+from advocc_ros.planning.worker import WorkerDied, _Worker
+
+log = logging.getLogger(__name__)
+
+
+class OutsideVictim:
+    """``Victim`` over one watched worker process; see the module docstring."""
+
+    label = 'outside victim'
+    """Name in messages (``MPlib``, ``TrajOpt``)."""
+
+    def __init__(self, name: str, config: VictimConfig = VictimConfig()):
+        self.name, self.config = name, config
+        self._lock = threading.Lock()
+        self._worker: _Worker | None = None
+        self._sent: str | None = None
+        self._model: tuple[str, RobotModel, CollisionWorld] | None = None
+        self.restarts = 0
+
+    # -- what a subclass provides ------------------------------------------------------------
+
+    def _command(self) -> tuple[list[str], dict]:
+        """argv and environment of the worker process."""
+        raise NotImplementedError
+
+    def _setup(self, task: Task, robot: RobotModel) -> dict:
+        """Fields sent with a request when the worker has not seen this robot and scene."""
+        raise NotImplementedError
+
+    def _answer(self, answer: dict, robot: RobotModel, world: CollisionWorld,
+                q_start: np.ndarray, goals: np.ndarray, budget: float, stats: dict
+                ) -> PlanResult:
+        """The worker's answer to a plan request as a ``PlanResult`` (re-validated)."""
+        raise NotImplementedError
+
+    # -- the protocol ------------------------------------------------------------------------
+
+    def start(self, scene=None) -> 'OutsideVictim':
+        with self._lock:
+            self._ensure_worker()
+        return self
+
+    def plan(self, task: Task, time_budget_s: float, seed: int) -> PlanResult:
+        robot, world = self._models(task)
+        nq = robot.nq
+        error = validate_request(robot, task.q_start, task.goal, 'rrtconnect', time_budget_s,
+                                 self.config.planning)
+        if error is not None:
+            return error
+        q_start = np.asarray(task.q_start, float)
+        if world.in_collision(q_start):
+            return _fail(PlanStatus.START_STATE_IN_COLLISION, 'start state is in collision', nq)
+        t0 = time.monotonic()
+        goals = task.goals(robot, world, self.config.goal_configs, seed)
+        stats = {'victim': self.name, 'goal_sampling_s': time.monotonic() - t0,
+                 'goal_configs': len(goals)}
+        if not len(goals):
+            return _fail(PlanStatus.GOAL_IN_COLLISION, 'our goal sampler found no collision-free '
+                         f'goal configuration to hand to {self.label}', nq, 0.0, **stats)
+        request = {'op': 'plan', 'q_start': q_start.tolist(), 'goals': goals.tolist(),
+                   'time_s': float(time_budget_s), 'seed': int(seed),
+                   'check_step_rad': self.config.check_step_rad}
+        answer = self._call(request, task, robot, time_budget_s, stats)
+        if isinstance(answer, PlanResult):
+            return answer
+        return self._answer(answer, robot, world, q_start, goals, time_budget_s, stats)
+
+    def close(self) -> None:
+        with self._lock:
+            if self._worker is not None:
+                self._worker.close()
+                self._worker = None
+
+    def __del__(self):
+        worker = getattr(self, '_worker', None)
+        if worker is not None:
+            worker.kill()
+
+    # -- the worker --------------------------------------------------------------------------
+
+    def _ensure_worker(self) -> _Worker:
+        if self._worker is None or self._worker.proc.poll() is not None:
+            if self._worker is not None:
+                self._worker.kill()
+                self.restarts += 1
+            argv, env = self._command()
+            self._worker = _Worker(self.config.planning.worker_start_timeout_s, argv, env,
+                                   what=f'{self.label} worker')
+            self._sent = None
+        return self._worker
+
+    def _kill_worker(self) -> None:
+        if self._worker is not None:
+            self._worker.kill()
+            self._worker = None
+            self.restarts += 1
+
+    def _models(self, task: Task) -> tuple[RobotModel, CollisionWorld]:
+        """Our robot and collision model of ``task``'s scene (cached per scene)."""
+        key = task.scene.objects_hash() + repr(task.scene.robot)
+        if self._model is None or self._model[0] != key:
+            robot = load_robot(task.scene.robot)
+            self._model = (key, robot, CollisionWorld(robot, task.scene.shapes))
+        return self._model[1], self._model[2]
+
+    def _call(self, request: dict, task: Task, robot: RobotModel, budget: float, stats: dict):
+        """The worker's answer, or the ``PlanResult`` of a watchdog kill, a dead worker or an
+        error the worker reported."""
+        nq = robot.nq
+        key = task.scene.objects_hash() + repr(task.scene.robot) + repr(
+            self.config.hidden_object_ids)
+        with self._lock:
+            t_sent = time.monotonic()
+            try:
+                worker = self._ensure_worker()
+                if self._sent != key:
+                    request.update(self._setup(task, robot))
+                t_sent = time.monotonic()
+                worker.send(request)
+                answer = worker.read(t_sent + budget + self.config.planning.watchdog_margin_s)
+            except WorkerDied as exc:
+                self._kill_worker()
+                log.error('%s', exc)
+                return _fail(PlanStatus.INTERNAL_ERROR, str(exc), nq,
+                             time.monotonic() - t_sent, worker_died=True, **stats)
+            stats['round_trip_s'] = time.monotonic() - t_sent
+            if answer is None:
+                self._kill_worker()
+                return _fail(PlanStatus.TIMED_OUT, f'watchdog: {self.label} gave no answer '
+                             f'within {budget:g} s + {self.config.planning.watchdog_margin_s:g}'
+                             ' s; worker killed', nq, stats['round_trip_s'], watchdog=True,
+                             **stats)
+            if 'error' in answer:
+                return _fail(PlanStatus.INTERNAL_ERROR, f'{self.label} worker: '
+                             f'{answer["error"]}', nq, stats['round_trip_s'], **stats)
+            self._sent = key
+            return answer
