@@ -21,7 +21,11 @@ class UserError(Exception):
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog='advocc', description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(
+        prog='advocc', description='Adversarial boxes for robot-arm motion planners: how few '
+        'boxes make a planner fail a pick, and where they go.', epilog='Start with: advocc '
+        'audit --scene table_pick --policy solvable --out out/audit (advocc COMMAND --help for '
+        'each command; docs/usage.md walks through them).')
     parser.add_argument('-v', '--verbose', action='store_true', help='debug logging')
     sub = parser.add_subparsers(dest='command', required=True)
     for name in COMMANDS:

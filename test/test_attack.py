@@ -221,7 +221,7 @@ def test_greedy_first_box_is_the_best_valid_candidate(panda, heatmaps, task):
     masses = np.array([_cube_mass(region.weights, c, region.k) for c in cands])
     best = next(m for m, c in sorted(zip(-masses, map(tuple, cands))) if region.accept(
         np.array(c)))
-    result = attack(heatmaps['scene'], panda, objects, q, goal, 1)
+    result = attack(heatmaps['scene'], panda, objects, q, goal, 1, 'ours')
     assert result.masses[0] == pytest.approx(-best, rel=1e-12)
 
 
@@ -250,7 +250,7 @@ def test_robot_only_heatmap_masks_the_current_scene(panda, heatmaps, task):
     q, goal, objects = task
     hm = heatmaps['robot_only']
     assert hm.robot_only and hm.free.all()
-    first = attack(hm, panda, (), q, goal, 1)
+    first = attack(hm, panda, (), q, goal, 1, 'ours')
     assert first.status == AttackStatus.SUCCESS
     # Put a scene object where the first box went: the attack must now avoid it.
     blocker = make_box('blocker', first.centers_m[0], (0.08, 0.08, 0.08))
@@ -258,7 +258,7 @@ def test_robot_only_heatmap_masks_the_current_scene(panda, heatmaps, task):
     centre_idx = hm.grid.index_of(first.centers_m[0]) - region.lo
     assert region.weights[tuple(centre_idx)] == 0
     assert not region.candidates[tuple(centre_idx)]
-    again = attack(hm, panda, (blocker,), q, goal, 3)
+    again = attack(hm, panda, (blocker,), q, goal, 3, 'ours')
     assert again.status == AttackStatus.SUCCESS
     _assert_constraints(again, panda, hm, (blocker,), q, goal, AttackConfig())
 
@@ -332,7 +332,7 @@ def test_ambiguous_object_ids_are_refused(panda, heatmaps, task, extra, words):
 
 def test_obstacles_file_round_trip(panda, heatmaps, task, tmp_path):
     q, goal, objects = task
-    result = attack(heatmaps['scene'], panda, objects, q, goal, 3, box_size_m=0.06)
+    result = attack(heatmaps['scene'], panda, objects, q, goal, 3, 'ours', box_size_m=0.06)
     path = tmp_path / 'sub' / 'obstacles.yaml'
     save_obstacles(path, obstacles_data(result, heatmaps['scene'], 'table_pick', 'abc'))
     loaded, meta = load_obstacles(path)

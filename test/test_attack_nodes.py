@@ -238,7 +238,8 @@ def test_server_answers_bad_requests_and_keeps_serving(ros, ros_env, heatmap_fil
 
     # The CLI client sees the same server.
     out = subprocess.run([sys.executable, '-m', 'advocc_ros.cli', 'call', 'attack', '--scene',
-                          'table_pick', '--budget', '3', '--json', '--timeout', '20'],
+                          'table_pick', '--budget', '3', '--method', 'ours', '--json',
+                          '--timeout', '20'],
                          env=ros_env, capture_output=True, text=True, timeout=60)
     assert out.returncode == 0, out.stderr
     data = json.loads(out.stdout)

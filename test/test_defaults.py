@@ -56,3 +56,25 @@ def test_the_attack_weighs_with_the_heatmaps_own_parameters(table_scene):
                            np.array([table_scene.start[n] for n in robot.joint_names]),
                            table_scene.goal, AttackConfig())
     assert region.weight_config.kappa == 0.05 and region.weight_config.gamma_clr == 0.5
+
+
+def _subcommand(parser, *path):
+    for name in path:
+        action = next(a for a in parser._actions if hasattr(a, 'choices')
+                      and isinstance(a.choices, dict) and name in a.choices)
+        parser = action.choices[name]
+    return parser
+
+
+def test_every_command_that_attacks_takes_the_same_task_and_attack_arguments():
+    from advocc_ros.attack.types import DEFAULT_METHOD, AttackConfig
+    from advocc_ros.cli import build_parser
+    root = build_parser()
+    expect = {'method': DEFAULT_METHOD, 'policy': AttackConfig().goal_policy,
+              'size': AttackConfig().box_size_m, 'seed': 0}
+    for path in (('attack',), ('audit',), ('call', 'attack')):
+        p = _subcommand(root, *path)
+        dests = {a.dest: a for a in p._actions}
+        assert {'scene', 'request', 'goal_tol'} <= set(dests), path
+        assert {k: dests[k].default for k in expect} == expect, path
+        assert '``' not in (p.description or '') and 'lives in' not in (p.description or '')

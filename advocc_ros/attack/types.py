@@ -15,7 +15,7 @@ from advocc_ros.model.scene import SceneObject, objects_to_data
 
 POLICIES = ('paper', 'reachable', 'solvable')
 """Goal policies (``advocc_ros.attack.goals``): the one list of their names."""
-DEFAULT_METHOD = 'ours'
+DEFAULT_METHOD = 'task'
 """The attack method of a request that names none: the paper's."""
 BOX_ID = re.compile(r'adv_\d+')
 """Ids of the attack's boxes (``box_id``): a scene object may not carry one."""

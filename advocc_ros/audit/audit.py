@@ -20,6 +20,7 @@ import logging
 import time
 from typing import Any, Callable
 
+from advocc_ros.attack.types import DEFAULT_METHOD, AttackConfig
 from advocc_ros.evaluation.budgets import minimal_budgets
 
 log = logging.getLogger(__name__)
@@ -42,9 +43,9 @@ class AuditConfig:
     """Plan requests per planner and prefix."""
     time_budget_s: float = 5.0
     """Wall-clock budget of one plan request [s] (the paper: 5)."""
-    method: str = 'task'
+    method: str = DEFAULT_METHOD
     """Attack method (``advocc_ros.attack.methods.REGISTRY``); greedy ones give nested picks."""
-    policy: str = 'paper'
+    policy: str = AttackConfig.goal_policy
     """Goal policy of the evaluated attack (``advocc_ros.attack.goals``): ``paper``,
     ``reachable`` or ``solvable``; the goal-blocked answer always comes from a paper one."""
     seed: int = 0

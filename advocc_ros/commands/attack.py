@@ -13,17 +13,15 @@ import argparse
 import json
 import sys
 
-from advocc_ros.attack import (KNOWN_METHODS, AttackConfig, AttackStatus, load_method,
-                               obstacles_data, save_obstacles)
+from advocc_ros.attack import (AttackConfig, AttackStatus, load_method, obstacles_data,
+                               save_obstacles)
 from advocc_ros.attack.edges import attack_task
-from advocc_ros.attack.types import DEFAULT_METHOD, POLICIES
 from advocc_ros.cli import UserError
-from advocc_ros.commands.common import add_bag_arg, check_bag_arg, refuse_invalid_task
+from advocc_ros.commands.common import (add_attack_args, add_bag_arg, add_scene_args,
+                                        check_bag_arg, refuse_invalid_task, scene_from_args)
 from advocc_ros.heatmap import HeatmapError, load_heatmap
-from advocc_ros.paths import scene_path
 from advocc_ros.model.robot import RobotError, load_robot
 from advocc_ros.model.pose import SceneError
-from advocc_ros.model.scene import load_scene
 from advocc_ros.planning.witness import save_witness, witness_file
 
 
@@ -32,18 +30,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser('attack', help='place adversarial boxes (Task, the paper\'s Algorithm 1, '
                        'Random, PFA, PFA++)')
     p.add_argument('--heatmap', required=True, help='heatmap .npz file')
-    p.add_argument('--scene', required=True, help='scene YAML (or a name in config/scenes) '
-                   'with start and goal')
+    add_scene_args(p)
     p.add_argument('--budget', type=int, required=True, help='M, number of boxes')
-    # pfa / pfa++ are planner-in-the-loop baselines provided by advocc_ros.attack.pfa when present.
-    p.add_argument('--method', default=DEFAULT_METHOD, choices=KNOWN_METHODS,
-                   help='task: coverage of the task\'s goal and approach configurations (makes '
-                   'planners fail); ours: the paper\'s heatmap coverage (default)')
-    p.add_argument('--policy', default=defaults.goal_policy, choices=POLICIES,
-                   help='goal policy: paper (boxes may block every goal pose), reachable '
-                   '(keep --reachable-fraction of fixed goal samples valid) or solvable (keep '
-                   'the task\'s witness path valid: the task stays certified solvable); '
-                   'default %(default)s')
+    add_attack_args(p)
     p.add_argument('--certify', action='store_true',
                    help='under --policy paper/reachable: also find the task\'s witness (one '
                    'RRTConnect run on the unattacked scene, cached per task) so the verdict can '
@@ -51,8 +40,6 @@ def register(sub: argparse._SubParsersAction) -> None:
                    'blocked or unknown (--policy solvable always finds the witness)')
     p.add_argument('--reachable-fraction', type=float, default=defaults.reachable_fraction,
                    help='under --policy reachable (default %(default)s)')
-    p.add_argument('--size', type=float, default=defaults.box_size_m,
-                   help='box edge s [m] (default %(default)s)')
     p.add_argument('--corridor', type=float, default=defaults.corridor_radius_m,
                    help='corridor radius r_corr [m] (default %(default)s)')
     p.add_argument('--d-safe', type=float, default=defaults.d_safe_m,
@@ -60,8 +47,6 @@ def register(sub: argparse._SubParsersAction) -> None:
                    '%(default)s)')
     p.add_argument('--d-min', type=float, default=defaults.d_min_m,
                    help='minimum distance between box centres [m] (default %(default)s)')
-    p.add_argument('--seed', type=int, default=0,
-                   help='random generator seed (random, pfa, pfa++)')
     g = p.add_argument_group('planner in the loop (pfa, pfa++)')
     g.add_argument('--planner', help='victim planner pfa++ queries: rrtconnect, prmstar, '
                    'bkpiece1 (default rrtconnect); pfa always queries rrtconnect')
@@ -92,7 +77,7 @@ def _attack(args: argparse.Namespace) -> int:
     except ValueError as exc:
         raise UserError(str(exc)) from None
     try:
-        scene = load_scene(scene_path(args.scene))
+        scene = scene_from_args(args)
         if scene.start is None or scene.goal is None:
             raise UserError(f'{args.scene}: the scene needs a start and a goal to attack')
         robot = load_robot(scene.robot)

@@ -19,30 +19,20 @@ import sys
 import time
 
 from advocc_ros.cli import UserError
-from advocc_ros.commands.common import (add_bag_arg, add_scene_args, check_bag_arg,
-                                        refuse_invalid_task, scene_from_args)
+from advocc_ros.commands.common import (add_attack_args, add_bag_arg, add_scene_args, describe,
+                                        check_bag_arg, refuse_invalid_task, scene_from_args)
 
 """Samples of the heatmap the audit builds when none is given (~5-9 s on 2 cores)."""
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    from advocc_ros.attack.types import POLICIES
-    from advocc_ros.attack.methods import KNOWN_METHODS
-
     p = sub.add_parser('audit', help='how few boxes make each planner fail this task',
-                       description=__doc__.splitlines()[0])
+                       description=describe(__doc__))
     add_scene_args(p)
     p.add_argument('--planners', default='rrtconnect,prmstar,bkpiece1',
                    help='comma-separated OMPL planner ids or outside victims (mplib; '
                         'docs/transfer.md) (default %(default)s)')
-    p.add_argument('--method', default='task', choices=KNOWN_METHODS,
-                   help='attack method; greedy ones (task, ours) give nested picks '
-                        '(default %(default)s)')
-    p.add_argument('--policy', default='paper', choices=POLICIES,
-                   help='goal policy of the evaluated attack: paper (boxes may block every '
-                        'goal pose), reachable, or solvable (a witness path stays valid); the '
-                        'goal-blocked answer always comes from a paper attack, a second one '
-                        'under the other policies (default %(default)s)')
+    add_attack_args(p)
     p.add_argument('--max-budget', type=int, default=5, metavar='K',
                    help='boxes of the attack whose prefixes are evaluated (default %(default)s)')
     p.add_argument('--trials', type=int, default=10,
@@ -53,8 +43,6 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help='heatmap .npz (default: build one into DIR, or reuse it there)')
     p.add_argument('--workers', type=int, default=2,
                    help='planner processes in parallel (default %(default)s; PT is wall time)')
-    p.add_argument('--seed', type=int, default=0,
-                   help='attack seed; trial k of every budget uses seed SEED + k')
     p.add_argument('--out', required=True, metavar='DIR', help='output folder')
     add_bag_arg(p)
     p.add_argument('--json', action='store_true', help='print the audit as JSON')
@@ -119,8 +107,9 @@ def audit_heatmap(scene, out: pathlib.Path, heatmap_file: str | None, workers: i
     return heatmap
 
 
-def run_audit_to(scene, heatmap, cfg, out: pathlib.Path, log=print) -> dict:
-    """Run the audit with a progress line per evaluation on stderr and write its files."""
+def run_audit_to(scene, heatmap, cfg, out: pathlib.Path, log=print, attack_cfg=None) -> dict:
+    """Run the audit with a progress line per evaluation on stderr and write its files
+    (``attack_cfg``: the attack's constants, default ``AttackConfig()``)."""
     from advocc_ros.audit.audit import run_audit
     from advocc_ros.audit.report import planner_label, write_audit
     from advocc_ros.evaluation.outcomes import internal_error_warning
@@ -134,7 +123,7 @@ def run_audit_to(scene, heatmap, cfg, out: pathlib.Path, log=print) -> dict:
         if warning:
             print(warning, file=sys.stderr, flush=True)
 
-    audit = run_audit(scene, heatmap, cfg, progress=progress)
+    audit = run_audit(scene, heatmap, cfg, progress=progress, attack_cfg=attack_cfg)
     paths = write_audit(audit, out, heatmap, scene)
     log(f'audit: {paths["audit.md"]}, {paths["audit.json"]}, figures '
         f'{paths["audit_slices.png"]}, {paths["audit_psr.png"]} ({audit["wall_s"]:.0f} s)')
@@ -146,7 +135,13 @@ def run_audit_to(scene, heatmap, cfg, out: pathlib.Path, log=print) -> dict:
 def run(args: argparse.Namespace) -> int:
     from advocc_ros.audit.report import audit_answer, budget_table
 
+    from advocc_ros.attack import AttackConfig
+
     cfg = audit_config(args)
+    try:
+        attack_cfg = AttackConfig(box_size_m=args.size)
+    except ValueError as exc:
+        raise UserError(str(exc)) from None
     check_bag_arg(args)
     scene = scene_from_args(args)
     if scene.start is None or scene.goal is None:
@@ -156,7 +151,7 @@ def run(args: argparse.Namespace) -> int:
     out.mkdir(parents=True, exist_ok=True)
     log = (lambda text: print(text, file=sys.stderr)) if args.json else print
     heatmap = audit_heatmap(scene, out, args.heatmap, args.workers, log=log)
-    audit = run_audit_to(scene, heatmap, cfg, out, log=log)
+    audit = run_audit_to(scene, heatmap, cfg, out, log=log, attack_cfg=attack_cfg)
     if args.bag:
         from advocc_ros.view.scene_page import audit_boxes
         from advocc_ros.ros.bag import write_attack_bag

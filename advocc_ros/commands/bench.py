@@ -8,11 +8,12 @@ from __future__ import annotations
 
 import argparse
 
+from advocc_ros.commands.common import describe
 from advocc_ros.orchestrator.cli import add_bench_args, run
 
 
 def register(sub: argparse._SubParsersAction) -> None:
     parser = sub.add_parser('bench', help='run the paper\'s benchmark through the nodes',
-                            description=__doc__.splitlines()[0])
+                            description=describe(__doc__))
     add_bench_args(parser)
     parser.set_defaults(func=run)

@@ -8,9 +8,8 @@ import sys
 import time
 
 from advocc_ros.cli import UserError
-from advocc_ros.commands.common import add_scene_args, scene_from_args
+from advocc_ros.commands.common import add_attack_args, add_scene_args, scene_from_args
 from advocc_ros.attack.methods import SERVER_METHODS
-from advocc_ros.attack.types import DEFAULT_METHOD
 from advocc_ros.model.pose import SceneError
 
 RESEND_S = 2.0
@@ -25,10 +24,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p = csub.add_parser('attack', help='heatmap_server ~/attack for a scene\'s task')
     add_scene_args(p)
     p.add_argument('--budget', type=int, required=True, help='M, number of boxes')
-    p.add_argument('--method', default=DEFAULT_METHOD, choices=SERVER_METHODS,
-                   help='attack method (default %(default)s)')
-    p.add_argument('--size', type=float, default=0.0, help='box edge [m]; 0: server default')
-    p.add_argument('--seed', type=int, default=0)
+    add_attack_args(p, methods=SERVER_METHODS)
     p.add_argument('--server', default='/heatmap_server', help='node name (default %(default)s)')
     p.add_argument('--timeout', type=float, default=10.0,
                    help='seconds to wait for the service and for the answer each')
@@ -52,7 +48,7 @@ def _attack(args: argparse.Namespace) -> int:
 
     try:
         scene = scene_from_args(args)
-        req = attack_request(scene, args.budget, args.method, args.size, args.seed)
+        req = attack_request(scene, args.budget, args.method, args.size, args.seed, args.policy)
     except SceneError as exc:
         raise UserError(str(exc)) from None
     with ServiceClient() as client:

@@ -1,8 +1,11 @@
-"""Arguments shared by commands: which scene (our YAML or MotionBenchMaker files) to work on."""
+"""Arguments shared by commands, with one set of defaults: the task (which scene, our YAML or
+MotionBenchMaker files, which request, which goal tolerance) and the attack (method, goal
+policy, box size, seed)."""
 
 from __future__ import annotations
 
 import argparse
+import re
 
 from advocc_ros.cli import UserError
 from advocc_ros.model.scene import Scene
@@ -11,6 +14,14 @@ GOAL_TOL_HELP = ('tolerances of the goal region: "pos=X[,Y,Z];rot=R[,P,Y]" (half
                  'and rotation-vector tolerances [rad] in the end-effector frame; one value = '
                  'all axes; default pos=0.02;rot=0.1). With --request they shape the region '
                  'built around the request\'s goal; without, they replace the scene goal\'s')
+
+
+def describe(doc: str) -> str:
+    """A command module's docstring as its ``--help`` shows it: the first paragraph, without the
+    ``advocc name``: prefix and the reST markup (for users, not for the code's readers)."""
+    text = ' '.join(doc.strip().split('\n\n')[0].split())
+    text = re.sub(r'^``advocc [\w -]+``:\s*', '', text).replace('``', '')
+    return text[:1].upper() + text[1:]
 
 
 def add_scene_args(parser: argparse.ArgumentParser, required: bool = True) -> None:
@@ -24,6 +35,31 @@ def add_scene_args(parser: argparse.ArgumentParser, required: bool = True) -> No
                              'and its goal replace the scene\'s (a region around a joint '
                              'goal\'s end-effector pose, or a pose goal\'s own region)')
     parser.add_argument('--goal-tol', metavar='TOL', help=GOAL_TOL_HELP)
+
+
+def add_attack_args(parser: argparse.ArgumentParser, methods=None) -> None:
+    """Add ``--method``, ``--policy``, ``--size`` and ``--seed`` to ``parser``, with the
+    defaults of ``AttackConfig`` and ``DEFAULT_METHOD`` (``methods``: the choices, default
+    every known method)."""
+    from advocc_ros.attack.methods import KNOWN_METHODS
+    from advocc_ros.attack.types import DEFAULT_METHOD, POLICIES, AttackConfig
+
+    defaults = AttackConfig()
+    parser.add_argument('--method', default=DEFAULT_METHOD, choices=methods or KNOWN_METHODS,
+                        help='task: coverage of the task\'s goal and approach configurations '
+                             '(the one that makes planners fail); ours: the paper\'s heatmap '
+                             'coverage; random; pfa, pfa++: planner in the loop (default '
+                             '%(default)s)')
+    parser.add_argument('--policy', default=defaults.goal_policy, choices=POLICIES,
+                        help='goal policy: paper (boxes may block every goal pose), reachable '
+                             '(keep a fraction of fixed goal samples valid) or solvable (keep the '
+                             'task\'s witness path valid: the task stays certified solvable; '
+                             'finds the witness first, one RRTConnect run per task) (default '
+                             '%(default)s)')
+    parser.add_argument('--size', type=float, default=defaults.box_size_m, metavar='M',
+                        help='box edge s [m] (default %(default)s)')
+    parser.add_argument('--seed', type=int, default=0,
+                        help='attack seed (task, random, pfa, pfa++) (default %(default)s)')
 
 
 def scene_from_args(args: argparse.Namespace) -> Scene | None:

@@ -14,14 +14,15 @@ import pathlib
 import sys
 
 from advocc_ros.cli import UserError
-from advocc_ros.commands.common import (add_scene_args, add_victim_args, refuse_invalid_task,
-                                        scene_from_args, victim_config_from_args)
+from advocc_ros.commands.common import (add_scene_args, add_victim_args, describe,
+                                        refuse_invalid_task, scene_from_args,
+                                        victim_config_from_args)
 
 
 def register(subparsers) -> None:
     p = subparsers.add_parser(
         'evaluate', help='plan N times with an OMPL planner and report PSR/SMR/CMR/JDS/PT',
-        description=__doc__.splitlines()[0])
+        description=describe(__doc__))
     add_scene_args(p)
     p.add_argument('--obstacles', help='obstacles YAML (an attack result: objects: [...])')
     p.add_argument('--planner', default='rrtconnect',

@@ -23,7 +23,7 @@ import pathlib
 import sys
 
 from advocc_ros.cli import UserError
-from advocc_ros.commands.common import add_scene_args, scene_from_args
+from advocc_ros.commands.common import add_scene_args, describe, scene_from_args
 
 MANIFEST = 'export.yaml'
 
@@ -31,7 +31,7 @@ MANIFEST = 'export.yaml'
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser('export', help='write an attacked task (scene + boxes, request, witness '
                        'trajectory) as MotionBenchMaker problem files',
-                       description=__doc__.splitlines()[0])
+                       description=describe(__doc__))
     add_scene_args(p)
     p.add_argument('--obstacles', required=True,
                    help='obstacles file of `advocc attack` (its witness beside it as '

@@ -14,6 +14,7 @@ import xml.etree.ElementTree as ET
 from collections import Counter
 
 from advocc_ros.cli import UserError
+from advocc_ros.commands.common import describe
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -21,7 +22,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     rsub = parser.add_subparsers(dest='robot_command', required=True)
     srdf = rsub.add_parser('srdf', help='write an SRDF with the disabled collision pairs of '
                                         'MoveIt\'s Setup Assistant',
-                           description=__doc__.splitlines()[0])
+                           description=describe(__doc__))
     srdf.add_argument('--urdf', required=True,
                       help='URDF file or example-robot-data://<robot>/urdf/<file>.urdf')
     srdf.add_argument('--srdf', help='an SRDF to extend (its groups and states are kept)')

@@ -6,12 +6,12 @@ import argparse
 import pathlib
 
 from advocc_ros.cli import UserError
-from advocc_ros.commands.common import add_scene_args, scene_from_args
+from advocc_ros.commands.common import add_scene_args, describe, scene_from_args
 
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser('view', help='a self-contained 3D page of a scene, its boxes, heatmap '
-                       'and paths', description=__doc__.splitlines()[0])
+                       'and paths', description=describe(__doc__))
     add_scene_args(p)
     p.add_argument('--obstacles', metavar='FILE',
                    help='obstacles file of `advocc attack` (boxes numbered in pick order; its '
