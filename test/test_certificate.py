@@ -10,10 +10,10 @@ import pytest
 import yaml
 
 from advocc_ros.attack.solvable import CERTIFICATE, Verdict, WitnessBodies, assess
+from advocc_ros.kinematics.ik import goal_configuration, start_configuration
 from advocc_ros.model.collision import CollisionWorld
 from advocc_ros.model.robot import load_robot
 from advocc_ros.model.scene import make_box
-from advocc_ros.kinematics.ik import start_configuration
 from advocc_ros.planning import witness as witness_mod
 from advocc_ros.planning.certificate import CertificateConfig, certify_path
 from advocc_ros.planning.witness import Witness, certify, find_witness, witness_states
@@ -24,9 +24,14 @@ OLD_STEP_RAD = 0.005
 
 @pytest.fixture(scope='module')
 def task(table_scene):
+    """table_pick and a witness found without a planner (no process: the fast lane runs these
+    tests): the straight joint-space line from the start to the damped-least-squares goal
+    configuration, which the certificate proves on the unattacked scene (tested below)."""
     robot = load_robot(table_scene.robot)
     q0 = start_configuration(table_scene, robot)
-    witness = find_witness(robot, table_scene.objects, q0, table_scene.goal)
+    q_goal = goal_configuration(robot, table_scene.goal, q0)
+    witness = Witness(robot.joint_names, np.array([q0, q_goal]), dict(robot.locked_values),
+                      {'planner': 'straight line to the DLS goal configuration'})
     return table_scene, robot, q0, witness
 
 
