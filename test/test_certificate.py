@@ -10,10 +10,10 @@ import pytest
 import yaml
 
 from advocc_ros.attack.solvable import CERTIFICATE, Verdict, WitnessBodies, assess
+from advocc_ros.kinematics.ik import goal_configuration, start_configuration
 from advocc_ros.model.collision import CollisionWorld
 from advocc_ros.model.robot import load_robot
 from advocc_ros.model.scene import make_box
-from advocc_ros.kinematics.ik import start_configuration
 from advocc_ros.planning import witness as witness_mod
 from advocc_ros.planning.certificate import CertificateConfig, certify_path
 from advocc_ros.planning.witness import Witness, certify, find_witness, witness_states
@@ -24,9 +24,14 @@ OLD_STEP_RAD = 0.005
 
 @pytest.fixture(scope='module')
 def task(table_scene):
+    """table_pick and a witness found without a planner (no process: the fast lane runs these
+    tests): the straight joint-space line from the start to the damped-least-squares goal
+    configuration, which the certificate proves on the unattacked scene (tested below)."""
     robot = load_robot(table_scene.robot)
     q0 = start_configuration(table_scene, robot)
-    witness = find_witness(robot, table_scene.objects, q0, table_scene.goal)
+    q_goal = goal_configuration(robot, table_scene.goal, q0)
+    witness = Witness(robot.joint_names, np.array([q0, q_goal]), dict(robot.locked_values),
+                      {'planner': 'straight line to the DLS goal configuration'})
     return table_scene, robot, q0, witness
 
 
@@ -211,3 +216,36 @@ def test_guard_step_keeps_the_path_off_the_boxes(task):
 def test_certificate_config_rejects_bad_values(bad):
     with pytest.raises(ValueError):
         CertificateConfig(**bad)
+
+
+def test_guard_bodies_agree_with_a_plain_check(task):
+    """The guard's fast paths (placements from one FK per state, the box pre-test) give the
+    verdicts of a plain geometry update + coal collide over every (state, link) pair."""
+    import coal
+    from advocc_ros.heatmap import placement_arrays
+
+    scene, robot, q0, witness = task
+    world = CollisionWorld(robot)
+    bodies = WitnessBodies(robot, world, witness)
+    R, t = placement_arrays(world, bodies.states[::50])
+    np.testing.assert_allclose(bodies._R[::50], R, atol=1e-12)
+    np.testing.assert_allclose(bodies._t[::50], t, atol=1e-12)
+    rng = np.random.default_rng(3)
+    states = bodies.states[::25]
+    sparse = WitnessBodies.__new__(WitnessBodies)  # the same object on a subset of the states
+    sparse.__dict__.update(bodies.__dict__, states=states, _R=bodies._R[::25],
+                           _t=bodies._t[::25], centres_m=bodies.centres_m[::25],
+                           _reach_m=bodies._reach_m[::25])
+    request, touched = coal.CollisionRequest(), 0
+    for _ in range(150):  # near the body: some touch it, some do not
+        near = sparse.centres_m[rng.integers(len(states)), rng.integers(world.n_links)]
+        centre, size = near + rng.normal(0.0, 0.1, 3), rng.uniform(0.01, 0.1)
+        box = coal.Box(size, size, size)
+        tf = coal.Transform3s(np.eye(3), centre)
+        plain = any(coal.collide(box, tf, world.geom_model.geometryObjects[g].geometry,
+                                 coal.Transform3s(T.rotation, T.translation), request,
+                                 coal.CollisionResult())
+                    for q in states for g, T in enumerate(world.link_placements(q)))
+        assert sparse.touched_by(centre, size) == plain, (centre, size)
+        touched += plain
+    assert 10 < touched < 140  # both answers occur

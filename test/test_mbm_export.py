@@ -233,11 +233,12 @@ def test_export_round_trip_keeps_the_witness_valid(solvable_attack, table_scene,
     verdicts = assert_same_task(original, imported, np.vstack([states, probe]))
     assert not verdicts[:len(states)].any() and verdicts[len(states):].any()
     world = CollisionWorld(robot, imported.shapes)
-    assert certify(robot, world, imported.goal, _witness_of(files, robot))[0] is None
+    q_init = start_configuration(imported, robot)  # the request's start: the witness's first
+    assert certify(robot, world, imported.goal, _witness_of(files, robot), q_init)[0] is None
     assert np.array_equal(_witness_of(files, robot).waypoints, witness.configurations(robot))
     # the checker can fail: the witness without its last waypoint misses the goal region
     short = dataclasses.replace(witness, waypoints=witness.waypoints[:-1])
-    assert certify(robot, world, imported.goal, short)[0] is not None
+    assert certify(robot, world, imported.goal, short, q_init)[0] is not None
 
     capsys.readouterr()
     assert main(['evaluate', '--scene', str(files.scene), '--request', str(files.request),
@@ -308,7 +309,7 @@ def test_variations_are_attacked_again_and_certified(solvable_attack, tmp_path):
         scene = load_any_scene(files.scene, files.request)
         robot = load_robot(scene.robot)
         assert certify(robot, CollisionWorld(robot, scene.shapes), scene.goal,
-                       _witness_of(files, robot))[0] is None
+                       _witness_of(files, robot), start_configuration(scene, robot))[0] is None
         assert entry['boxes'] and all(b in {o.id for o in scene.objects} for b in entry['boxes'])
         centres.append(scene.goal.center.position_m)
     assert not np.allclose(centres[0], centres[1])  # the target (and its goal) moved

@@ -117,3 +117,52 @@ def test_planner_motion_step_cannot_step_over_a_box(arm):
     _, robot, _ = arm
     step = PlanningConfig().motion_step_rad
     assert robot.motion_bound.max_m_per_rad * step < AttackConfig().box_size_m
+
+
+def _toy_arm():
+    """A revolute joint (z) carrying a sphere, then a prismatic joint (x, travel -0.2..0.3 m,
+    0.5 m out) carrying a box: the bound is computable by hand."""
+    import coal
+
+    model = pin.Model()
+    j1 = model.addJoint(0, pin.JointModelRZ(), pin.SE3.Identity(), 'turn')
+    j2 = model.addJoint(j1, pin.JointModelPX(), pin.SE3(np.eye(3), np.array([0.5, 0, 0])),
+                        'slide', np.array([1e3]), np.array([1e3]), np.array([-0.2]),
+                        np.array([0.3]))
+    model.lowerPositionLimit[0], model.upperPositionLimit[0] = -3.0, 3.0
+    geom = pin.GeometryModel()
+    geom.addGeometryObject(pin.GeometryObject(
+        'ball', j1, j1, pin.SE3(np.eye(3), np.array([0.25, 0, 0])), coal.Sphere(0.05)))
+    geom.addGeometryObject(pin.GeometryObject(
+        'block', j2, j2, pin.SE3(np.eye(3), np.array([0.1, 0, 0])), coal.Box(0.2, 0.1, 0.1)))
+    return model, geom
+
+
+def test_toy_arm_bound_by_hand():
+    from advocc_ros.model.motion_bound import motion_bound
+
+    model, geom = _toy_arm()
+    bound = motion_bound(model, geom)
+    # ball: 0.25 m from the axis + 0.05 m radius; block: 1 m/m along the slide, and for the
+    # turn 0.5 m out + 0.3 m of travel + its farthest corner sqrt(0.2^2 + 0.05^2 + 0.05^2).
+    assert bound.lever_m[:, 0] == pytest.approx([0.30, 0.0])
+    corner = np.sqrt(0.2 ** 2 + 0.05 ** 2 + 0.05 ** 2)
+    assert bound.lever_m[:, 1] == pytest.approx([0.8 + corner, 1.0])
+    assert bound.link_m_per_rad[1] == pytest.approx(np.hypot(0.8 + corner, 1.0))
+    assert bound.pair_m_per_rad(0, 1) == pytest.approx(1.0)  # only the slide moves them apart
+    # and finite differences stay below it
+    rng = np.random.default_rng(0)
+    data, geom_data = model.createData(), geom.createData()
+    corners = np.array([[x, y, z] for x in (-0.1, 0.1) for y in (-0.05, 0.05)
+                        for z in (-0.05, 0.05)])
+    for _ in range(300):
+        q = rng.uniform(model.lowerPositionLimit + 0.01, model.upperPositionLimit - 0.01)
+        u = rng.normal(size=2)  # a 0.01 step stays within the limits the bound assumes
+        u /= np.linalg.norm(u)
+        moved = []
+        for step in (0.0, 0.01):
+            pin.updateGeometryPlacements(model, data, geom, geom_data, q + step * u)
+            T = geom_data.oMg[1]
+            moved.append(corners @ T.rotation.T + T.translation)
+        assert np.linalg.norm(moved[1] - moved[0], axis=1).max() / 0.01 <= \
+            bound.link_m_per_rad[1] + 1e-9

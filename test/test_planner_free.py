@@ -76,6 +76,7 @@ def witness(table):
     return found
 
 
+@pytest.mark.processes  # the witness fixture's search (a planning worker)
 def test_solvable_takes_the_witness_as_data(table, witness, no_process):
     from advocc_ros.attack import AttackStatus, attack
 
@@ -90,6 +91,7 @@ def test_solvable_takes_the_witness_as_data(table, witness, no_process):
     assert result.solvable.certified, result.solvable.message
 
 
+@pytest.mark.processes  # a fresh interpreter
 def test_the_core_modules_import_no_planner():
     code = ('import sys, advocc_ros.attack, advocc_ros.attack.api, advocc_ros.attack.task\n'
             'print(sorted(m for m in sys.modules if m.startswith(("advocc_ros.planning.worker",'
@@ -124,6 +126,7 @@ def _cli_spawns(argv, env):
     return out.returncode, json.loads(line[len('SPAWNED '):]), out
 
 
+@pytest.mark.processes  # CLI runs
 def test_cli_attack_under_paper_starts_no_planner(tmp_path, heatmap_file):
     env = dict(os.environ, ADVOCC_WITNESS_CACHE='off')
     base = ['attack', '--heatmap', str(heatmap_file), '--scene', 'table_pick', '--budget', '2',
@@ -144,6 +147,7 @@ def test_cli_attack_under_paper_starts_no_planner(tmp_path, heatmap_file):
     assert data['stats']['witness_search_ms'] > 0
 
 
+@pytest.mark.processes  # the witness search (a planning worker)
 def test_edge_attack_task_finds_the_witness_only_when_needed(table, monkeypatch):
     import advocc_ros.planning.witness as witness_module
     from advocc_ros.attack import AttackConfig

@@ -91,6 +91,7 @@ def _cli(*argv, timeout=240):
                           env=dict(os.environ, ADVOCC_WITNESS_CACHE='off'))
 
 
+@pytest.mark.processes  # CLI runs
 @pytest.mark.parametrize('name', ['bad_limits', 'bad_collision'])
 def test_evaluate_refuses_an_invalid_task(bad_scenes, name):
     """Was: '2 of 2 trials were internal errors', PSR N/A, exit 0."""
@@ -100,6 +101,7 @@ def test_evaluate_refuses_an_invalid_task(bad_scenes, name):
     assert 'internal error' not in out.stderr and 'PSR' not in out.stdout
 
 
+@pytest.mark.processes  # CLI runs
 @pytest.mark.parametrize('name', ['bad_limits', 'bad_collision'])
 def test_audit_and_attack_refuse_an_invalid_task(bad_scenes, heatmap_file, tmp_path, name):
     audit = _cli('audit', '--scene', str(bad_scenes[name]), '--heatmap', str(heatmap_file),
@@ -115,9 +117,10 @@ def test_audit_and_attack_refuse_an_invalid_task(bad_scenes, heatmap_file, tmp_p
         assert REASONS[name] in attack.stderr and not (tmp_path / 'obs.yaml').exists()
 
 
+@pytest.mark.processes  # CLI runs
 def test_bench_refuses_an_invalid_task_before_any_work(bad_scenes, tmp_path):
-    out = _cli('bench', '--profile', 'quick', '--scenes',
-               f'table_pick,{bad_scenes["bad_collision"]}',
+    scenes = f'table_pick,{bad_scenes["bad_collision"]}'
+    out = _cli('bench', '--profile', 'quick', '--scenes', scenes,
                '--methods', 'random', '--budgets', '1', '--trials', '1',
                '--out', str(tmp_path / 'run'))
     assert out.returncode == 2, out.stdout + out.stderr
