@@ -114,7 +114,7 @@ def assess(robot: RobotModel, objects: tuple[SceneObject, ...], boxes: tuple[Sce
     names = object_shape_names(everything)
     t0 = time.perf_counter()
     if witness is None:
-        why, states = 'no witness was found on the unattacked scene', 0
+        why, states = 'no witness (none was found on the unattacked scene, or none was handed in)', 0
     else:
         why, proof = certify(robot, world, goal, witness, q_init, CERTIFICATE, names)
         states = proof.states if proof is not None else 0
