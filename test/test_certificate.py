@@ -159,7 +159,7 @@ def test_the_start_is_required_and_checked(task):
 def test_a_failed_search_is_not_kept(task, monkeypatch, tmp_path):
     scene, robot, q0, witness = task
     monkeypatch.setenv(witness_mod.CACHE_ENV, str(tmp_path))
-    monkeypatch.setattr(witness_mod, '_CACHE', type(witness_mod._CACHE)())
+    witness_mod.WITNESSES.clear()
     calls, answers = [], [None, witness]
     monkeypatch.setattr(witness_mod, '_search', lambda *a: calls.append(a) or answers.pop(0))
     assert find_witness(robot, scene.objects, q0, scene.goal) is None
@@ -175,7 +175,7 @@ def test_an_unproven_search_result_is_dropped_for_the_next_seed(task, monkeypatc
     witness; the next seed's is."""
     scene, robot, q0, witness = task
     monkeypatch.setenv(witness_mod.CACHE_ENV, 'off')
-    monkeypatch.setattr(witness_mod, '_CACHE', type(witness_mod._CACHE)())
+    witness_mod.WITNESSES.clear()
     down = np.insert(witness.waypoints, 1, q0 + np.array([0, 1.2, 0, 0, 0, 1.5, 0]), 0)
     bad = Witness(witness.joint_names, down, witness.locked)
     seeds, answers = [], [bad, witness]

@@ -78,3 +78,32 @@ def test_every_command_that_attacks_takes_the_same_task_and_attack_arguments():
         assert {'scene', 'request', 'goal_tol'} <= set(dests), path
         assert {k: dests[k].default for k in expect} == expect, path
         assert '``' not in (p.description or '') and 'lives in' not in (p.description or '')
+
+
+def test_the_cache_facility_is_bounded_lru_and_keeps_the_first_value():
+    import threading
+
+    from advocc_ros.model.cache import BoundedCache
+    cache = BoundedCache('test', 2)
+    assert cache.get_or_make('a', lambda: 1) == 1 and cache.get_or_make('b', lambda: 2) == 2
+    assert cache.get('a') == 1  # 'a' is now the most recently used
+    cache.put('c', 3)
+    assert 'b' not in cache and 'a' in cache and len(cache) == 2
+    assert cache.put('a', 99) == 1  # the first value stored is kept
+    built = []
+
+    def make():
+        built.append(1)
+        return len(built)
+
+    got = []
+    threads = [threading.Thread(target=lambda: got.append(cache.get_or_make('d', make)))
+               for _ in range(8)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    assert len(set(got)) == 1 and got[0] == cache.get('d')  # every thread sees the kept value
+    assert len(cache) == 2
+    cache.clear()
+    assert len(cache) == 0 and cache.get('a') is None

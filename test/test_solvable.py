@@ -61,7 +61,7 @@ def test_witness_search_is_deterministic_for_a_seed(task, monkeypatch):
     scene, robot, q0, _ = task
     monkeypatch.setenv(witness_mod.CACHE_ENV, 'off')  # two searches, not one and a file
     first = find_witness(robot, scene.objects, q0, scene.goal)
-    monkeypatch.setattr(witness_mod, '_CACHE', type(witness_mod._CACHE)())
+    witness_mod.WITNESSES.clear()
     again = find_witness(robot, scene.objects, q0, scene.goal)
     assert first is not None and again is not first
     assert np.array_equal(first.waypoints, again.waypoints)
@@ -82,7 +82,7 @@ class _CountedSearch:
 
 def _new_process(monkeypatch):
     """What a new process sees: an empty in-process cache (the disk cache stays)."""
-    monkeypatch.setattr(witness_mod, '_CACHE', type(witness_mod._CACHE)())
+    witness_mod.WITNESSES.clear()
 
 
 @pytest.fixture

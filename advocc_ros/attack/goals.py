@@ -18,15 +18,14 @@ computed once per task and cached: every attack of one task is judged on the sam
 
 from __future__ import annotations
 
-import collections
 import math
-import threading
 
 import coal
 import numpy as np
 
 from advocc_ros.model.collision import CollisionWorld
 from advocc_ros.kinematics.ik import goal_set
+from advocc_ros.model.cache import BoundedCache
 from advocc_ros.model.robot import RobotModel
 from advocc_ros.model.goal import GoalRegion
 from advocc_ros.model.scene import SceneObject, task_hash
@@ -35,10 +34,8 @@ VALIDATION_SEED = 7_345_001
 """Seed of the goal samples behind ``goal_valid_fraction`` (fixed: comparable attacks)."""
 VALIDATION_SAMPLES = 32
 
-_CACHE: collections.OrderedDict[str, 'GoalSamples'] = collections.OrderedDict()
-_CACHE_SIZE = 16
-_CACHE_LOCK = threading.Lock()
-"""Nodes attack from several executor threads; the LRU's reorder and evict must not interleave."""
+_GOAL_SAMPLES: BoundedCache = BoundedCache('goal samples', 16)
+"""Task hash -> GoalSamples (nodes attack from several executor threads)."""
 
 
 class GoalSamples:
@@ -107,27 +104,19 @@ def goal_samples(robot: RobotModel, objects: tuple[SceneObject, ...], goal: Goal
     """The task's fixed-seed goal samples (cached per task; ~60 ms the first time, computed
     outside the lock: two threads may both compute a new task, and the first one is kept)."""
     key = task_hash(robot.hash, objects, goal, n)
-    with _CACHE_LOCK:
-        if key in _CACHE:
-            _CACHE.move_to_end(key)
-            return _CACHE[key]
+    cached = _GOAL_SAMPLES.get(key)
+    if cached is not None:
+        return cached
     world = world or CollisionWorld(robot, [sh for o in objects for sh in o.shapes])
     sampling: dict = {}
     Q = goal_set(robot, world.collisions_batch, world.in_collision, goal, n, VALIDATION_SEED,
                  stats=sampling)
-    samples = GoalSamples(world, Q, sampling['goal_time_cap_hit'])
-    with _CACHE_LOCK:
-        samples = _CACHE.setdefault(key, samples)
-        _CACHE.move_to_end(key)
-        while len(_CACHE) > _CACHE_SIZE:
-            _CACHE.popitem(last=False)
-    return samples
+    return _GOAL_SAMPLES.put(key, GoalSamples(world, Q, sampling['goal_time_cap_hit']))
 
 
 def clear_cache() -> None:
     """Forget cached goal samples (benchmarks of the cold path call this)."""
-    with _CACHE_LOCK:
-        _CACHE.clear()
+    _GOAL_SAMPLES.clear()
 
 
 class GoalGuard:

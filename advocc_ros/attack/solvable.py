@@ -25,16 +25,15 @@ checked exactly with coal.
 
 from __future__ import annotations
 
-import collections
 import dataclasses
 import enum
-import threading
 import time
 
 import coal
 import numpy as np
 import pinocchio as pin
 
+from advocc_ros.model.cache import BoundedCache
 from advocc_ros.attack.coverage import box_distance
 from advocc_ros.heatmap import link_tables
 from advocc_ros.model.collision import CollisionWorld
@@ -114,7 +113,8 @@ def assess(robot: RobotModel, objects: tuple[SceneObject, ...], boxes: tuple[Sce
     names = object_shape_names(everything)
     t0 = time.perf_counter()
     if witness is None:
-        why, states = 'no witness (none was found on the unattacked scene, or none was handed in)', 0
+        why, states = ('no witness (none was found on the unattacked scene, or none was '
+                       'handed in)', 0)
     else:
         why, proof = certify(robot, world, goal, witness, q_init, CERTIFICATE, names)
         states = proof.states if proof is not None else 0
@@ -249,24 +249,15 @@ class WitnessGuard:
         region.stats['witness_clear'] = int(region.candidates.sum())
 
 
-_BODIES: collections.OrderedDict = collections.OrderedDict()
-_BODIES_LOCK = threading.Lock()
+_BODIES: BoundedCache = BoundedCache('witness bodies', 8)
+"""(robot hash, witness content hash) -> WitnessBodies."""
 
 
 def witness_bodies(robot: RobotModel, world: CollisionWorld, witness: Witness
                    ) -> WitnessBodies:
-    """The bodies of ``witness`` (cached per witness object: find_witness caches those)."""
-    key = (robot.hash, id(witness))
-    with _BODIES_LOCK:
-        if key in _BODIES:
-            _BODIES.move_to_end(key)
-            return _BODIES[key][1]
-    bodies = WitnessBodies(robot, world, witness)
-    with _BODIES_LOCK:
-        _BODIES[key] = (witness, bodies)  # keeps the witness alive, so its id stays unique
-        while len(_BODIES) > 8:
-            _BODIES.popitem(last=False)
-    return bodies
+    """The bodies of ``witness`` (cached per robot and path)."""
+    return _BODIES.get_or_make((robot.hash, witness.content_hash()),
+                               lambda: WitnessBodies(robot, world, witness))
 
 
 __all__ = ['CERTIFICATE', 'GOAL_PROBE_CONVERGED', 'VERDICTS', 'Solvability', 'Verdict',

@@ -12,7 +12,6 @@ from __future__ import annotations
 import hashlib
 import logging
 import pathlib
-import threading
 from typing import Any, Callable
 
 import coal
@@ -20,6 +19,7 @@ import numpy as np
 
 from advocc_ros.limits import (MAX_CLOUD_POINTS, MAX_CLOUD_RESOLUTION_M, MAX_FILE_BYTES,
                                MIN_CLOUD_RESOLUTION_M)
+from advocc_ros.model.cache import BoundedCache
 from advocc_ros.model.shapes import Pose, SceneError, Shape, cloud_cells, finite_array
 
 log = logging.getLogger(__name__)
@@ -32,11 +32,8 @@ _OCTREE_HALF_KEYS = 2 ** 15
 beyond is silently dropped by ``coal.makeOctree``, and far beyond (~10^8 m) its key overflows
 and coal's distance queries on the tree segfault."""
 
-_CACHE: dict[tuple[str, float], dict[str, Any]] = {}
-"""(content hash, resolution) -> {'octree': coal.OcTree, 'keys': sorted leaf keys}."""
-_CACHE_SIZE = 16
-_CACHE_LOCK = threading.Lock()
-"""Clouds arrive on one node thread while another plans: evictions must not interleave."""
+_CLOUDS: BoundedCache = BoundedCache('cloud octrees and keys', 32)
+"""(content hash, resolution, 'octree' | 'keys') -> coal.OcTree | sorted leaf keys."""
 
 
 def make_cloud_shape(points, resolution_m: float = DEFAULT_RESOLUTION_M, pose: Pose = Pose(),
@@ -159,22 +156,11 @@ def cloud_to_data(shape: Shape) -> dict[str, Any]:
 
 
 def _cached(shape: Shape, name: str, make: Callable[[], Any]) -> Any:
-    """``make()`` of this cloud's content, cached; built outside the lock (two threads may
-    both build one, and the first one is kept)."""
+    """``make()`` of this cloud's content, cached (clouds arrive on one node thread while
+    another plans)."""
     key = (hashlib.sha256(np.ascontiguousarray(shape.vertices).tobytes()).hexdigest(),
-           round(shape.dims[0], 9))
-    with _CACHE_LOCK:
-        entry = _CACHE.get(key)
-        if entry is not None and name in entry:
-            return entry[name]
-    value = make()
-    with _CACHE_LOCK:
-        entry = _CACHE.get(key)
-        if entry is None:
-            while len(_CACHE) >= _CACHE_SIZE:
-                _CACHE.pop(next(iter(_CACHE)))
-            entry = _CACHE[key] = {}
-        return entry.setdefault(name, value)
+           round(shape.dims[0], 9), name)
+    return _CLOUDS.get_or_make(key, make)
 
 
 def cloud_octree(shape: Shape) -> coal.OcTree:

@@ -30,6 +30,7 @@ import numpy as np
 import pinocchio as pin
 from scipy.spatial import ConvexHull
 
+from advocc_ros.model.cache import BoundedCache
 from advocc_ros.model.cloud import cloud_octree
 from advocc_ros.model.robot import RobotModel
 from advocc_ros.model.shapes import Shape
@@ -71,18 +72,17 @@ def convex_hull(mesh: coal.BVHModelBase) -> coal.Convex:
     return hull
 
 
-_HULLS: dict[str, dict[int, coal.Convex]] = {}
+_HULLS: BoundedCache = BoundedCache('convex link hulls', 8)
+"""Robot hash -> {geometry index: hull}."""
 
 
 def _convex_robot_model(robot: RobotModel) -> pin.GeometryModel:
     """A copy of the robot's collision model with meshes replaced by their hulls (computed
     once per robot: qhull takes ~1 ms a link, more than the rest of a world's set-up)."""
-    hulls = _HULLS.get(robot.hash)
-    if hulls is None:
-        hulls = _HULLS[robot.hash] = {
-            i: convex_hull(geom.geometry)
-            for i, geom in enumerate(robot.collision_model.geometryObjects)
-            if isinstance(geom.geometry, coal.BVHModelBase)}
+    hulls = _HULLS.get_or_make(robot.hash, lambda: {
+        i: convex_hull(geom.geometry)
+        for i, geom in enumerate(robot.collision_model.geometryObjects)
+        if isinstance(geom.geometry, coal.BVHModelBase)})
     geom_model = robot.collision_model.copy()
     for i, hull in hulls.items():
         geom_model.geometryObjects[i].geometry = hull

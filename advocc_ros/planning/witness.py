@@ -29,18 +29,19 @@ joints), ``waypoints`` (rad; the path is the linear interpolation in joint space
 
 from __future__ import annotations
 
-import collections
 import dataclasses
+import hashlib
+import json
 import logging
 import math
 import os
 import pathlib
-import threading
 import typing
 
 import numpy as np
 import pinocchio as pin
 
+from advocc_ros.model.cache import BoundedCache
 from advocc_ros.model.collision import CollisionWorld
 from advocc_ros.model.robot import RobotModel
 from advocc_ros.model.goal import GoalRegion
@@ -83,6 +84,12 @@ class Witness:
     """Joint name -> value [rad or m] of every model joint that is not planned."""
     source: dict = dataclasses.field(default_factory=dict)
     """How it was found: planner, seed, time budget, path length."""
+
+    def content_hash(self) -> str:
+        """What the path is (joints, waypoints, locked values), not where it came from."""
+        text = json.dumps([self.to_data()[k] for k in ('joint_names', 'waypoints', 'locked')],
+                          sort_keys=True)
+        return hashlib.sha256(text.encode()).hexdigest()
 
     def to_data(self) -> dict:
         return {'format': WITNESS_FORMAT, 'joint_names': list(self.joint_names),
@@ -224,9 +231,8 @@ def load_witness(path: str | pathlib.Path) -> Witness:
     return Witness.from_data(read_yaml(pathlib.Path(path)), str(path))
 
 
-_CACHE: collections.OrderedDict[str, Witness] = collections.OrderedDict()
-_CACHE_SIZE = 32
-_LOCK = threading.Lock()
+WITNESSES: BoundedCache = BoundedCache('witnesses', 32)
+"""Task hash -> Witness found in this process (a failed search is not kept)."""
 
 
 def witness_cache_dir() -> pathlib.Path | None:
@@ -251,10 +257,9 @@ def find_witness(robot: RobotModel, objects: tuple[SceneObject, ...] | list,
     q_init = np.asarray(q_init, float)
     key = task_hash(robot.hash, objects, goal, np.round(q_init, 12).tolist(), seed, time_s,
                     WITNESS_FORMAT, WITNESS_PLANNER, WITNESS_STEP_RAD, 'continuous', WITNESS_TRIES)
-    with _LOCK:
-        if key in _CACHE:
-            _CACHE.move_to_end(key)
-            return _CACHE[key]
+    cached = WITNESSES.get(key)
+    if cached is not None:
+        return cached
     cache_dir = witness_cache_dir()
     disk = cache_dir / f'{key}.yaml' if cache_dir is not None else None
     world = CollisionWorld(robot, [sh for o in objects for sh in o.shapes])
@@ -265,11 +270,7 @@ def find_witness(robot: RobotModel, objects: tuple[SceneObject, ...] | list,
             return None
         if disk is not None:
             _to_disk(disk, witness)
-    with _LOCK:
-        _CACHE[key] = witness
-        while len(_CACHE) > _CACHE_SIZE:
-            _CACHE.popitem(last=False)
-    return witness
+    return WITNESSES.put(key, witness)
 
 
 def _search_certified(robot: RobotModel, world: CollisionWorld,

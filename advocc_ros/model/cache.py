@@ -1,0 +1,67 @@
+"""The one cache facility: bounded, thread-safe, keyed by content.
+
+Derived data that costs milliseconds to seconds and is asked for again and again (convex hulls
+of a robot's links, link look-up tables, a task's goal samples and witness, a cloud's octree)
+is kept per process. Every such cache is a :class:`BoundedCache`: least recently used entries go
+first, so a long-running node does not grow without bound, and keys are content hashes (robot
+hash, task hash, point hash), never ``id()`` of an object that may be freed and reused.
+"""
+
+from __future__ import annotations
+
+import collections
+import threading
+from typing import Callable, Generic, Hashable, TypeVar
+
+V = TypeVar('V')
+
+
+class BoundedCache(Generic[V]):
+    """A least-recently-used map with at most ``max_entries`` entries, safe across threads.
+
+    ``get_or_make`` builds a missing value outside the lock (a build may take seconds and
+    another thread may want another key meanwhile); when two threads build the same key at
+    once, the first value stored is kept and returned to both.
+    """
+
+    def __init__(self, name: str, max_entries: int):
+        if max_entries < 1:
+            raise ValueError(f'cache {name}: max_entries must be >= 1, got {max_entries}')
+        self.name, self.max_entries = name, max_entries
+        self._entries: collections.OrderedDict[Hashable, V] = collections.OrderedDict()
+        self._lock = threading.Lock()
+
+    def get(self, key: Hashable) -> V | None:
+        with self._lock:
+            if key not in self._entries:
+                return None
+            self._entries.move_to_end(key)
+            return self._entries[key]
+
+    def put(self, key: Hashable, value: V) -> V:
+        """Store ``value`` unless ``key`` is already there; the stored value."""
+        with self._lock:
+            value = self._entries.setdefault(key, value)
+            self._entries.move_to_end(key)
+            while len(self._entries) > self.max_entries:
+                self._entries.popitem(last=False)
+            return value
+
+    def get_or_make(self, key: Hashable, make: Callable[[], V]) -> V:
+        value = self.get(key)
+        return self.put(key, make()) if value is None else value
+
+    def clear(self) -> None:
+        with self._lock:
+            self._entries.clear()
+
+    def __len__(self) -> int:
+        with self._lock:
+            return len(self._entries)
+
+    def __contains__(self, key: Hashable) -> bool:
+        with self._lock:
+            return key in self._entries
+
+
+__all__ = ['BoundedCache']
