@@ -67,6 +67,7 @@ def small_heatmap(table_scene):
     return build_heatmap(table_scene, HeatmapConfig(samples=3000), seed=0, workers=1)
 
 
+@pytest.mark.processes
 def test_audit_end_to_end_table_pick(tmp_path, table_scene, small_heatmap):
     """Task / paper on table_pick: the first box blocks every goal pose (measured), so the PSR
     drops to the last evaluated prefix, the goal-valid fraction goes to 0, and the verdict of
@@ -121,6 +122,7 @@ def test_audit_end_to_end_table_pick(tmp_path, table_scene, small_heatmap):
     assert '| 1 | goal blocked |' in md
 
 
+@pytest.mark.processes
 def test_audit_policy_solvable_gives_both_answers(tmp_path, table_scene, small_heatmap):
     """--policy solvable: every evaluated prefix stays certified (the witness is kept by
     construction) and a second, paper-policy attack says how few boxes block the goal."""

@@ -53,6 +53,7 @@ def test_broad_phase_matches_all_pairs(path):
         assert world.first_collision(Q[start:start + 50]) == expected
 
 
+@pytest.mark.processes
 def test_motion_validator_matches_ompl(panda, table_scene):
     from ompl import base as ob
 

@@ -44,6 +44,7 @@ def _answer(result: dict) -> dict:
                         stats['goal_samples']]}
 
 
+@pytest.mark.processes
 def test_task_attack_is_the_same_alone_and_beside_two_cpu_hogs(tmp_path, table_scene):
     from advocc_ros.heatmap import HeatmapConfig, build_heatmap, save_heatmap
 

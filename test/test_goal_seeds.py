@@ -71,6 +71,7 @@ def test_seeds_of_another_robot_are_ignored(task):
     assert seed_configurations(robot, goal).shape == (0, robot.nq)
 
 
+@pytest.mark.processes
 def test_the_planner_worker_reaches_a_joint_goal_through_its_seed(task):
     """With one DLS iteration per IK attempt, random-seed IK never lands in a 0.1 mm / 1 mrad
     region; the seed (already inside) and walks near it do, so the seed crossed the worker's

@@ -107,6 +107,7 @@ def test_weights_match_hand_computed_manipulability_and_clearance(table_scene):
         assert w == pytest.approx(expected, rel=1e-4, abs=1e-6)
 
 
+@pytest.mark.processes
 def test_same_seed_same_heatmap_for_any_worker_count(table_scene):
     cfg = HeatmapConfig(samples=1200)
     a = build_heatmap(table_scene, cfg, seed=11, workers=1)

@@ -210,6 +210,7 @@ def _witness_of(files, robot):
                    source={})
 
 
+@pytest.mark.processes
 def test_export_round_trip_keeps_the_witness_valid(solvable_attack, table_scene, tmp_path,
                                                    capsys):
     from advocc_ros.attack import load_obstacles
@@ -247,6 +248,7 @@ def test_export_round_trip_keeps_the_witness_valid(solvable_attack, table_scene,
     assert row['objects'] == len(original.objects) and len(row['records']) == row['trials'] == 1
 
 
+@pytest.mark.processes
 def test_export_refuses_what_it_cannot_vouch_for(solvable_attack, tmp_path, capsys):
     from advocc_ros.cli import main
     from advocc_ros.planning.witness import load_witness, save_witness, witness_file
@@ -292,6 +294,7 @@ def test_export_refuses_what_it_cannot_vouch_for(solvable_attack, tmp_path, caps
     assert '--max-draws must be' in capsys.readouterr().err
 
 
+@pytest.mark.processes
 def test_variations_are_attacked_again_and_certified(solvable_attack, tmp_path):
     from advocc_ros.planning.witness import certify
     from advocc_ros.cli import main

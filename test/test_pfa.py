@@ -159,6 +159,7 @@ def _failure_rate(planners, q, goal, obstacles, trials, seed):
     return sum(not r.success for r in results) / trials
 
 
+@pytest.mark.processes
 def test_pfa_beats_random_on_the_bin(panda, bin_task, planners):
     scene, heatmap = bin_task
     q = start_configuration(scene, panda)
@@ -191,6 +192,7 @@ def test_pfa_beats_random_on_the_bin(panda, bin_task, planners):
     assert pfa_rate >= np.mean(rnd_rates) + 0.3, (pfa_rate, rnd_rates, res.centers_m)
 
 
+@pytest.mark.processes
 def test_pfa_pp_queries_the_victim_with_the_goal_region(panda, bin_task, planners):
     scene, heatmap = bin_task
     q = start_configuration(scene, panda)
@@ -207,6 +209,7 @@ def test_pfa_pp_queries_the_victim_with_the_goal_region(panda, bin_task, planner
     _assert_constraints(res, panda, heatmap, scene.objects, q, scene.goal, CFG)
 
 
+@pytest.mark.processes
 def test_pfa_stops_when_the_planner_refuses_the_goal(panda, bin_task, planners):
     """A refused query (here: a goal link the robot lacks) is a broken request, not a planner
     failure the optimiser may count as an attack win; the benchmark stops on the same set."""
@@ -224,6 +227,7 @@ def test_pfa_stops_when_the_planner_refuses_the_goal(panda, bin_task, planners):
     assert 'PFA query refused' in res.message and 'no_such_link' in res.message
 
 
+@pytest.mark.processes
 def test_pfa_asks_again_after_an_internal_error(panda, bin_task, monkeypatch):
     """A crashed planning worker says nothing about the boxes: the optimiser must not score it
     as a planner failure (here: the worker SIGKILLs itself on two of the baseline queries)."""
@@ -253,6 +257,7 @@ def test_pfa_asks_again_after_an_internal_error(panda, bin_task, monkeypatch):
     assert stats['baseline_failure_rate'] == expected, (answers, stats)
 
 
+@pytest.mark.processes
 def test_pfa_stops_when_the_planner_keeps_failing_internally(panda, bin_task, monkeypatch):
     scene, heatmap = bin_task
     q = start_configuration(scene, panda)

@@ -77,6 +77,7 @@ def test_confine(tmp_path):
         (REPO / 'config').resolve() in allowed_dirs(None)
 
 
+@pytest.mark.processes
 def test_nodes_refuse_files_outside_allowed_dirs(tmp_path, ros_env):
     """Both nodes exit 1 with a clear message; started together (start-up dominates)."""
     allowed = tmp_path / 'allowed'
@@ -228,6 +229,7 @@ def test_module_sizes_and_the_top_level():
     assert len(loose) <= 6, f'top-level modules (at most 6): {loose}'
 
 
+@pytest.mark.processes
 def test_flake8_is_clean():
     """The settings of setup.cfg's [flake8] section (max-line-length 99) over code and tests."""
     out = subprocess.run([sys.executable, '-m', 'flake8', 'advocc_ros', 'test', 'setup.py'],

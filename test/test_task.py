@@ -164,6 +164,7 @@ def test_bad_policy_and_pfa_under_reachable_are_clear_errors(panda, heatmap, tas
         AttackConfig(goal_policy='maybe')
 
 
+@pytest.mark.processes
 def test_task_makes_a_real_planner_fail(panda, heatmap, task, table_scene):
     q, goal, objects = task
     result = attack(heatmap, panda, objects, q, goal, 3, 'task', seed=0)

@@ -119,6 +119,7 @@ def audit_dir(tmp_path_factory, table_scene):
     return out
 
 
+@pytest.mark.processes
 def test_audit_writes_a_self_contained_page(audit_dir):
     from advocc_ros.audit.report import audit_answer
 
@@ -132,6 +133,7 @@ def test_audit_writes_a_self_contained_page(audit_dir):
         assert f'<td>{box["pick"]}</td><td>{box["id"]}</td>' in page
 
 
+@pytest.mark.processes
 def test_audit_bag_holds_the_audit_boxes(audit_dir):
     from advocc_msgs.msg import CollisionObject
     from mcap.reader import make_reader
@@ -149,6 +151,7 @@ def test_audit_bag_holds_the_audit_boxes(audit_dir):
     assert [t for t, _ in records][-1] == '/heatmap_server/heatmap'
 
 
+@pytest.mark.processes
 def test_audit_page_draws_offline_in_chromium(audit_dir, tmp_path):
     needs_chromium()
     png, netlog = tmp_path / 'audit.png', tmp_path / 'net.json'
