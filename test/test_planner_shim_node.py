@@ -1,6 +1,7 @@
 """planner_shim as a real process: plan, inject a wall on the topic, bad requests, an internal
 error, clean exit."""
 
+import contextlib
 import json
 import math
 import signal
@@ -22,15 +23,24 @@ FAULT_SEED = 77
 @pytest.fixture
 def ros(ros_env, monkeypatch):
     """rclpy in this process on the child's domain; the shim node as a child process."""
+    with shim_process(ros_env, monkeypatch, [f'scene_file:={SCENE}', 'watchdog_margin_s:=2.0'],
+                      {'ADVOCC_PLANNING_FAULT': f'raise:{FAULT_SEED}'}) as handles:
+        yield handles
+
+
+@contextlib.contextmanager
+def shim_process(ros_env, monkeypatch, params: list[str], env: dict | None = None):
+    """A planner_shim child with ``params`` (``name:=value``) and extra ``env``, and an rclpy
+    node of this process on its domain: yields (process, node, executor); always stops both."""
     import rclpy
 
     for key in ('ROS_DOMAIN_ID', 'ROS_LOCALHOST_ONLY'):
         monkeypatch.setenv(key, ros_env[key])
+    args = [a for p in params for a in ('-p', p)]
     proc = subprocess.Popen(
-        [sys.executable, '-m', 'advocc_ros.nodes.planner_shim', '--ros-args',
-         '-p', f'scene_file:={SCENE}', '-p', 'watchdog_margin_s:=2.0'],
-        env=dict(ros_env, ADVOCC_PLANNING_FAULT=f'raise:{FAULT_SEED}'), stdout=subprocess.PIPE,
-        stderr=subprocess.STDOUT, text=True)
+        [sys.executable, '-m', 'advocc_ros.nodes.planner_shim', '--ros-args', *args],
+        env=dict(ros_env, **(env or {})), stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+        text=True)
     context = rclpy.Context()
     rclpy.init(context=context, domain_id=int(ros_env['ROS_DOMAIN_ID']))
     node = rclpy.create_node('shim_test_client', context=context)

@@ -3,36 +3,23 @@
 
 import json
 import signal
-import subprocess
-import sys
 import time
 
 from conftest import REPO
-from test_planner_shim_node import _call
+from test_planner_shim_node import _call, shim_process
 
 SCENE = REPO / 'config' / 'scenes' / 'table_pick.yaml'
 
 
 def test_planner_shim_mplib_backend(ros_env, monkeypatch, table_scene):
-    import rclpy
     from advocc_msgs.msg import ErrorCodes
     from advocc_msgs.srv import GetInfo, Plan
     from sensor_msgs.msg import JointState
 
     from advocc_ros.ros.conversions import goal_region_to_msg
 
-    for key in ('ROS_DOMAIN_ID', 'ROS_LOCALHOST_ONLY'):
-        monkeypatch.setenv(key, ros_env[key])
-    proc = subprocess.Popen(
-        [sys.executable, '-m', 'advocc_ros.nodes.planner_shim', '--ros-args',
-         '-p', f'scene_file:={SCENE}', '-p', 'backend:=mplib'],
-        env=ros_env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
-    context = rclpy.Context()
-    rclpy.init(context=context, domain_id=int(ros_env['ROS_DOMAIN_ID']))
-    node = rclpy.create_node('mplib_shim_client', context=context)
-    executor = rclpy.executors.SingleThreadedExecutor(context=context)
-    executor.add_node(node)
-    try:
+    with shim_process(ros_env, monkeypatch, [f'scene_file:={SCENE}', 'backend:=mplib']) as (
+            proc, node, executor):
         plan = node.create_client(Plan, '/planner_shim/plan')
         info = node.create_client(GetInfo, '/planner_shim/get_info')
         deadline = time.monotonic() + 60
@@ -60,10 +47,3 @@ def test_planner_shim_mplib_backend(ros_env, monkeypatch, table_scene):
         proc.send_signal(signal.SIGINT)
         out, _ = proc.communicate(timeout=20)
         assert proc.returncode == 0 and 'Traceback' not in out, out
-    finally:
-        executor.shutdown()
-        node.destroy_node()
-        rclpy.try_shutdown(context=context)
-        if proc.poll() is None:
-            proc.kill()
-            proc.wait(10)

@@ -14,7 +14,8 @@ Requests (``op``):
   ``ompl_status``, the raw ``path``, ``solve_s`` (wall time of ``plan``), ``goals_valid``
   (mask of the goals valid in MPlib's model) and ``first_collision`` (index of the first state
   of the path, interpolated at ``check_step_rad``, that collides in MPlib's model; -1: none).
-- ``check``: ``q`` (N, planned joints) -> ``collides`` (N booleans), MPlib's verdicts.
+- ``check``: ``q`` (N, planned joints) -> ``collides`` (N booleans), MPlib's verdicts, and
+  ``pairs``: the colliding pairs of each (names of links or objects).
 - ``stall``: sleep ``seconds`` (diagnostic: tests the parent's watchdog).
 
 Diagnostics: ``ADVOCC_PLANNING_FAULT=kill:SEED[,SEED...]`` makes the worker SIGKILL itself
@@ -112,6 +113,12 @@ class Session:
         self.planner.robot.set_qpos(full, True)
         return len(self.planner.planning_world.check_collision()) > 0
 
+    def contacts(self, q_ours) -> list:
+        """The colliding pairs at ``q_ours``: (link or object, link or object) names."""
+        self.collides(q_ours)
+        return [[c.link_name1 or c.object_name1, c.link_name2 or c.object_name2]
+                for c in self.planner.planning_world.check_collision()]
+
     def plan(self, req: dict) -> dict:
         import mplib
         if self.collides(req['q_start']):
@@ -174,7 +181,8 @@ def _serve(session: Session, req: dict) -> dict:
         _inject_fault(int(req['seed']))
         return session.plan(req)
     if op == 'check':
-        return {'collides': [session.collides(q) for q in req['q']]}
+        return {'collides': [session.collides(q) for q in req['q']],
+                'pairs': [session.contacts(q) for q in req['q']]}
     raise ValueError(f'unknown op {op!r}')
 
 

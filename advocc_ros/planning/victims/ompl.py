@@ -9,7 +9,7 @@ like for like (docs/transfer.md).
 from __future__ import annotations
 
 from advocc_ros.model.collision import CollisionWorld
-from advocc_ros.planning.types import PlanResult, planner_class_name
+from advocc_ros.planning.types import PlanResult, PlanStatus, _fail, planner_class_name
 from advocc_ros.planning.victims import Task, VictimConfig
 from advocc_ros.planning.worker import Planner
 
@@ -46,6 +46,9 @@ class OmplVictim:
         if self.config.ompl_goal_list and goals is None:
             goals = task.goals(planner.robot, self._world_for(task, planner.robot),
                                self.config.goal_configs, seed)
+        if goals is not None and not len(goals):
+            return _fail(PlanStatus.GOAL_IN_COLLISION, 'our goal sampler found no collision-free '
+                         'goal configuration for the goal list', planner.robot.nq)
         result = planner.plan(task.q_start, task.goal, self.name, time_budget_s, seed, goals)
         result.stats['victim'] = self.name
         return result
