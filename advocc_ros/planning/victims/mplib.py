@@ -30,8 +30,8 @@ from advocc_ros.fileio import atomic_write_text
 from advocc_ros.model.collision import CollisionWorld
 from advocc_ros.model.robot import RobotModel, example_robot_data_share, resolve_path
 from advocc_ros.planning.types import PlanResult, PlanStatus, _fail
-from advocc_ros.planning.victims import Task, VictimConfig, first_collision_along, \
-    path_length_rad
+from advocc_ros.planning.victims.base import (Task, VictimConfig, first_collision_along,
+                                              path_length_rad)
 from advocc_ros.planning.victims.outside import OutsideVictim
 from advocc_ros.planning.worker import WorkerDied
 

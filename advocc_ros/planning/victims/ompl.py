@@ -10,7 +10,7 @@ from __future__ import annotations
 
 from advocc_ros.model.collision import CollisionWorld
 from advocc_ros.planning.types import PlanResult, PlanStatus, _fail, planner_class_name
-from advocc_ros.planning.victims import Task, VictimConfig
+from advocc_ros.planning.victims.base import Task, VictimConfig
 from advocc_ros.planning.worker import Planner
 
 

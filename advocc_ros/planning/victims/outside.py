@@ -22,7 +22,7 @@ import numpy as np
 from advocc_ros.model.collision import CollisionWorld
 from advocc_ros.model.robot import RobotModel, load_robot
 from advocc_ros.planning.types import PlanResult, PlanStatus, _fail, validate_request
-from advocc_ros.planning.victims import Task, VictimConfig
+from advocc_ros.planning.victims.base import Task, VictimConfig
 from advocc_ros.planning.worker import WorkerDied, _Worker
 
 log = logging.getLogger(__name__)

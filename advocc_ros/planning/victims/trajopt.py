@@ -44,8 +44,8 @@ from advocc_ros.model.collision import CollisionWorld
 from advocc_ros.model.robot import RobotModel
 from advocc_ros.model.shapes import Shape
 from advocc_ros.planning.types import PlanResult, PlanStatus
-from advocc_ros.planning.victims import (VictimConfig, densify, first_collision_along,
-                                         path_length_rad)
+from advocc_ros.planning.victims.base import (VictimConfig, densify, first_collision_along,
+                                              path_length_rad)
 from advocc_ros.planning.victims.tesseract_env import MANIPULATOR, TesseractWorld
 
 PROFILE = 'DEFAULT'

@@ -27,7 +27,7 @@ import numpy as np
 from advocc_ros.model.collision import CollisionWorld
 from advocc_ros.model.robot import RobotModel, load_robot
 from advocc_ros.planning.types import PlanResult, PlanStatus, _fail
-from advocc_ros.planning.victims import Task, VictimConfig, first_collision_along
+from advocc_ros.planning.victims.base import Task, VictimConfig, first_collision_along
 from advocc_ros.planning.victims.outside import OutsideVictim
 from advocc_ros.planning.worker import WorkerDied
 
