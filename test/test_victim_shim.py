@@ -5,8 +5,12 @@ import json
 import signal
 import time
 
+import pytest
+
 from conftest import REPO
 from test_planner_shim_node import _call, shim_process
+
+pytestmark = pytest.mark.processes  # nodes, workers or CLI runs
 
 SCENE = REPO / 'config' / 'scenes' / 'table_pick.yaml'
 

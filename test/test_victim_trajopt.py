@@ -86,6 +86,7 @@ def test_shapes_it_cannot_take_are_named(panda, solver, table_scene):
         solver.set_objects([mesh])
 
 
+@pytest.mark.processes
 def test_solves_unattacked_table_pick_in_its_worker(panda, table_scene):
     """Through the registry and the worker process, as the evaluation runs it; a rate over
     seeds, every success re-validated here by our exact checker."""
@@ -118,6 +119,7 @@ def test_config_rejects_bad_values():
         TrajOptConfig(collision_margin_m=-0.01)
 
 
+@pytest.mark.processes
 def test_a_box_hidden_from_trajopt_is_caught_by_our_checker(panda):
     """Re-validation: TrajOpt does not see the wall (diagnostic ``hidden_object_ids``) and
     plans straight through it; our checker in the parent reports a model mismatch, not a
