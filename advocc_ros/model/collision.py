@@ -14,12 +14,14 @@ compares the two on 100,000 configurations per shipped scene), at ~5x the speed 
 GJK starts cold on every query (see ``_no_warm_start``), so a verdict never depends on which
 configuration was checked before.
 
-It owns scratch data, so use one per thread (or per process).
+Model and data are apart, as in pinocchio: a ``CollisionWorld`` (geometry, pairs) is built once
+per scene and never changes, so threads share it; its queries run on the calling thread's
+``CollisionData`` (``create_data()``: pinocchio data, geometry data, broad-phase manager), made
+on the thread's first query.
 """
 
 from __future__ import annotations
 
-import collections
 import functools
 import json
 import threading
@@ -89,13 +91,36 @@ def _convex_robot_model(robot: RobotModel) -> pin.GeometryModel:
     return geom_model
 
 
+class CollisionData:
+    """One thread's scratch for queries on a ``CollisionWorld`` (``world.create_data()``)."""
+
+    def __init__(self, world: 'CollisionWorld'):
+        self.data = world.robot.create_data()
+        self.geom_data = world.geom_model.createData()  # placements (no queries run on it)
+        self.broad_data = world.geom_model.createData()
+        _no_warm_start(self.broad_data.collisionRequests)
+        self.broad = pin.BroadPhaseManager_DynamicAABBTreeCollisionManager(
+            world.model, world.geom_model, self.broad_data)
+        self.pool: pin.BroadPhaseManagerPool_DynamicAABBTreeCollisionManager | None = None
+        self.margin_pool: tuple[float, pin.GeometryPool] | None = None
+        self.near_data: tuple[float, pin.GeometryData] | None = None
+        self._world = world
+        self._dist_data: pin.GeometryData | None = None
+
+    @property
+    def dist_data(self) -> pin.GeometryData:
+        if self._dist_data is None:
+            self._dist_data = self._world.dist_model.createData()
+            _no_warm_start(self._dist_data.distanceRequests)
+        return self._dist_data
+
+
 class CollisionWorld:
     """Validity (joint limits, self and scene collision) and clearance for one scene."""
 
     def __init__(self, robot: RobotModel, shapes: list[Shape] = ()):
         self.robot = robot
         self.model = robot.model
-        self.data = robot.create_data()
         self.geom_model = _convex_robot_model(robot)
         self.n_links = self.geom_model.ngeoms
         self.shapes = list(shapes)
@@ -107,15 +132,32 @@ class CollisionWorld:
             self.geom_model.addCollisionPair(pin.CollisionPair(a, b))
         for pair in self._scene_pairs():
             self.geom_model.addCollisionPair(pair)
-        self.geom_data = self.geom_model.createData()  # placements (no queries run on it)
-        self._broad_data = self.geom_model.createData()
-        _no_warm_start(self._broad_data.collisionRequests)
-        self._broad = pin.BroadPhaseManager_DynamicAABBTreeCollisionManager(
-            self.model, self.geom_model, self._broad_data)
-        self._pool: pin.BroadPhaseManagerPool_DynamicAABBTreeCollisionManager | None = None
-        self._margin_pool: tuple[float, pin.GeometryPool] | None = None
-        self._near_data: tuple[float, pin.GeometryData] | None = None
-        self._occupied: dict[VoxelGrid, np.ndarray] = {}
+        self._threads = threading.local()
+        self._occupied: BoundedCache = BoundedCache('occupied voxels of a scene', 8)
+
+    def create_data(self) -> CollisionData:
+        """Fresh scratch for queries on this world (one per thread)."""
+        return CollisionData(self)
+
+    @property
+    def scratch(self) -> CollisionData:
+        """The calling thread's ``CollisionData`` (made on its first query)."""
+        scratch = getattr(self._threads, 'scratch', None)
+        if scratch is None:
+            scratch = self._threads.scratch = self.create_data()
+        return scratch
+
+    @property
+    def data(self) -> pin.Data:
+        return self.scratch.data
+
+    @property
+    def geom_data(self) -> pin.GeometryData:
+        return self.scratch.geom_data
+
+    @property
+    def dist_data(self) -> pin.GeometryData:
+        return self.scratch.dist_data
 
     @functools.cached_property
     def _primitives_only(self) -> bool:
@@ -135,15 +177,10 @@ class CollisionWorld:
             dist_model.addCollisionPair(pair)
         return dist_model
 
-    @functools.cached_property
-    def dist_data(self) -> pin.GeometryData:
-        dist_data = self.dist_model.createData()
-        _no_warm_start(dist_data.distanceRequests)
-        return dist_data
-
     def in_collision(self, q: np.ndarray) -> bool:
         """Self or scene collision at ``q`` (joint limits not checked)."""
-        return bool(pin.computeCollisions(self.model, self.data, self._broad, q, True))
+        scratch = self.scratch
+        return bool(pin.computeCollisions(self.model, scratch.data, scratch.broad, q, True))
 
     def is_valid(self, q: np.ndarray) -> bool:
         return self.robot.within_limits(q) and not self.in_collision(q)
@@ -152,21 +189,25 @@ class CollisionWorld:
                         ) -> list[tuple[str, str]]:
         """Every colliding pair at ``q``: robot geometry names, scene shapes as
         ``shape_names[k]`` (default ``scene/k``)."""
-        pin.computeCollisions(self.model, self.data, self.geom_model, self._broad_data, q, False)
+        scratch = self.scratch
+        pin.computeCollisions(self.model, scratch.data, self.geom_model, scratch.broad_data, q,
+                              False)
         names = [g.name for g in self.geom_model.geometryObjects]
         if shape_names is not None:
             names[self.n_links:] = list(shape_names)
         return [(names[p.first], names[p.second])
-                for p, r in zip(self.geom_model.collisionPairs, self._broad_data.collisionResults)
+                for p, r in zip(self.geom_model.collisionPairs,
+                                scratch.broad_data.collisionResults)
                 if r.isCollision()]
 
     def _broad_pool(self, threads: int):
-        if self._pool is None or self._pool.size() < threads:
-            self._pool = pin.BroadPhaseManagerPool_DynamicAABBTreeCollisionManager(
+        scratch = self.scratch
+        if scratch.pool is None or scratch.pool.size() < threads:
+            scratch.pool = pin.BroadPhaseManagerPool_DynamicAABBTreeCollisionManager(
                 self.model, self.geom_model, max(threads, 1))
-            for data in self._pool.getGeometryDatas():
+            for data in scratch.pool.getGeometryDatas():
                 _no_warm_start(data.collisionRequests)
-        return self._pool
+        return scratch.pool
 
     def collisions_batch(self, Q: np.ndarray, threads: int = 1) -> np.ndarray:
         """Collision flags for configurations ``Q`` (N, nq), computed in parallel in C++."""
@@ -184,17 +225,18 @@ class CollisionWorld:
 
     def near_scene_batch(self, Q: np.ndarray, margin_m: float, threads: int = 1) -> np.ndarray:
         """Which configurations ``Q`` (N, nq) bring a link within ``margin_m`` of the scene."""
+        scratch = self.scratch
         if not self.shapes:
             return np.zeros(len(Q), dtype=bool)
-        if self._margin_pool is None or self._margin_pool[0] != margin_m:
+        if scratch.margin_pool is None or scratch.margin_pool[0] != margin_m:
             pool = pin.GeometryPool(self.model, self.dist_model, max(threads, 1))
             for data in pool.getGeometryDatas():
                 _no_warm_start(data.collisionRequests)
                 for req in data.collisionRequests:
                     req.security_margin = margin_m
-            self._margin_pool = (margin_m, pool)
+            scratch.margin_pool = (margin_m, pool)
         return np.asarray(pin.computeCollisionsInParallel(
-            max(threads, 1), self._margin_pool[1], np.asfortranarray(Q.T), True, False),
+            max(threads, 1), scratch.margin_pool[1], np.asfortranarray(Q.T), True, False),
             dtype=bool)
 
     def scene_distance(self, q: np.ndarray, upto_m: float | None = None) -> float:
@@ -207,27 +249,30 @@ class CollisionWorld:
         distance costs ~0.7 ms per link). With primitives only, one C++ pass over every pair
         is faster still (135 vs 174 us on table_pick, same values).
         """
+        scratch = self.scratch
         if not self.shapes:
             return float('inf')
         if upto_m is None or self._primitives_only:
             # pinocchio returns the index of the closest pair: no Python loop over the results.
-            i = pin.computeDistances(self.model, self.data, self.dist_model, self.dist_data, q)
-            d = float(self.dist_data.distanceResults[i].min_distance)
+            i = pin.computeDistances(self.model, scratch.data, self.dist_model,
+                                     scratch.dist_data, q)
+            d = float(scratch.dist_data.distanceResults[i].min_distance)
             return d if upto_m is None else min(d, float(upto_m))
-        if self._near_data is None or self._near_data[0] != upto_m:
+        if scratch.near_data is None or scratch.near_data[0] != upto_m:
             near_data = self.dist_model.createData()
             _no_warm_start(near_data.collisionRequests)
             for req in near_data.collisionRequests:
                 req.security_margin = upto_m
-            self._near_data = (upto_m, near_data)
-        near_data = self._near_data[1]
-        pin.updateGeometryPlacements(self.model, self.data, self.dist_model, near_data, q)
+            scratch.near_data = (upto_m, near_data)
+        near_data = scratch.near_data[1]
+        pin.updateGeometryPlacements(self.model, scratch.data, self.dist_model, near_data, q)
         pin.computeCollisions(self.dist_model, near_data, False)
         near = [k for k, r in enumerate(near_data.collisionResults) if r.isCollision()]
         if not near:
             return float(upto_m)
-        pin.updateGeometryPlacements(self.model, self.data, self.dist_model, self.dist_data, q)
-        return float(min(pin.computeDistance(self.dist_model, self.dist_data, k).min_distance
+        pin.updateGeometryPlacements(self.model, scratch.data, self.dist_model,
+                                     scratch.dist_data, q)
+        return float(min(pin.computeDistance(self.dist_model, scratch.dist_data, k).min_distance
                          for k in near))
 
     def scene_clearances(self, Q: np.ndarray, upto_m: float) -> np.ndarray:
@@ -240,6 +285,7 @@ class CollisionWorld:
         0.5-0.8x on the UR5 and xArm7 tables, whose few shapes leave little to skip). Other
         scenes: one call each.
         """
+        scratch = self.scratch
         out = np.full(len(Q), float(upto_m))
         if not self.shapes or not len(Q):
             return out if self.shapes else np.full(len(Q), np.inf)
@@ -256,10 +302,10 @@ class CollisionWorld:
         near = np.linalg.norm(np.maximum(gap, 0.0), axis=-1) < upto_m + 1e-9  # (N, L, S)
         n_shapes = len(self.shapes)
         for i in np.flatnonzero(near.any(axis=(1, 2))):
-            pin.updateGeometryPlacements(self.model, self.data, self.dist_model,
-                                         self.dist_data, Q[i])
+            pin.updateGeometryPlacements(self.model, scratch.data, self.dist_model,
+                                         scratch.dist_data, Q[i])
             for li, k in zip(*np.nonzero(near[i])):
-                d = pin.computeDistance(self.dist_model, self.dist_data,
+                d = pin.computeDistance(self.dist_model, scratch.dist_data,
                                         int(li) * n_shapes + int(k)).min_distance
                 out[i] = min(out[i], d)
         return out
@@ -277,31 +323,32 @@ class CollisionWorld:
     def occupied(self, grid: VoxelGrid) -> np.ndarray:
         """Voxels of ``grid`` whose centre lies inside a scene shape, computed once per grid:
         every attack request on this scene reuses it."""
-        if grid not in self._occupied:
-            self._occupied[grid] = occupied_mask(grid, self.shapes)
-        return self._occupied[grid]
+        return self._occupied.get_or_make(grid, lambda: occupied_mask(grid, self.shapes))
 
     def link_placements(self, q: np.ndarray) -> list[pin.SE3]:
         """``T_base_geom`` of each robot collision geometry at ``q``."""
-        pin.updateGeometryPlacements(self.model, self.data, self.geom_model, self.geom_data, q)
-        return [self.geom_data.oMg[i] for i in range(self.n_links)]
+        scratch = self.scratch
+        pin.updateGeometryPlacements(self.model, scratch.data, self.geom_model,
+                                     scratch.geom_data, q)
+        return [scratch.geom_data.oMg[i] for i in range(self.n_links)]
 
     def shape_collides(self, shape: Shape, q: np.ndarray | None = None,
                        margin_m: float = 0.0) -> bool:
         """Whether ``shape`` is within ``margin_m`` of the scene, or of the robot at ``q``."""
+        scratch = self.scratch
         geom = coal_geometry(shape)
         tf = _coal_tf(shape.pose.to_se3())
         req = coal.DistanceRequest()
         res = coal.DistanceResult()
         if q is not None:
-            pin.updateGeometryPlacements(self.model, self.data, self.geom_model,
-                                         self.geom_data, q)
+            pin.updateGeometryPlacements(self.model, scratch.data, self.geom_model,
+                                         scratch.geom_data, q)
             others = range(self.geom_model.ngeoms)
         else:
             others = range(self.n_links, self.geom_model.ngeoms)
         for i in others:
             other = self.geom_model.geometryObjects[i].geometry
-            oMg = self.geom_data.oMg[i] if i < self.n_links else \
+            oMg = scratch.geom_data.oMg[i] if i < self.n_links else \
                 self.geom_model.geometryObjects[i].placement
             res.clear()
             if coal.distance(geom, tf, other, _coal_tf(oMg), req, res) < margin_m:
@@ -309,25 +356,17 @@ class CollisionWorld:
         return False
 
 
-_SHARED = threading.local()
+_WORLDS: BoundedCache = BoundedCache('collision worlds', 8)
+"""(robot hash, shape fingerprints) -> CollisionWorld, shared by every thread."""
 
 
 def shared_world(robot: RobotModel, shapes: list[Shape] = ()) -> CollisionWorld:
-    """The ``CollisionWorld`` of (robot, shapes), reused by later calls of this thread with the
-    same robot and geometry (the last 4 kept). An attack service answers many requests on one
-    scene; building its world (~1 ms for 10 shapes, the same every time) need not be paid per
-    request. Per thread, because a world holds scratch data."""
-    cache = getattr(_SHARED, 'worlds', None)
-    if cache is None:
-        cache = _SHARED.worlds = collections.OrderedDict()
+    """The ``CollisionWorld`` of (robot, shapes), reused by later calls with the same robot and
+    geometry. An attack service answers many requests on one scene; building its world (~1 ms
+    for 10 shapes, the same every time) need not be paid per request. Threads share it: each
+    queries on its own ``CollisionData``."""
     key = (robot.hash, json.dumps([s.fingerprint() for s in shapes]))
-    world = cache.get(key)
-    if world is None:
-        world = cache[key] = CollisionWorld(robot, shapes)
-        if len(cache) > 4:
-            cache.popitem(last=False)
-    cache.move_to_end(key)
-    return world
+    return _WORLDS.get_or_make(key, lambda: CollisionWorld(robot, shapes))
 
 
 def _no_warm_start(requests) -> None:
