@@ -160,3 +160,38 @@ def test_bench_takes_victims_by_name():
         BenchConfig(planners=('nosuch',))
     with pytest.raises(BenchError, match='pfa\\+\\+:mplib'):  # PFA++ queries our planners only
         BenchConfig(planners=('rrtconnect', 'mplib'), methods=('task', 'pfa++'))
+
+
+def test_mplib_sees_our_shapes_where_we_do(mplib, task, panda, table_scene):
+    """Rotated boxes, a lying cylinder, a sphere and a mesh arrive in MPlib's world where they
+    are in ours: over random configurations, MPlib's verdicts differ from ours only within a
+    centimetre of contact (its meshes vs our hulls), never far from it."""
+    import trimesh
+
+    from advocc_ros.model.pose import Pose
+    from advocc_ros.model.scene import SceneObject
+    from advocc_ros.model.shapes import Shape, make_mesh_shape
+
+    def tilt(axis, deg):  # quaternion [x, y, z, w]; no symmetry of a box hides a wrong order
+        half = np.radians(deg) / 2
+        return tuple(np.sin(half) * np.asarray(axis) / np.linalg.norm(axis)) + (np.cos(half),)
+
+    mesh = trimesh.creation.box(extents=(0.25, 0.1, 0.2))
+    mesh.apply_translation((0.12, 0.0, 0.05))  # off its frame's origin: the rotation moves it
+    extra = [
+        SceneObject('slab', (Shape('box', (0.3, 0.05, 0.3),
+                                   Pose((0.35, 0.25, 0.5), tilt((1, 1, 0), 50))),)),
+        SceneObject('pipe', (Shape('cylinder', (0.5, 0.04),
+                                   Pose((0.3, -0.3, 0.6), tilt((0, 1, 1), 70))),)),
+        SceneObject('mesh', (make_mesh_shape(mesh.vertices, mesh.faces,
+                                             Pose((-0.3, 0.3, 0.5), tilt((1, 0, 1), 60))),))]
+    scene = table_scene.with_objects(extra)
+    world = CollisionWorld(panda, scene.shapes)
+    Q = panda.sample_q(np.random.default_rng(0), 400)
+    theirs = mplib.check(Task(scene, task.q_start, task.goal), Q)
+    ours = world.collisions_batch(Q)
+    near = np.array([world.scene_distance(q, upto_m=0.01) < 0.01 for q in Q])
+    assert theirs.sum() >= 40 and (theirs & ~ours).sum() == (theirs & ~ours & near).sum()
+    far_free = ~ours & ~near
+    assert far_free.sum() >= 40 and not theirs[far_free].any()
+    assert (theirs == ours).mean() > 0.9

@@ -10,9 +10,13 @@ from advocc_ros.evaluation.hardness import pt_ratio
 
 
 def planner_label(planner_id: str) -> str:
-    """``RRTConnect``, ``PRM*``, ``BKPIECE1``: the OMPL class name, ``star`` as ``*``."""
+    """``RRTConnect``, ``PRM*``, ``BKPIECE1``: the OMPL class name, ``star`` as ``*``; an
+    outside victim's label (``MPlib``)."""
     from advocc_ros.planning.types import planner_class_name
+    from advocc_ros.planning.victims import OUTSIDE_LABELS
 
+    if planner_id in OUTSIDE_LABELS:
+        return OUTSIDE_LABELS[planner_id]
     name = planner_class_name(planner_id) or planner_id
     return name.replace('star', '*')
 

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import pathlib
 
+from advocc_ros.bench.protocol import PLANNER_LABELS as _PLANNER_TITLES
 from advocc_ros.evaluation.figures import percent_axes, save_png  # sets matplotlib's backend
 
 import matplotlib.pyplot as plt  # noqa: E402 (after the backend is set)
@@ -11,7 +12,6 @@ import numpy as np  # noqa: E402
 
 _METHOD_STYLE = {'ours': ('tab:red', 'o'), 'random': ('tab:gray', 's'),
                  'pfa': ('tab:blue', '^'), 'pfa++': ('tab:green', 'v')}
-_PLANNER_TITLES = {'rrtconnect': 'RRT', 'prmstar': 'PRM*', 'bkpiece1': 'BKPIECE'}
 
 
 def plot_psr_vs_budget(curves: dict[tuple[str, str], dict[int, float]],

@@ -24,6 +24,7 @@ from advocc_ros.attack.methods import REGISTRY
 from advocc_ros.attack.types import POLICIES
 from advocc_ros.heatmap.build import HeatmapConfig
 from advocc_ros.limits import MAX_TRIALS
+from advocc_ros.planning.victims import OUTSIDE_LABELS
 
 log = logging.getLogger(__name__)
 
@@ -31,7 +32,7 @@ BASELINE = 'none'
 """Method name of the unattacked baseline (budget 0)."""
 METHOD_LABELS = {name: spec.label for name, spec in REGISTRY.items()} | {BASELINE: 'None'}
 PLANNER_LABELS = {'rrtconnect': 'RRT', 'prmstar': 'PRM*', 'bkpiece1': 'BKPIECE',
-                  'mplib': 'MPlib', 'trajopt': 'TrajOpt'}
+                  **OUTSIDE_LABELS}
 MAX_BUDGET = 90
 """Largest budget: one attack's REMOVE + ADDs must fit the latched topic's history (100)."""
 # Settings that change what a trial measures: a run folder refuses to mix them.

@@ -33,6 +33,8 @@ _OUTSIDE: dict[str, str] = {
     'trajopt': 'advocc_ros.planning.victims.trajopt_victim',
 }
 """Outside victims: name -> module defining ``make_victim(name, config) -> Victim``."""
+OUTSIDE_LABELS = {'mplib': 'MPlib', 'trajopt': 'TrajOpt'}
+"""How tables and reports name the outside victims."""
 
 
 def register(name: str, module: str) -> None:
@@ -67,6 +69,6 @@ def make_victim(name: str, config: VictimConfig = VictimConfig()) -> Victim:
     return importlib.import_module(_OUTSIDE[key]).make_victim(key, config)
 
 
-__all__ = ['Task', 'Victim', 'VictimConfig', 'densify', 'first_collision_along',
+__all__ = ['OUTSIDE_LABELS', 'Task', 'Victim', 'VictimConfig', 'densify', 'first_collision_along',
            'goal_configurations', 'is_outside', 'is_victim', 'make_victim', 'path_length_rad',
            'register', 'victim_names']
