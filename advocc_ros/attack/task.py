@@ -34,7 +34,9 @@ whose neighbours stayed reachable: one tier instead, the goal configurations hol
 ``goal_share`` of the weight beside the approaches and the witness tube (issue 27, 10 trials x
 5 s, M = 10, RRTConnect, 1 cm witness margin: table_pick / box / bookshelf PSR 100 / 100 / 100 %
 lexicographic, 20 / 0-20 / 80-100 % at shares 0.06-0.5 and 20 / 20 / 60 % with goals nearly
-unweighted; details in ``docs/results/issue27_hard``).
+unweighted. With the certificate's 1 mm margin both weightings measured alike, 0 / 30 / 40 %
+lexicographic and 40 / 0 / 30 % at share 0.5: the thin margin narrows the goal set by itself;
+details in ``docs/results/issue27_hard``).
 Under the ``reachable`` goal policy (``attack.goals``) the goal set is not a target: only
 approaches count, and candidates that would leave too few goal samples valid are skipped
 (lattice estimate first, then the exact guard). Picks are nested: budget M's boxes are the
@@ -86,7 +88,7 @@ class TaskOptions:
     goal_share: float = 0.5
     """Under the ``solvable`` policy: one tier, the goal configurations' weights scaled to
     this share of the total weight (0: the lexicographic tiers of the ``paper`` policy, which
-    measured far weaker there: see the module docstring)."""
+    measured weaker with a 1 cm guard margin and alike with 1 mm: module docstring)."""
 
     def __post_init__(self):
         if self.goal_samples < 1 or self.approach_points < 0 or self.detours < 0:
