@@ -31,7 +31,7 @@ submodular, so the greedy's guarantees of ``docs/greedy.md`` apply to the weight
 Under the ``solvable`` policy the witness's final configuration stays free, so the goal set can
 never be covered whole, and the lexicographic tiers spent the budget on goal configurations
 whose neighbours stayed reachable: one tier instead, the goal configurations holding
-``goal_share`` of the weight beside the approaches and the witness tube (issue 27, 10 trials x
+``goal_share`` of the weight beside the approaches and the witness tube (measured: 10 trials x
 5 s, M = 10, RRTConnect, 1 cm witness margin: table_pick / box / bookshelf PSR 100 / 100 / 100 %
 lexicographic, 20 / 0-20 / 80-100 % at shares 0.06-0.5 and 20 / 20 / 60 % with goals nearly
 unweighted. With the certificate's 1 mm margin both weightings measured alike, 0 / 30 / 40 %
