@@ -223,6 +223,42 @@ class _Worker:
         self.kill()
 
 
+class WorkerSlot:
+    """A planner's one worker process: started on demand, replaced after it died or was killed
+    (``restarts`` counts those), closed at the end and killed if the planner is forgotten.
+    The start function is passed per call, so the slot keeps no reference to its planner."""
+
+    def __init__(self):
+        self.worker: _Worker | None = None
+        self.restarts = 0
+
+    def ensure(self, start) -> tuple[_Worker, bool]:
+        """The live worker, and whether ``start()`` made it now."""
+        if self.worker is not None and self.worker.proc.poll() is None:
+            return self.worker, False
+        if self.worker is not None:
+            self.worker.kill()
+            self.restarts += 1
+        self.worker = start()
+        return self.worker, True
+
+    def kill(self) -> None:
+        """Kill the worker (a watchdog or a broken answer): the next request starts another."""
+        if self.worker is not None:
+            self.worker.kill()
+            self.worker = None
+            self.restarts += 1
+
+    def close(self) -> None:
+        if self.worker is not None:
+            self.worker.close()
+            self.worker = None
+
+    def __del__(self):
+        if self.worker is not None:
+            self.worker.kill()
+
+
 class Planner:
     """Plans in a scene with one reusable, watched worker process (see the module docstring).
 
@@ -235,10 +271,9 @@ class Planner:
         self.config = config
         self.robot = load_robot(scene.robot)
         self._lock = threading.Lock()
-        self._worker: _Worker | None = None
+        self._slot = WorkerSlot()
         self.set_scene(scene)
         self.requests = 0
-        self.restarts = 0
 
     def set_scene(self, scene: Scene) -> None:
         """Scene for the next requests (objects may change; the robot may not)."""
@@ -255,7 +290,12 @@ class Planner:
 
     @property
     def worker_pid(self) -> int | None:
-        return self._worker.pid if self._worker else None
+        return self._slot.worker.pid if self._slot.worker else None
+
+    @property
+    def restarts(self) -> int:
+        """Workers replaced after they died or were killed."""
+        return self._slot.restarts
 
     def start(self) -> 'Planner':
         """Start the worker now (otherwise the first request does)."""
@@ -264,19 +304,10 @@ class Planner:
         return self
 
     def _ensure_worker(self) -> _Worker:
-        if self._worker is None or self._worker.proc.poll() is not None:
-            if self._worker is not None:
-                self._worker.kill()
-                self.restarts += 1
-            self._worker = _Worker(self.config.worker_start_timeout_s)
-            log.debug('planning worker %d started', self._worker.pid)
-        return self._worker
-
-    def _kill_worker(self) -> None:
-        if self._worker is not None:
-            self._worker.kill()
-            self._worker = None
-            self.restarts += 1
+        worker, fresh = self._slot.ensure(lambda: _Worker(self.config.worker_start_timeout_s))
+        if fresh:
+            log.debug('planning worker %d started', worker.pid)
+        return worker
 
     def plan(self, q_start, goal: GoalRegion, planner_id: str = 'rrtconnect',
              time_budget_s: float | None = None, seed: int = 0, goal_configs=None
@@ -310,13 +341,13 @@ class Planner:
             worker.send(request)
             answer = worker.read(t_sent + budget + self.config.watchdog_margin_s)
         except WorkerDied as exc:
-            self._kill_worker()
+            self._slot.kill()
             log.error('%s', exc)
             return _fail(PlanStatus.INTERNAL_ERROR, str(exc), nq, time.monotonic() - t0,
                          worker_died=True)
         round_trip = time.monotonic() - t_sent
         if answer is None:
-            self._kill_worker()
+            self._slot.kill()
             msg = (f'watchdog: no answer within budget {budget:g} s + margin '
                    f'{self.config.watchdog_margin_s:g} s; worker killed')
             log.error('%s', msg)
@@ -336,7 +367,7 @@ class Planner:
             t0 = time.monotonic()
             answer = worker.read(t0 + watchdog_s)
             if answer is None:
-                self._kill_worker()
+                self._slot.kill()
                 return _fail(PlanStatus.TIMED_OUT, 'watchdog: worker killed', self.robot.nq,
                              time.monotonic() - t0, watchdog=True)
             return _fail(PlanStatus.SUCCESS, 'stall answered', self.robot.nq,
@@ -344,17 +375,10 @@ class Planner:
 
     def close(self) -> None:
         with self._lock:
-            if self._worker is not None:
-                self._worker.close()
-                self._worker = None
+            self._slot.close()
 
     def __enter__(self) -> 'Planner':
         return self
 
     def __exit__(self, *exc) -> None:
         self.close()
-
-    def __del__(self):
-        worker = getattr(self, '_worker', None)
-        if worker is not None:
-            worker.kill()

@@ -23,7 +23,7 @@ from advocc_ros.model.collision import CollisionWorld
 from advocc_ros.model.robot import RobotModel, load_robot
 from advocc_ros.planning.types import PlanResult, PlanStatus, _fail, validate_request
 from advocc_ros.planning.victims.base import Task, VictimConfig
-from advocc_ros.planning.worker import WorkerDied, _Worker
+from advocc_ros.planning.worker import WorkerDied, WorkerSlot, _Worker
 
 log = logging.getLogger(__name__)
 
@@ -37,10 +37,9 @@ class OutsideVictim:
     def __init__(self, name: str, config: VictimConfig = VictimConfig()):
         self.name, self.config = name, config
         self._lock = threading.Lock()
-        self._worker: _Worker | None = None
+        self._slot = WorkerSlot()
         self._sent: str | None = None
         self._model: tuple[str, RobotModel, CollisionWorld] | None = None
-        self.restarts = 0
 
     # -- what a subclass provides ------------------------------------------------------------
 
@@ -90,35 +89,27 @@ class OutsideVictim:
             return answer
         return self._answer(answer, robot, world, q_start, goals, time_budget_s, stats)
 
+    @property
+    def restarts(self) -> int:
+        """Workers replaced after they died or were killed."""
+        return self._slot.restarts
+
     def close(self) -> None:
         with self._lock:
-            if self._worker is not None:
-                self._worker.close()
-                self._worker = None
-
-    def __del__(self):
-        worker = getattr(self, '_worker', None)
-        if worker is not None:
-            worker.kill()
+            self._slot.close()
 
     # -- the worker --------------------------------------------------------------------------
 
     def _ensure_worker(self) -> _Worker:
-        if self._worker is None or self._worker.proc.poll() is not None:
-            if self._worker is not None:
-                self._worker.kill()
-                self.restarts += 1
-            argv, env = self._command()
-            self._worker = _Worker(self.config.planning.worker_start_timeout_s, argv, env,
-                                   what=f'{self.label} worker')
-            self._sent = None
-        return self._worker
+        worker, fresh = self._slot.ensure(self._new_worker)
+        if fresh:
+            self._sent = None  # a new worker has seen no robot and scene yet
+        return worker
 
-    def _kill_worker(self) -> None:
-        if self._worker is not None:
-            self._worker.kill()
-            self._worker = None
-            self.restarts += 1
+    def _new_worker(self) -> _Worker:
+        argv, env = self._command()
+        return _Worker(self.config.planning.worker_start_timeout_s, argv, env,
+                       what=f'{self.label} worker')
 
     def _models(self, task: Task) -> tuple[RobotModel, CollisionWorld]:
         """Our robot and collision model of ``task``'s scene (cached per scene)."""
@@ -144,13 +135,13 @@ class OutsideVictim:
                 worker.send(request)
                 answer = worker.read(t_sent + budget + self.config.planning.watchdog_margin_s)
             except WorkerDied as exc:
-                self._kill_worker()
+                self._slot.kill()
                 log.error('%s', exc)
                 return _fail(PlanStatus.INTERNAL_ERROR, str(exc), nq,
                              time.monotonic() - t_sent, worker_died=True, **stats)
             stats['round_trip_s'] = time.monotonic() - t_sent
             if answer is None:
-                self._kill_worker()
+                self._slot.kill()
                 return _fail(PlanStatus.TIMED_OUT, f'watchdog: {self.label} gave no answer '
                              f'within {budget:g} s + {self.config.planning.watchdog_margin_s:g}'
                              ' s; worker killed', nq, stats['round_trip_s'], watchdog=True,

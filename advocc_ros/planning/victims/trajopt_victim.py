@@ -110,10 +110,10 @@ class TrajOptVictim(OutsideVictim):
                 answer = worker.read(time.monotonic()
                                      + self.config.planning.worker_start_timeout_s)
             except WorkerDied as exc:
-                self._kill_worker()
+                self._slot.kill()
                 return _fail(PlanStatus.INTERNAL_ERROR, str(exc), robot.nq, worker_died=True)
             if answer is None or 'loaded' not in answer:
-                self._kill_worker()
+                self._slot.kill()
                 return _fail(PlanStatus.INTERNAL_ERROR, f'TrajOpt worker could not load the '
                              f'scene: {answer}', robot.nq)
             self._sent = key
