@@ -8,27 +8,35 @@ goal policy keeps it so by construction). A planner failing an impossible task s
 Greedy picks are nested (the first m boxes of a budget-K attack are the budget-m attack), so one
 attack at the largest budget K and an evaluation of its prefixes m = 0, 1, 2, ... give, per
 planner, the PSR curve over the budget and the minimal budget reaching each PSR threshold (the
-paper's Table II for one task). The sweep stops after the first m at which every planner is at
-PSR 0, or at the last box the attack placed. Trial k uses seed ``seed + k`` at every m, so the
-prefixes are compared on the same random numbers. ``audit_report`` renders the result. No ROS.
+paper's Table II for one task). By default every planner is evaluated at every prefix and the
+sweep stops after the first m at which every planner is at PSR 0, or at the last box the attack
+placed. With a target PSR, a planner is evaluated until its PSR is at most the target (later
+prefixes: None) and the sweep stops when every planner got there; with a grid of prefixes only
+those m are evaluated (and get a verdict), so an answer m means "between the previous evaluated
+prefix + 1 and m". Trial k uses seed ``seed + k`` at every m, so the prefixes are compared on the
+same random numbers. ``advocc_ros.audit.report`` renders the result. No ROS.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import logging
+import numbers
 import time
 from typing import Any, Callable
 
 from advocc_ros.attack.types import DEFAULT_METHOD, AttackConfig
-from advocc_ros.evaluation.budgets import minimal_budgets
+from advocc_ros.evaluation.budgets import THRESHOLDS, minimal_budgets
 
 log = logging.getLogger(__name__)
 
 ANSWER_THRESHOLD = 0.2
 """A planner "fails" the task when its PSR is at most this (the answer's headline)."""
 AUDIT_FORMAT = 'advocc_audit'
-AUDIT_VERSION = 2
+AUDIT_VERSION = 3
+"""3: ``budgets`` holds the evaluated prefixes only (``--prefixes``), a planner's row there is
+None once it reached ``target_psr``, ``psr`` curves are None where not evaluated. Version 2
+(every prefix, every planner) reads the same way."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -52,6 +60,13 @@ class AuditConfig:
     """Attack seed; trial k of every prefix uses seed ``seed + k``."""
     workers: int = 2
     """Planner processes serving the trials in parallel (keep <= free cores: PT is wall time)."""
+    target_psr: float | None = None
+    """PSR (fraction in [0, 1]) at which a planner counts as failed: it is not evaluated at later
+    prefixes and the sweep stops once every planner got there. None: every planner at every
+    prefix until all are at PSR 0 at the same m (the full curves)."""
+    prefixes: tuple[int, ...] | None = None
+    """The m evaluated (0, the unattacked control, always added; sorted); None: every m up to
+    the boxes placed. Those beyond the boxes the attack placed are dropped with a warning."""
 
     def __post_init__(self):
         if not self.planners:
@@ -64,6 +79,27 @@ class AuditConfig:
             raise ValueError(f'audit: time budget must be > 0 s, got {self.time_budget_s}')
         if self.workers < 1:
             raise ValueError(f'audit: workers must be >= 1, got {self.workers}')
+        if self.target_psr is not None and not 0.0 <= self.target_psr <= 1.0:  # NaN too
+            raise ValueError(f'audit: target PSR must be a fraction in [0, 1], '
+                             f'got {self.target_psr}')
+        if self.prefixes is not None:
+            object.__setattr__(self, 'prefixes', self._grid(self.prefixes))
+
+    def _grid(self, prefixes) -> tuple[int, ...]:
+        """``prefixes`` checked (integers in 0..max_budget), sorted, with 0."""
+        bad = [m for m in prefixes if isinstance(m, bool) or not isinstance(m, numbers.Integral)
+               or not 0 <= m <= self.max_budget]
+        if bad:
+            raise ValueError(f'audit: prefixes must be integers in 0..{self.max_budget} (the '
+                             f'max budget), got {bad}')
+        return tuple(sorted({0, *(int(m) for m in prefixes)}))
+
+    def thresholds(self) -> tuple[float, ...]:
+        """The PSR thresholds of the minimal budgets: the paper's, and the target if it is not
+        one of them (descending)."""
+        if self.target_psr is None or self.target_psr in THRESHOLDS:
+            return THRESHOLDS
+        return tuple(sorted((*THRESHOLDS, self.target_psr), reverse=True))
 
 
 def _row(result: dict) -> dict:
@@ -75,11 +111,14 @@ def _row(result: dict) -> dict:
 def run_audit(scene, heatmap, cfg: AuditConfig = AuditConfig(),
               progress: Callable[[int, str, dict], None] | None = None,
               attack_cfg=None, planning_config=None) -> dict[str, Any]:
-    """One attack at budget ``cfg.max_budget`` on ``scene``'s task, then every prefix m = 0, 1,
-    ... evaluated per planner (see the module docstring); returns the JSON-able audit.
+    """One attack at budget ``cfg.max_budget`` on ``scene``'s task, then its prefixes m = 0, 1,
+    ... (or ``cfg.prefixes``) evaluated per planner (see the module docstring); returns the
+    JSON-able audit.
 
-    Every prefix gets a ``solvable`` verdict (``certified`` / ``goal blocked`` / ``unknown``,
-    ``advocc_ros.attack.solvable``); ``min_budget_solvable`` counts only certified prefixes.
+    Every evaluated prefix gets a ``solvable`` verdict (``certified`` / ``goal blocked`` /
+    ``unknown``, ``advocc_ros.attack.solvable``; prefixes off the grid get none, and cost no
+    certificate work); ``min_budget_solvable`` counts only certified prefixes; both minimal
+    budgets include ``cfg.target_psr`` as a threshold.
     ``impossible`` answers how few boxes block the goal: the prefixes of a paper-policy attack
     (this one when the policy is paper) up to the first one whose verdict is ``goal blocked``.
     ``progress(m, planner, row)`` is called after each evaluation. Raises ``ValueError`` when
@@ -117,8 +156,9 @@ def run_audit(scene, heatmap, cfg: AuditConfig = AuditConfig(),
     if cfg.policy != 'paper':
         paper = _attack(task, heatmap, cfg, 'paper', attack_cfg)
     known = {b['m']: b['solvability'] for b in budgets} if paper is result else {}
-    certified = {p: [v if b['solvable'] == 'certified' else None
-                     for v, b in zip(curve, budgets)] for p, curve in psr.items()}
+    verdicts = {b['m']: b['solvable'] for b in budgets}
+    certified = {p: [v if verdicts.get(m) == 'certified' else None for m, v in enumerate(curve)]
+                 for p, curve in psr.items()}
     return {
         'format': AUDIT_FORMAT, 'version': AUDIT_VERSION,
         'scene': scene.name, 'scene_hash': scene.objects_hash(),
@@ -134,8 +174,8 @@ def run_audit(scene, heatmap, cfg: AuditConfig = AuditConfig(),
         'boxes': _boxes_json(result),
         'budgets': budgets,
         'psr': psr,
-        'min_budget': minimal_budgets(psr),
-        'min_budget_solvable': minimal_budgets(certified),
+        'min_budget': minimal_budgets(psr, cfg.thresholds()),
+        'min_budget_solvable': minimal_budgets(certified, cfg.thresholds()),
         'stopped': stop_reason,
         'impossible': _impossible(task, paper, same_attack=paper is result, known=known),
         'wall_s': round(time.perf_counter() - t_start, 2),
@@ -179,34 +219,84 @@ def _attack(task: _Task, heatmap, cfg: AuditConfig, policy: str, attack_cfg):
 
 
 def _sweep(task: _Task, result, cfg: AuditConfig, progress, planning_config
-           ) -> tuple[list[dict], dict[str, list[float]], str]:
-    """Every prefix m = 0, 1, ... of ``result``'s boxes: its verdict and each planner's row,
-    until every planner is at PSR 0; returns the prefixes, the PSR curves and why it stopped."""
+           ) -> tuple[list[dict], dict[str, list[float | None]], str]:
+    """The prefixes of ``result``'s boxes (every m, or ``cfg.prefixes``): each one's verdict and
+    the rows of the planners still due (see the module docstring), until the stop rule holds;
+    returns the evaluated prefixes, the PSR curves by m (None: not evaluated) and why it
+    stopped."""
     from advocc_ros.attack.goals import goal_samples
     from advocc_ros.evaluation.runner import evaluate_planner
 
-    boxes, centers = result.obstacles, result.centers_m
     samples = goal_samples(task.robot, task.scene.objects, task.scene.goal)
-    budgets, psr = [], {p: [] for p in cfg.planners}
-    for m in range(len(boxes) + 1):
-        solvability = task.solvability(boxes[:m])
-        entry = {'m': m, 'goal_valid_fraction':
-                 samples.valid_fraction(centers[:m], result.box_size_m),
-                 'solvable': solvability['verdict'], 'solvability': solvability,
-                 'planners': {}}
-        attacked = task.scene.with_objects(boxes[:m])
+    budgets, reached = [], {}
+    for m in _evaluated_prefixes(cfg, len(result.obstacles)):
+        entry = _prefix_entry(task, result, samples, m)
+        attacked = task.scene.with_objects(result.obstacles[:m])
         for planner in cfg.planners:
-            row = evaluate_planner(attacked, planner, cfg.trials, cfg.time_budget_s,
-                                   seed=cfg.seed, workers=cfg.workers,
-                                   planning_config=planning_config)
-            entry['planners'][planner] = _row(row)
-            psr[planner].append(row['psr'])
+            if planner in reached:
+                entry['planners'][planner] = None  # already at the target PSR
+                continue
+            row = _row(evaluate_planner(attacked, planner, cfg.trials, cfg.time_budget_s,
+                                        seed=cfg.seed, workers=cfg.workers,
+                                        planning_config=planning_config))
+            entry['planners'][planner] = row
+            if cfg.target_psr is not None and _at_most(row['psr'], cfg.target_psr):
+                reached[planner] = m
             if progress:
-                progress(m, planner, entry['planners'][planner])
+                progress(m, planner, row)
         budgets.append(entry)
+        stop = _stop_reason(cfg, entry, reached)
+        if stop:
+            return budgets, psr_curves(budgets, cfg.planners), stop
+    which = 'every prefix' if cfg.prefixes is None else 'every prefix in the grid'
+    return (budgets, psr_curves(budgets, cfg.planners),
+            f'evaluated {which} up to the {len(result.obstacles)} boxes placed')
+
+
+def _evaluated_prefixes(cfg: AuditConfig, placed: int) -> list[int]:
+    """The m to evaluate: ``cfg.prefixes`` (or every m) up to the ``placed`` boxes; warns about
+    the dropped ones."""
+    if cfg.prefixes is None:
+        return list(range(placed + 1))
+    dropped = [m for m in cfg.prefixes if m > placed]
+    if dropped:
+        log.warning('audit: prefixes %s dropped: the attack placed %d boxes', dropped, placed)
+    return [m for m in cfg.prefixes if m <= placed]
+
+
+def _prefix_entry(task: _Task, result, samples, m: int) -> dict:
+    """Prefix m's entry without planner rows: its verdict and the goal poses left valid."""
+    solvability = task.solvability(result.obstacles[:m])
+    return {'m': m, 'goal_valid_fraction':
+            samples.valid_fraction(result.centers_m[:m], result.box_size_m),
+            'solvable': solvability['verdict'], 'solvability': solvability, 'planners': {}}
+
+
+def _at_most(psr: float | None, threshold: float) -> bool:
+    """PSR <= threshold, with ``minimal_budgets``' tolerance; None (not measured) is not."""
+    return psr is not None and psr <= threshold + 1e-9
+
+
+def _stop_reason(cfg: AuditConfig, entry: dict, reached: dict[str, int]) -> str | None:
+    """Why the sweep stops after ``entry``, or None to go on."""
+    if cfg.target_psr is None:
         if all(entry['planners'][p]['psr'] == 0 for p in cfg.planners):
-            return budgets, psr, f'every planner at PSR 0 % with m = {m}'
-    return budgets, psr, f'evaluated every prefix up to the {len(boxes)} boxes placed'
+            return f'every planner at PSR 0 % with m = {entry["m"]}'
+        return None
+    if len(reached) < len(cfg.planners):
+        return None
+    firsts = ', '.join(f'{p} m = {reached[p]}' for p in cfg.planners)
+    return f'every planner at PSR <= {100 * cfg.target_psr:g} % ({firsts})'
+
+
+def psr_curves(budgets: list[dict], planners) -> dict[str, list[float | None]]:
+    """Per planner, its PSR by m (index m) up to the last evaluated prefix; None where the
+    planner was not evaluated (skipped prefix, or already at the target)."""
+    curves = {p: [None] * (budgets[-1]['m'] + 1) for p in planners}
+    for b in budgets:
+        for p, row in b['planners'].items():
+            curves[p][b['m']] = None if row is None else row['psr']
+    return curves
 
 
 def _impossible(task: _Task, result, same_attack: bool, known: dict[int, dict]) -> dict:
