@@ -1,8 +1,9 @@
 """``advocc audit``: how few boxes make each planner fail this task, and where do they go?
 
-One attack at the largest budget K, then its prefixes m = 0, 1, 2, ... evaluated per planner
-(greedy picks are nested) until every planner is at PSR 0 %; every prefix gets a verdict
-(certified solvable / goal blocked / unknown). The answer: how few boxes make the pick
+One attack at the largest budget K, then its prefixes m = 0, 1, 2, ... (``--prefixes``: only
+those) evaluated per planner (greedy picks are nested) until every planner is at PSR 0 %
+(``--target-psr P``: each planner until its PSR is <= P %); every evaluated prefix gets a
+verdict (certified solvable / goal blocked / unknown). The answer: how few boxes make the pick
 impossible (goal blocked, from a paper-policy attack) and how few make each planner fail while
 the task stays certified solvable (``--policy solvable`` runs that attack too). Writes
 ``DIR/audit.md``, ``DIR/audit.json``, two figures and ``DIR/audit.html`` (an offline 3D
@@ -41,6 +42,13 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help='budget of one plan request [s] (default %(default)s, the paper\'s)')
     p.add_argument('--heatmap', metavar='FILE',
                    help='heatmap .npz (default: build one into DIR, or reuse it there)')
+    p.add_argument('--target-psr', metavar='P',
+                   help='PSR in percent (20 or 20%%) at which a planner counts as failed: it is '
+                        'not evaluated at later prefixes, and the audit stops once every planner '
+                        'got there (default: every planner at every prefix until all are at 0 %%)')
+    p.add_argument('--prefixes', metavar='M,M,...',
+                   help='evaluate only these prefixes m, e.g. 0,1,2,3,5,7,10,15,20 (0 always; '
+                        'default every m); the fewest boxes is then the smallest evaluated m')
     p.add_argument('--workers', type=int, default=2,
                    help='planner processes in parallel (default %(default)s; PT is wall time)')
     p.add_argument('--out', required=True, metavar='DIR', help='output folder')
@@ -79,7 +87,39 @@ def audit_config(args: argparse.Namespace):
                         'audit needs a heatmap method (task, ours, random)')
     return AuditConfig(planners=planners, max_budget=args.max_budget, trials=args.trials,
                        time_budget_s=args.time, method=args.method, policy=args.policy,
-                       seed=args.seed, workers=args.workers)
+                       seed=args.seed, workers=args.workers,
+                       target_psr=_target_psr(args.target_psr),
+                       prefixes=_prefixes(args.prefixes, args.max_budget))
+
+
+def _target_psr(text: str | None) -> float | None:
+    """``--target-psr`` (percent, as the audit prints PSR) as a fraction."""
+    if text is None:
+        return None
+    try:
+        percent = float(text.strip().removesuffix('%').strip())
+    except ValueError:
+        raise UserError(f'--target-psr: {text!r} is not a number (percent, e.g. 20)') from None
+    if not 0 <= percent <= 100:  # NaN too
+        raise UserError(f'--target-psr must be in 0..100 (percent), got {text!r}')
+    if 0 < percent < 1:
+        raise UserError(f'--target-psr is in percent: {text!r} is below one success in 100 '
+                        f'trials; for {100 * percent:g} % give {100 * percent:g}')
+    return percent / 100
+
+
+def _prefixes(text: str | None, max_budget: int) -> tuple[int, ...] | None:
+    """``--prefixes`` as integers in 0..``max_budget``."""
+    if text is None:
+        return None
+    items = [t.strip() for t in text.split(',') if t.strip()]
+    bad = [t for t in items if not t.isdecimal()]
+    if bad or not items:
+        raise UserError(f'--prefixes: give non-negative integers, e.g. 0,1,2,3,5; got {text!r}')
+    beyond = [int(t) for t in items if int(t) > max_budget]
+    if beyond:
+        raise UserError(f'--prefixes {beyond} exceed --max-budget {max_budget}')
+    return tuple(int(t) for t in items)
 
 
 def audit_heatmap(scene, out: pathlib.Path, heatmap_file: str | None, workers: int,
