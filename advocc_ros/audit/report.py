@@ -21,8 +21,46 @@ def planner_label(planner_id: str) -> str:
     return name.replace('star', '*')
 
 
+SKIPPED = '—'
+"""A cell not evaluated: the planner was already at the target PSR (or the table's notes)."""
+
+
 def _pct(value: float | None) -> str:
     return 'N/A' if value is None else f'{100 * value:.0f} %'
+
+
+def _threshold(audit: dict) -> float:
+    """The PSR at which a planner "fails" in the answer: the audit's target, else 20 %."""
+    target = audit['settings'].get('target_psr')
+    return ANSWER_THRESHOLD if target is None else target
+
+
+def _entry(audit: dict, m: int) -> dict | None:
+    """Prefix m's entry of ``budgets`` (None: not evaluated); version 2 and 3 alike."""
+    return next((b for b in audit['budgets'] if b['m'] == m), None)
+
+
+def _row(audit: dict, m: int, planner: str) -> dict | None:
+    """``planner``'s row at prefix m, None when it was not evaluated there."""
+    entry = _entry(audit, m)
+    return None if entry is None else entry['planners'].get(planner)
+
+
+def _last_m(audit: dict, planner: str | None = None) -> int:
+    """The last evaluated prefix (of ``planner``, when given)."""
+    return max(b['m'] for b in audit['budgets']
+               if planner is None or b['planners'].get(planner) is not None)
+
+
+def _gap(audit: dict, m: int, planner: str) -> str:
+    """`` (m = a..b not evaluated)`` when prefixes just below m were not evaluated for
+    ``planner`` (a coarse ``--prefixes`` grid): the fewest boxes lies in a..m."""
+    below = [b['m'] for b in audit['budgets']
+             if b['m'] < m and b['planners'].get(planner) is not None]
+    first = max(below, default=-1) + 1
+    if first >= m:
+        return ''
+    return f' (m = {first}{"" if first == m - 1 else f"..{m - 1}"} not evaluated)'
 
 
 def _boxes(m: int | None) -> str:
@@ -37,7 +75,7 @@ def _failures(row: dict) -> str:
 
 def audit_answer(audit: dict) -> str:
     """The headline: how few boxes make the pick impossible, and per planner how few make it
-    fail (PSR <= 20 %, and 0 %) while the task stays certified solvable."""
+    fail (PSR <= the target, else 20 %; and 0 %) while the task stays certified solvable."""
     s = audit['settings']
     lines = [f'Audit of {audit["scene"]}: attack {audit["method_label"]} (goal policy '
              f'{audit["policy"]}, {s["box_size_m"]} m boxes, up to {audit["max_budget"]}), '
@@ -46,8 +84,13 @@ def audit_answer(audit: dict) -> str:
              'Fewest boxes that make each planner fail while the task stays certified '
              'solvable (a witness path stays valid):']
     lines += [f'- {_planner_answer(audit, planner)}.' for planner in audit['psr']]
-    evaluated = len(audit['budgets']) - 1
-    placed = ', '.join(f'#{b["pick"]} at {b["center_m"]}' for b in audit['boxes'][:evaluated])
+    if s.get('prefixes') is not None:
+        lines.append('Prefixes evaluated (--prefixes): m = '
+                     + ', '.join(str(b['m']) for b in audit['budgets'])
+                     + '; the m between them were not, so a fewest-boxes answer is an upper '
+                     'bound.')
+    placed = ', '.join(f'#{b["pick"]} at {b["center_m"]}'
+                       for b in audit['boxes'][:_last_m(audit)])
     if placed:
         lines.append(f'Boxes (robot base frame, pick order): {placed}.')
     lines.append('Goal poses left valid: ' + ', '.join(
@@ -73,39 +116,40 @@ def impossible_answer(audit: dict) -> str:
 
 def _planner_answer(audit: dict, planner: str) -> str:
     """One planner's line: its fewest boxes to fail while certified, else why not."""
-    label, curve = planner_label(planner), audit['psr'][planner]
-    fail = audit['min_budget_solvable'][str(ANSWER_THRESHOLD)][planner]
+    label, curve, limit = planner_label(planner), audit['psr'][planner], _threshold(audit)
+    fail = audit['min_budget_solvable'][str(limit)][planner]
     zero = audit['min_budget_solvable'][str(0.0)][planner]
     if fail is not None:
-        row = audit['budgets'][fail]['planners'][planner]
-        text = (f'{label} fails (PSR <= 20 %) with {_boxes(fail)}, task certified: PSR '
-                f'{_pct(curve[0])} -> {_pct(curve[fail])} ({_failures(row)})')
+        text = (f'{label} fails (PSR <= {_pct(limit)}) with {_boxes(fail)}'
+                f'{_gap(audit, fail, planner)}, task certified: PSR {_pct(curve[0])} -> '
+                f'{_pct(curve[fail])} ({_failures(_row(audit, fail, planner))})')
         if zero is not None and zero != fail:
             text += f'; PSR 0 % with {_boxes(zero)}'
         return text
-    certified = [m for m, b in enumerate(audit['budgets']) if b['solvable'] == 'certified']
+    certified = [b['m'] for b in audit['budgets'] if b['solvable'] == 'certified'
+                 and b['planners'].get(planner) is not None]
     if not certified:
-        text = f'{label}: no evaluated prefix is certified solvable'
+        text = f'{label}: no prefix it was evaluated on is certified solvable'
     else:
         low = min(certified, key=lambda m: (curve[m] is None, curve[m] or 0.0, -m))
-        text = (f'{label} does not fail (PSR > 20 %) on a certified prefix (m = '
+        text = (f'{label} does not fail (PSR > {_pct(limit)}) on a certified prefix (m = '
                 f'{", ".join(map(str, certified))}): lowest PSR {_pct(curve[low])} at m = {low}'
                 f' (unattacked {_pct(curve[0])}), median time to first solution '
                 f'{_seconds(audit, 0, planner)} -> {_seconds(audit, low, planner)}')
-        ratio = pt_ratio(audit['budgets'][low]['planners'][planner],
-                         audit['budgets'][0]['planners'][planner])
+        ratio = pt_ratio(_row(audit, low, planner), _row(audit, 0, planner))
         if ratio is not None:
             text += f' (PT ratio x{ratio:.2f})'
-    anyway = audit['min_budget'][str(ANSWER_THRESHOLD)][planner]
+    anyway = audit['min_budget'][str(limit)][planner]
     if anyway is not None:
-        text += (f'; it fails with {_boxes(anyway)}, where the task is '
-                 f'{audit["budgets"][anyway]["solvable"]}')
+        text += (f'; it fails with {_boxes(anyway)}{_gap(audit, anyway, planner)}, where the '
+                 f'task is {_entry(audit, anyway)["solvable"]}')
     return text
 
 
 def _seconds(audit: dict, m: int, planner: str) -> str:
     """Median time to first solution of ``planner`` at prefix m (failures at the budget)."""
-    value = audit['budgets'][m]['planners'][planner]['first_solution_median_s']
+    row = _row(audit, m, planner)
+    value = None if row is None else row['first_solution_median_s']
     return 'N/A' if value is None else f'{value:.2f} s'
 
 
@@ -119,21 +163,35 @@ def budget_table(audit: dict) -> str:
     for b in audit['budgets']:
         cells = [str(b['m']), b['solvable'], _pct(b['goal_valid_fraction'])]
         for p in planners:
-            row = b['planners'][p]
-            cells += [_pct(row['psr']), _seconds(audit, b['m'], p), _failures(row)]
+            row = b['planners'].get(p)
+            cells += [SKIPPED] * 3 if row is None else [
+                _pct(row['psr']), _seconds(audit, b['m'], p), _failures(row)]
         lines.append('| ' + ' | '.join(cells) + ' |')
-    return '\n'.join(lines)
+    return '\n'.join(lines + _table_notes(audit))
+
+
+def _table_notes(audit: dict) -> list[str]:
+    """Footnotes of the budget table: what its skipped rows and cells mean."""
+    notes = []
+    if any(row is None for b in audit['budgets'] for row in b['planners'].values()):
+        notes.append(f'{SKIPPED}: not evaluated, the planner was already at PSR <= '
+                     f'{_pct(_threshold(audit))} (--target-psr).')
+    evaluated = [b['m'] for b in audit['budgets']]
+    missing = sorted(set(range(max(evaluated) + 1)) - set(evaluated))
+    if missing:
+        notes.append(f'm = {", ".join(map(str, missing))}: not evaluated (not in --prefixes).')
+    return [''] + notes if notes else []
 
 
 def _min_budget_table(audit: dict, key: str) -> list[str]:
     """Markdown lines: per planner, the minimal budget per PSR threshold of ``audit[key]``."""
     thresholds = list(audit[key])
-    out = ['| planner | ' + ' | '.join(f'PSR <= {float(t) * 100:.0f} %' for t in thresholds)
+    out = ['| planner | ' + ' | '.join(f'PSR <= {float(t) * 100:g} %' for t in thresholds)
            + ' |', '|' + '---|' * (1 + len(thresholds))]
     for p in audit['psr']:
         cells = [audit[key][t][p] for t in thresholds]
         out.append(f'| {planner_label(p)} | '
-                   + ' | '.join(f'> {len(audit["budgets"]) - 1}' if c is None else str(c)
+                   + ' | '.join(f'> {_last_m(audit, p)}' if c is None else str(c)
                                 for c in cells) + ' |')
     return out
 
@@ -146,8 +204,9 @@ def audit_markdown(audit: dict) -> str:
            '## Minimal budget per PSR threshold, task certified solvable', '',
            *_min_budget_table(audit, 'min_budget_solvable'), '',
            '## Minimal budget per PSR threshold, any verdict', '',
-           *_min_budget_table(audit, 'min_budget')]
-    evaluated = len(audit['budgets']) - 1
+           *_min_budget_table(audit, 'min_budget'), '',
+           '"> m": not reached on the prefixes the planner was evaluated on (up to m).']
+    evaluated = _last_m(audit)
     out += ['', '## Boxes in pick order', '',
             '| # | id | centre [m] | marginal mass | evaluated |', '|---|---|---|---|---|']
     for b in audit['boxes']:
@@ -209,8 +268,11 @@ def write_audit(audit: dict, out_dir: str | pathlib.Path, heatmap, scene) -> dic
     boxes = tuple(make_box(b['id'], b['center_m'], (b['size_m'],) * 3) for b in audit['boxes'])
     plot_heatmap_slices(heatmap, paths['audit_slices.png'], scene=scene, obstacles=boxes,
                         at_m=audit['boxes'][0]['center_m'] if boxes else None, numbered=True)
-    plot_audit_psr({planner_label(p): c for p, c in audit['psr'].items()},
-                   [b['goal_valid_fraction'] for b in audit['budgets']], paths['audit_psr.png'],
+    goal_valid = [None] * (_last_m(audit) + 1)
+    for b in audit['budgets']:
+        goal_valid[b['m']] = b['goal_valid_fraction']
+    plot_audit_psr({planner_label(p): c for p, c in audit['psr'].items()}, goal_valid,
+                   paths['audit_psr.png'],
                    title=f'{audit["scene"]}: {audit["method_label"]} attack, policy '
                          f'{audit["policy"]}')
     return {k: str(v) for k, v in paths.items()}

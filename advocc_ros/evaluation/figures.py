@@ -97,13 +97,15 @@ def plot_heatmap_slices(heatmap: Heatmap, out: str | pathlib.Path, scene: Scene 
     save_png(fig, out)
 
 
-def plot_audit_psr(psr: dict[str, list[float]], goal_valid: list[float | None],
+def plot_audit_psr(psr: dict[str, list[float | None]], goal_valid: list[float | None],
                    out: str | pathlib.Path, title: str = '') -> None:
     """An audit's curves: PSR [%] of each planner against the prefix budget m (one attack's
-    first m boxes), and the share of goal poses the boxes leave valid (dashed)."""
+    first m boxes; lists indexed by m, None where not evaluated), and the share of goal poses
+    the boxes leave valid (dashed)."""
     fig, ax = plt.subplots(figsize=(6.5, 4.2), constrained_layout=True)
     for planner, curve in psr.items():
-        ax.plot(range(len(curve)), [100 * v for v in curve], marker='o', label=planner)
+        m = [i for i, v in enumerate(curve) if v is not None]
+        ax.plot(m, [100 * curve[i] for i in m], marker='o', label=planner)
     m = [i for i, v in enumerate(goal_valid) if v is not None]
     ax.plot(m, [100 * goal_valid[i] for i in m], ls='--', color='gray',
             label='goal poses valid')
