@@ -46,13 +46,33 @@ def test_audit_config_rejects_bad_values():
             AuditConfig(**bad)
 
 
+def test_audit_config_target_and_prefixes():
+    for bad in (dict(target_psr=float('nan')), dict(target_psr=-0.1), dict(target_psr=1.5),
+                dict(prefixes=(-1,)), dict(prefixes=(1.5,)), dict(prefixes=(True,)),
+                dict(prefixes=(6,))):
+        with pytest.raises(ValueError, match='target PSR|prefixes'):
+            AuditConfig(max_budget=5, **bad)
+    cfg = AuditConfig(max_budget=5, prefixes=(5, 3, 3), target_psr=0.25)
+    assert cfg.prefixes == (0, 3, 5)  # the unattacked control always, sorted, once
+    assert cfg.thresholds() == (0.8, 0.6, 0.4, 0.25, 0.2, 0.0)
+    assert AuditConfig(target_psr=0.2).thresholds() == AuditConfig().thresholds()
+    assert AuditConfig().target_psr is None and AuditConfig().prefixes is None
+
+
 def test_audit_command_errors(tmp_path, capsys):
     from advocc_ros.cli import main
     base = ['audit', '--scene', 'table_pick', '--out', str(tmp_path)]
     for extra, message in ((['--trials', '0'], '--trials'), (['--max-budget', '0'],
                                                              '--max-budget'),
                            (['--planners', 'rrtconnect,nope'], 'unknown planner'),
-                           (['--time', '-1'], '--time')):
+                           (['--time', '-1'], '--time'),
+                           (['--target-psr', 'nan'], '--target-psr must be in 0..100'),
+                           (['--target-psr', '101'], '--target-psr must be in 0..100'),
+                           (['--target-psr', '0.2'], 'for 20 % give 20'),
+                           (['--target-psr', 'few'], 'is not a number'),
+                           (['--prefixes', '0,1.5'], 'non-negative integers'),
+                           (['--prefixes', '-1'], 'non-negative integers'),
+                           (['--prefixes', '0,9'], 'exceed --max-budget 5')):
         assert main(base + extra) == 2
         assert message in capsys.readouterr().err
     for extra in (['--method', 'nope'], ['--policy', 'nope']):
@@ -190,3 +210,97 @@ def test_audit_answer_does_not_count_a_blocked_goal_as_a_win():
     assert '- RRTConnect does not fail (PSR > 20 %) on a certified prefix (m = 0, 1): lowest ' \
         'PSR 70 % at m = 1 (unattacked 100 %), median time to first solution 0.10 s -> ' \
         '0.20 s (PT ratio x2.00); it fails with 2 boxes, where the task is goal blocked.' in text
+
+
+@pytest.mark.processes
+def test_audit_target_and_grid_stop_early(tmp_path, table_scene, small_heatmap):
+    """Task / paper on table_pick (the first box blocks every goal pose): with the grid 0, 2
+    and a 50 % target, m = 1 is never evaluated, m = 2 reaches the target and the sweep stops
+    there; the skipped prefix is absent, gets no verdict and the report says so."""
+    from advocc_ros.audit.audit import AUDIT_VERSION, run_audit
+    from advocc_ros.audit.report import audit_answer, budget_table, write_audit
+
+    cfg = AuditConfig(planners=('rrtconnect',), max_budget=2, trials=2, time_budget_s=1.0,
+                      workers=1, target_psr=0.5, prefixes=(2,))
+    audit = run_audit(table_scene, small_heatmap, cfg)
+    assert len(audit['boxes']) == 2 and audit['version'] == AUDIT_VERSION == 3
+    assert [b['m'] for b in audit['budgets']] == [0, 2]
+    psr = audit['psr']['rrtconnect']
+    assert len(psr) == 3 and psr[1] is None and psr[0] > 0.5 >= psr[2]
+    assert audit['stopped'] == 'every planner at PSR <= 50 % (rrtconnect m = 2)'
+    assert audit['min_budget']['0.5']['rrtconnect'] == 2
+    assert audit['impossible']['goal_blocked_m'] == 1  # its own verdict for m = 1
+    write_audit(audit, tmp_path, small_heatmap, table_scene)
+    data = json.loads((tmp_path / 'audit.json').read_text())
+    assert data['settings']['prefixes'] == [0, 2] and data['settings']['target_psr'] == 0.5
+    assert audit_answer(data) == audit_answer(audit)
+    assert 'it fails with 2 boxes (m = 1 not evaluated), where the task is goal blocked' \
+        in audit_answer(data)
+    assert 'Prefixes evaluated (--prefixes): m = 0, 2;' in audit_answer(data)
+    assert 'm = 1: not evaluated (not in --prefixes).' in budget_table(data)
+    from advocc_ros.view.scene_page import audit_view_html
+    assert 'Prefixes evaluated (--prefixes): m = 0, 2;' in audit_view_html(tmp_path, table_scene)
+
+
+@pytest.mark.processes
+def test_audit_target_reached_unattacked_stops_at_once(table_scene, small_heatmap):
+    """A 100 % target is reached by every planner on the unattacked task: nothing else runs."""
+    from advocc_ros.audit.audit import run_audit
+
+    cfg = AuditConfig(planners=('rrtconnect', 'bkpiece1'), max_budget=2, trials=1,
+                      time_budget_s=0.5, workers=1, target_psr=1.0)
+    audit = run_audit(table_scene, small_heatmap, cfg)
+    assert [b['m'] for b in audit['budgets']] == [0]
+    assert audit['stopped'] == 'every planner at PSR <= 100 % (rrtconnect m = 0, bkpiece1 m = 0)'
+    assert '1.0' in audit['min_budget']
+
+
+def _grid_audit():
+    """A version-3 audit by hand: grid m = 0, 2, 5, target 20 %; RRTConnect reaches it at
+    m = 2 (not evaluated at 5), PRM* at m = 5."""
+    from advocc_ros.audit.audit import psr_curves
+
+    def row(psr):
+        return {'psr': psr, 'first_solution_median_s': 0.5, 'pt': 1.0,
+                'failures': {'timed out': round(10 * (1 - psr))}}
+
+    budgets = [{'m': m, 'solvable': 'certified', 'goal_valid_fraction': 1.0,
+                'planners': {'rrtconnect': None if r is None else row(r), 'prmstar': row(p)}}
+               for m, r, p in ((0, 1.0, 1.0), (2, 0.2, 0.6), (5, None, 0.0))]
+    psr = psr_curves(budgets, ('rrtconnect', 'prmstar'))
+    audit = _hand_audit([1.0], ['certified'], goal_blocked_m=None)
+    audit.update(budgets=budgets, psr=psr, max_budget=5,
+                 min_budget=minimal_budgets(psr), min_budget_solvable=minimal_budgets(psr))
+    audit['settings'].update(target_psr=0.2, prefixes=[0, 2, 5])
+    return audit
+
+
+def test_audit_report_shows_skipped_cells():
+    from advocc_ros.audit.report import audit_answer, budget_table
+
+    audit = json.loads(json.dumps(_grid_audit()))  # what a reader of audit.json gets
+    assert audit['psr']['rrtconnect'] == [1.0, None, 0.2, None, None, None]
+    table = budget_table(audit)
+    assert '| 5 | certified | 100 % | — | — | — | 0 % | 0.50 s | 10 timed out |' in table
+    assert '—: not evaluated, the planner was already at PSR <= 20 % (--target-psr).' in table
+    assert 'm = 1, 3, 4: not evaluated (not in --prefixes).' in table
+    text = audit_answer(audit)
+    assert '- RRTConnect fails (PSR <= 20 %) with 2 boxes (m = 1 not evaluated), task ' \
+        'certified: PSR 100 % -> 20 % (8 timed out).' in text
+    assert '- PRM* fails (PSR <= 20 %) with 5 boxes (m = 3..4 not evaluated)' in text
+    assert 'Prefixes evaluated (--prefixes): m = 0, 2, 5;' in text
+
+
+def test_audit_markdown_minimal_budgets_with_skipped_cells():
+    from advocc_ros.audit.report import audit_markdown
+
+    audit = _grid_audit()
+    audit['impossible']['same_attack'] = True
+    audit['settings'].update(seed=0, workers=1, heatmap={'valid_samples': 100,
+                                                          'scene_name': 'table_pick'})
+    audit.update(method='task', witness=None, wall_s=1.0,
+                 attack={'status': 'ok', 'message': '', 'compute_ms': 1.0},
+                 machine={'cpu': 'cpu', 'cores': 2, 'python': '3.11'})
+    md = audit_markdown(audit)
+    assert '| RRTConnect | 2 | 2 | 2 | 2 | > 2 |' in md  # not evaluated after m = 2
+    assert '| PRM* | 2 | 2 | 5 | 5 | 5 |' in md
