@@ -296,8 +296,8 @@ def test_audit_markdown_minimal_budgets_with_skipped_cells():
 
     audit = _grid_audit()
     audit['impossible']['same_attack'] = True
-    audit['settings'].update(seed=0, workers=1, heatmap={'valid_samples': 100,
-                                                          'scene_name': 'table_pick'})
+    heatmap = {'valid_samples': 100, 'scene_name': 'table_pick'}
+    audit['settings'].update(seed=0, workers=1, heatmap=heatmap)
     audit.update(method='task', witness=None, wall_s=1.0,
                  attack={'status': 'ok', 'message': '', 'compute_ms': 1.0},
                  machine={'cpu': 'cpu', 'cores': 2, 'python': '3.11'})
