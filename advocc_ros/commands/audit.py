@@ -143,7 +143,7 @@ def audit_heatmap(scene, out: pathlib.Path, heatmap_file: str | None, workers: i
     cfg = HeatmapConfig() if samples is None else HeatmapConfig(samples=samples)
     heatmap = build_heatmap(scene, cfg, seed=0, workers=workers)
     save_heatmap(heatmap, path)
-    log(f'heatmap: built {path} ({samples} samples) in {time.perf_counter() - t0:.1f} s')
+    log(f'heatmap: built {path} ({cfg.samples} samples) in {time.perf_counter() - t0:.1f} s')
     return heatmap
 
 
