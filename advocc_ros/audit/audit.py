@@ -31,7 +31,8 @@ from advocc_ros.evaluation.budgets import THRESHOLDS, minimal_budgets
 log = logging.getLogger(__name__)
 
 ANSWER_THRESHOLD = 0.2
-"""A planner "fails" the task when its PSR is at most this (the answer's headline)."""
+"""A planner "fails" the task when its PSR is at most this (the answer's headline, unless the
+audit has a ``target_psr``: then that)."""
 AUDIT_FORMAT = 'advocc_audit'
 AUDIT_VERSION = 3
 """3: ``budgets`` holds the evaluated prefixes only (``--prefixes``), a planner's row there is
