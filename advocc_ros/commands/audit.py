@@ -23,8 +23,6 @@ from advocc_ros.cli import UserError
 from advocc_ros.commands.common import (add_attack_args, add_bag_arg, add_scene_args, describe,
                                         check_bag_arg, refuse_invalid_task, scene_from_args)
 
-"""Samples of the heatmap the audit builds when none is given (~5-9 s on 2 cores)."""
-
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser('audit', help='how few boxes make each planner fail this task',
