@@ -24,7 +24,7 @@ import coal
 import numpy as np
 
 from advocc_ros.model.collision import CollisionWorld
-from advocc_ros.kinematics.ik import goal_set
+from advocc_ros.kinematics.ik import GoalSampler, IkConfig, goal_set
 from advocc_ros.model.cache import BoundedCache
 from advocc_ros.model.robot import RobotModel
 from advocc_ros.model.goal import GoalRegion
@@ -33,6 +33,13 @@ from advocc_ros.model.scene import SceneObject, task_hash
 VALIDATION_SEED = 7_345_001
 """Seed of the goal samples behind ``goal_valid_fraction`` (fixed: comparable attacks)."""
 VALIDATION_SAMPLES = 32
+SELECTION_SEED = 7_345_002
+"""Seed of the goal samples that choose among the ``task`` attack's draws (``attack.task``):
+not the validation set, so ``goal_valid_fraction`` stays an independent diagnostic."""
+SELECTION_SAMPLES = 256
+SELECTION_ATTEMPTS = 16
+"""IK attempts per wanted sample the selection set may spend (an iteration budget: the same set
+on any machine)."""
 
 _GOAL_SAMPLES: BoundedCache = BoundedCache('goal samples', 16)
 """Task hash -> GoalSamples (nodes attack from several executor threads)."""
@@ -112,6 +119,28 @@ def goal_samples(robot: RobotModel, objects: tuple[SceneObject, ...], goal: Goal
     Q = goal_set(robot, world.collisions_batch, world.in_collision, goal, n, VALIDATION_SEED,
                  stats=sampling)
     return _GOAL_SAMPLES.put(key, GoalSamples(world, Q, sampling['goal_time_cap_hit']))
+
+
+def selection_goal_samples(robot: RobotModel, objects: tuple[SceneObject, ...],
+                           goal: GoalRegion, n: int = SELECTION_SAMPLES) -> GoalSamples:
+    """Up to ``n`` valid goal configurations drawn the way the planners draw theirs (random-seed
+    IK, ``GoalSampler``; not ``goal_set``'s walks, which stay near a few IK branches), from a
+    fixed seed and at most ``SELECTION_ATTEMPTS * n`` attempts; cached per task (~1-4 s for 256
+    on the Panda scenes)."""
+    key = task_hash(robot.hash, objects, goal, n, 'selection')
+    cached = _GOAL_SAMPLES.get(key)
+    if cached is not None:
+        return cached
+    world = CollisionWorld(robot, [sh for o in objects for sh in o.shapes])
+    sampler = GoalSampler(robot, world.in_collision, goal,
+                          np.random.default_rng(SELECTION_SEED), IkConfig())
+    found = []
+    while len(found) < n and sampler.attempts < SELECTION_ATTEMPTS * n:
+        q = sampler.attempt()
+        if q is not None:
+            found.append(q)
+    Q = np.array(found).reshape(-1, robot.nq)
+    return _GOAL_SAMPLES.put(key, GoalSamples(world, Q))
 
 
 def clear_cache() -> None:
