@@ -14,6 +14,9 @@ Goal policies (docs/design.md):
 
 The sample set depends on the task only (robot, scene, goal region; seed fixed), so it is
 computed once per task and cached: every attack of one task is judged on the same samples.
+A second, larger fixed set drawn the way the planners draw goals (``selection_goal_samples``)
+chooses among the ``task`` attack's draws; the validation set is kept apart from it, so
+``goal_valid_fraction`` is not the number the attack optimized.
 """
 
 from __future__ import annotations

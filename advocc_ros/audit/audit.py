@@ -5,7 +5,8 @@ configuration blocked, from a paper-policy attack), and how few make each planne
 the task stays certified solvable (a witness path stays valid with the boxes; the ``solvable``
 goal policy keeps it so by construction). A planner failing an impossible task shows nothing.
 
-Greedy picks are nested (the first m boxes of a budget-K attack are the budget-m attack), so one
+Greedy picks are nested (the first m boxes of a budget-K attack are the budget-m attack; under
+``solvable``, of the ``task`` draw kept for K: ``attack.task``), so one
 attack at the largest budget K and an evaluation of its prefixes m = 0, 1, 2, ... give, per
 planner, the PSR curve over the budget and the minimal budget reaching each PSR threshold (the
 paper's Table II for one task). By default every planner is evaluated at every prefix and the
