@@ -173,7 +173,7 @@ def test_server_answers_bad_requests_and_keeps_serving(ros, ros_env, heatmap_fil
     assert good.solvable in ('certified', 'goal blocked', 'unknown') and good.solvable_message
     solvable = _request(table_scene, budget=5, method='task')
     solvable.goal_policy = 'solvable'
-    kept = _call(executor, client, solvable)
+    kept = _call(executor, client, solvable, timeout_s=60)  # witness search + 8 task draws
     assert kept.error_code.val == ErrorCodes.SUCCESS, kept.message
     assert kept.solvable == 'certified', kept.solvable_message  # the witness is kept by design
 
