@@ -13,12 +13,17 @@ import pytest
 pytestmark = pytest.mark.processes  # nodes, workers or CLI runs
 
 
-def _start(module, env, *params):
+def _ignore_sigint():
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+
+def _start(module, env, *params, sigint_ignored=False):
+    """``sigint_ignored``: the node inherits SIGINT ignored, as a shell's background job does."""
     args = [sys.executable, '-m', f'advocc_ros.nodes.{module}', '--ros-args']
     for p in params:
         args += ['-p', p]
     return subprocess.Popen(args, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
-                            text=True)
+                            text=True, preexec_fn=_ignore_sigint if sigint_ignored else None)
 
 
 def _stop(proc, timeout_s=15.0):
@@ -315,6 +320,16 @@ def test_sigint_at_any_moment_stops_the_server_cleanly(ros_env, heatmap_file, af
     starts or while it idles: a clean stop within the stop timeout (rclpy's races there hung
     it or gave exit 1 with a traceback; a Ctrl-C swallowed by an import hung it)."""
     server = _start('heatmap_server', ros_env, f'heatmap_file:={heatmap_file}')
+    time.sleep(after_s)
+    assert _stop(server) in (0, -signal.SIGINT)
+
+
+@pytest.mark.parametrize('after_s', [0.5, 3.5])
+def test_a_node_started_with_sigint_ignored_stops_on_it(ros_env, heatmap_file, after_s):
+    """Started from a shell's background job (``advocc bench ... &``), a node inherits SIGINT
+    ignored: the orchestrator's SIGINT must still stop it, in its imports as after rclpy.init."""
+    server = _start('heatmap_server', ros_env, f'heatmap_file:={heatmap_file}',
+                    sigint_ignored=True)
     time.sleep(after_s)
     assert _stop(server) in (0, -signal.SIGINT)
 

@@ -34,9 +34,11 @@ def _die_by_sigint_after_a_swallowed_one(exc_type, exc, tb):
 
 
 # Installed when this package is imported, i.e. before a node module's own (slow) imports;
-# rclpy's handler, installed later, passes SIGINT on to it.
+# rclpy's handler, installed later, passes SIGINT on to it. Also over an inherited SIG_IGN (a
+# shell starts background jobs so): rclpy.init stops the node on SIGINT all the same, and a
+# Ctrl-C during the imports must not be the one that is lost.
 if threading.current_thread() is threading.main_thread() \
-        and signal.getsignal(signal.SIGINT) is signal.default_int_handler:
+        and signal.getsignal(signal.SIGINT) in (signal.default_int_handler, signal.SIG_IGN):
     signal.signal(signal.SIGINT, _remember_sigint)
     if sys.excepthook is sys.__excepthook__:
         sys.excepthook = _die_by_sigint_after_a_swallowed_one
