@@ -91,6 +91,19 @@ def test_solvable_takes_the_witness_as_data(table, witness, no_process):
     assert result.solvable.certified, result.solvable.message
 
 
+@pytest.mark.processes  # the witness fixture's search (a planning worker)
+def test_task_draws_are_chosen_without_a_planner(table, witness, no_process):
+    """Under ``solvable`` the task attack judges its draws on IK goal samples, in this process."""
+    from advocc_ros.attack import attack
+    from advocc_ros.attack.task import TaskOptions
+
+    heatmap, robot, scene, q = table
+    result = attack(heatmap, robot, scene.objects, q, scene.goal, 2, 'task', seed=1,
+                    goal_policy='solvable', witness=witness, method_options=TaskOptions(draws=3))
+    assert result.status.ok and result.stats['task_draws'] == 3 and no_process == []
+    assert result.solvable.certified, result.solvable.message
+
+
 @pytest.mark.processes  # a fresh interpreter
 def test_the_core_modules_import_no_planner():
     code = ('import sys, advocc_ros.attack, advocc_ros.attack.api, advocc_ros.attack.task\n'
