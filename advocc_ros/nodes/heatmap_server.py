@@ -203,6 +203,11 @@ class HeatmapServer(Node):
         super().__init__('heatmap_server')
         declare(self, PARAMETERS)
         self.add_on_set_parameters_callback(self._check_parameters)
+        self.task_options = task_options({  # a bad override stops the node before any work
+            name: self.get_parameter(f'{TASK_PREFIX}{name}').value
+            for name in (f.name for f in dataclasses.fields(TaskOptions))})
+        self._last_stats: dict | None = None
+        """The stats of the last attack (``~/get_info``): the Attack response carries none."""
 
         path = self.get_parameter('heatmap_file').value
         if not path:
@@ -223,10 +228,6 @@ class HeatmapServer(Node):
         self.robot = load_robot(self._spec)
         check_robot(self.heatmap, self.robot.hash, path)
         self.cfg = self._config()
-        self.task_options = task_options({
-            name: self.get_parameter(f'{TASK_PREFIX}{name}').value
-            for name in (f.name for f in dataclasses.fields(TaskOptions))})
-        self._last_stats: dict | None = None
         link_tables(self.robot, self.heatmap.lut_pitch_m)  # warm the cache: ~1 s once
         self._path = path
         self._served = 0
