@@ -254,6 +254,56 @@ def test_server_answers_bad_requests_and_keeps_serving(ros, ros_env, heatmap_fil
     assert _stop(server) == 0
 
 
+def test_server_task_options_are_node_parameters(ros, ros_env, heatmap_file, table_scene):
+    """``task_<option>`` parameters set the task method's options; a bad set is refused with
+    the reason and the server keeps serving with the options it had."""
+    from advocc_msgs.msg import ErrorCodes
+    from advocc_msgs.srv import Attack, GetInfo
+    from rcl_interfaces.msg import Parameter, ParameterType, ParameterValue
+    from rcl_interfaces.srv import SetParameters
+
+    node, executor, children = ros
+    server = _start('heatmap_server', ros_env, f'heatmap_file:={heatmap_file}', 'task_draws:=1',
+                    'task_goal_share:=0.3')
+    children.append(server)
+    client = node.create_client(Attack, '/heatmap_server/attack')
+    info_client = node.create_client(GetInfo, '/heatmap_server/get_info')
+    set_client = node.create_client(SetParameters, '/heatmap_server/set_parameters')
+    _wait_service(executor, client, server)
+    request = _request(table_scene, budget=3, method='task')
+    request.goal_policy = 'solvable'
+
+    def attack_stats():
+        res = _call(executor, client, request, timeout_s=90)  # the first: the witness search
+        assert res.error_code.val in (ErrorCodes.SUCCESS, ErrorCodes.PARTIAL), res.message
+        info = json.loads(_call(executor, info_client, GetInfo.Request()).info_json)
+        return info['last_attack_stats'], info['task_options']
+
+    def set_one(name, value):
+        kind = (ParameterType.PARAMETER_INTEGER if isinstance(value, int)
+                else ParameterType.PARAMETER_DOUBLE)
+        req = SetParameters.Request(parameters=[Parameter(name=name, value=ParameterValue(
+            type=kind, integer_value=value if isinstance(value, int) else 0,
+            double_value=float(value)))])
+        (result,) = _call(executor, set_client, req).results
+        return result
+
+    stats, options = attack_stats()
+    assert stats['task_draws'] == 1 and stats['task_goal_share'] == 0.3
+    assert options['draws'] == 1 and options['goal_share'] == 0.3 and options['detours'] == 2
+    zero = set_one('task_draws', 0)
+    assert not zero.successful and 'draws must be an integer >= 1, got 0' in zero.reason
+    share = set_one('task_goal_share', 1.0)
+    assert not share.successful and 'goal_share must be a number in [0, 1)' in share.reason
+    typed = set_one('task_draws', 2.5)
+    assert not typed.successful and 'type' in typed.reason.lower()
+    stats, options = attack_stats()  # still serving, with the options it had
+    assert stats['task_draws'] == 1 and options['goal_share'] == 0.3
+    assert set_one('task_draws', 2).successful
+    assert attack_stats()[0]['task_draws'] == 2
+    assert _stop(server) == 0
+
+
 def test_server_refuses_a_corrupted_heatmap(ros_env, tmp_path):
     path = tmp_path / 'broken.npz'
     path.write_bytes(b'PK\x03\x04 this is not a heatmap')

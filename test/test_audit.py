@@ -146,13 +146,17 @@ def test_audit_end_to_end_table_pick(tmp_path, table_scene, small_heatmap):
 def test_audit_policy_solvable_gives_both_answers(tmp_path, table_scene, small_heatmap):
     """--policy solvable: every evaluated prefix stays certified (the witness is kept by
     construction) and a second, paper-policy attack says how few boxes block the goal."""
+    from advocc_ros.attack.task import TaskOptions
     from advocc_ros.audit.audit import run_audit
-    from advocc_ros.audit.report import audit_answer
+    from advocc_ros.audit.report import audit_answer, audit_markdown
 
     cfg = AuditConfig(planners=('rrtconnect',), max_budget=2, trials=2, time_budget_s=1.0,
-                      policy='solvable', workers=1)
+                      policy='solvable', workers=1, task_options=TaskOptions(draws=2))
     audit = run_audit(table_scene, small_heatmap, cfg)
     assert audit['policy'] == 'solvable'
+    assert audit['attack']['stats']['task_draws'] == 2  # --task-option reaches the attack
+    assert audit['settings']['task_options']['draws'] == 2
+    assert "task options (--task-option): {'goal_samples': 64" in audit_markdown(audit)
     assert [b['solvable'] for b in audit['budgets']] == ['certified'] * len(audit['budgets'])
     imp = audit['impossible']
     assert not imp['same_attack'] and imp['goal_blocked_m'] == 1 and len(imp['boxes']) >= 1

@@ -45,7 +45,8 @@ def test_the_kept_draw_leaves_the_fewest_goal_configurations_valid(task):
 
 
 def test_one_draw_is_the_attack_of_the_seed_itself(task):
-    assert 'task_draws' not in _attack(task, draws=1).stats
+    one = _attack(task, draws=1).stats
+    assert one['task_draws'] == 1 and one['task_draw_kept'] == 0
     assert draw_seed(3, 0) == 3 and len({draw_seed(3, k) for k in range(8)}) == 8
     assert draw_seed(4, 1) != draw_seed(3, 1)  # another attack seed, other draws
 

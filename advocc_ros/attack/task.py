@@ -62,8 +62,11 @@ audit's prefixes), not necessarily the draw a budget-m request would keep.
 from __future__ import annotations
 
 import dataclasses
+import math
+import numbers
 import os
 import time
+from typing import Any, Mapping
 
 import numpy as np
 from scipy import sparse
@@ -110,15 +113,46 @@ class TaskOptions:
     valid (module docstring). 1: one draw, the attack's seed."""
 
     def __post_init__(self):
-        if isinstance(self.draws, bool) or not isinstance(self.draws, int) or self.draws < 1:
-            raise ValueError(f'task options: draws must be an integer >= 1, got {self.draws!r}')
-        if self.goal_samples < 1 or self.approach_points < 0 or self.detours < 0:
-            raise ValueError('task options: goal_samples >= 1, approach_points and detours '
-                             '>= 0')
-        if not (self.detour_rad >= 0 and self.sampling_cap_s > 0 and self.tube_rad >= 0
-                and self.tube_samples >= 0 and 0 <= self.goal_share < 1):
-            raise ValueError('task options: detour_rad, tube_rad, tube_samples >= 0, '
-                             'goal_share in [0, 1) and sampling_cap_s > 0')
+        for name, (valid, allowed) in _OPTION_VALUES.items():
+            value = getattr(self, name)
+            kind = int if isinstance(getattr(TaskOptions, name), int) else numbers.Real
+            if isinstance(value, bool) or not isinstance(value, kind) or not valid(value):
+                raise ValueError(f'task options: {name} must be {allowed}, got {value!r}')
+
+
+_OPTION_VALUES = {
+    'goal_samples': (lambda v: v >= 1, 'an integer >= 1'),
+    'approach_points': (lambda v: v >= 0, 'an integer >= 0'),
+    'detours': (lambda v: v >= 0, 'an integer >= 0'),
+    'detour_rad': (lambda v: 0 <= v < math.inf, 'a finite number >= 0'),
+    'sampling_cap_s': (lambda v: 0 < v < math.inf, 'a finite number > 0'),
+    'tube_samples': (lambda v: v >= 0, 'an integer >= 0'),
+    'tube_rad': (lambda v: 0 <= v < math.inf, 'a finite number >= 0'),
+    'goal_share': (lambda v: 0 <= v < 1, 'a number in [0, 1)'),
+    'draws': (lambda v: v >= 1, 'an integer >= 1'),
+}
+"""What each :class:`TaskOptions` field accepts: (test, the words an error shows)."""
+
+
+def task_options(mapping: Mapping[str, Any]) -> TaskOptions:
+    """:class:`TaskOptions` with the options of ``mapping`` (option name -> value) set, the
+    others at their defaults: the one way the CLI's ``--task-option``, the heatmap server's
+    ``task_*`` parameters and the bench's ``task`` setting build them. An unknown name, a
+    value of the wrong type or out of range is a ``ValueError`` naming the option and what
+    it accepts; integers given for real-valued options become floats."""
+    if not isinstance(mapping, Mapping):
+        raise ValueError(f'task options: expected a mapping of option: value, got {mapping!r}')
+    known = [f.name for f in dataclasses.fields(TaskOptions)]
+    for name in mapping:
+        if name not in known:
+            raise ValueError(f'task options: unknown option {name!r}; known: '
+                             f'{", ".join(known)}')
+    values = dict(mapping)
+    for name, value in mapping.items():
+        if isinstance(getattr(TaskOptions, name), float) and isinstance(value, int) \
+                and not isinstance(value, bool):
+            values[name] = float(value)
+    return TaskOptions(**values)
 
 
 THREADS = os.cpu_count() or 1
@@ -207,6 +241,8 @@ def _select_task(region: SearchRegion, budget: int, seed: int, cfg: AttackConfig
     if opts.draws == 1 or not isinstance(region.guard, WitnessGuard):
         picks, rejected, stats = _draw(region, budget, seed, cfg, context, opts)
         region.stats.update(stats)
+        if isinstance(region.guard, WitnessGuard):  # draws apply under solvable only
+            region.stats.update(task_draws=1, task_draw_kept=0)
         return picks, rejected
     judge = selection_goal_samples(context.robot, context.objects, context.goal)
     draws, scores = [], []
@@ -299,4 +335,5 @@ def _draw(region: SearchRegion, budget: int, seed: int, cfg: AttackConfig,
 
 register_method('task', _select_task)
 
-__all__ = ['TaskOptions', 'WEIGHT_FLOOR', 'approach_samples', 'lexicographic_weights']
+__all__ = ['TaskOptions', 'WEIGHT_FLOOR', 'approach_samples', 'lexicographic_weights',
+           'task_options']

@@ -69,6 +69,8 @@ class AuditConfig:
     prefixes: tuple[int, ...] | None = None
     """The m evaluated (0, the unattacked control, always added; sorted); None: every m up to
     the boxes placed. Those beyond the boxes the attack placed are dropped with a warning."""
+    task_options: Any = None
+    """``advocc_ros.attack.task.TaskOptions`` of a ``task`` attack (None: its defaults)."""
 
     def __post_init__(self):
         if not self.planners:
@@ -211,7 +213,7 @@ def _attack(task: _Task, heatmap, cfg: AuditConfig, policy: str, attack_cfg):
 
     result = attack(heatmap, task.robot, task.scene.objects, task.q_init, task.scene.goal,
                     cfg.max_budget, cfg.method, attack_cfg, seed=cfg.seed, goal_policy=policy,
-                    witness=task.witness)
+                    witness=task.witness, method_options=cfg.task_options)
     if not result.status.ok:
         why = (no_witness_message() if result.status == AttackStatus.NO_WITNESS
                else result.message)

@@ -219,6 +219,8 @@ def audit_markdown(audit: dict) -> str:
             f'- attack: {audit["method"]}, goal policy {audit["policy"]}, max budget '
             f'{audit["max_budget"]}, seed {s["seed"]}: {audit["attack"]["status"]} '
             f'({audit["attack"]["message"]}), {audit["attack"]["compute_ms"]:.1f} ms',
+            *([f'- task options (--task-option): {s["task_options"]}']
+              if s.get('task_options') else []),
             f'- goal-blocked answer: {_impossible_attack(audit)}',
             f'- witness: {_witness(audit["witness"])}',
             f'- planners: {", ".join(planners)}; {s["trials"]} trials, '

@@ -37,7 +37,7 @@ MAX_BUDGET = 90
 """Largest budget: one attack's REMOVE + ADDs must fit the latched topic's history (100)."""
 # Settings that change what a trial measures: a run folder refuses to mix them.
 IDENTITY_FIELDS = ('time_budget_s', 'seed', 'box_size_m', 'heatmap_samples',
-                   'heatmap_robot_only', 'variants', 'goal_policy')
+                   'heatmap_robot_only', 'variants', 'goal_policy', 'task')
 
 
 class BenchError(ValueError):
@@ -98,6 +98,10 @@ class BenchConfig:
     pfa: dict = dataclasses.field(default_factory=dict)
     """Settings of the planner-in-the-loop methods (``advocc_ros.attack.pfa.PfaConfig`` fields:
     queries, queries_per_placement, query_time_s, ...); their queries run on the shims."""
+    task: dict = dataclasses.field(default_factory=dict)
+    """Options of the ``task`` attacks (``advocc_ros.attack.task.TaskOptions`` fields, e.g.
+    ``{draws: 1}``), given to the heatmap server as its ``task_<option>`` parameters; the
+    others keep their defaults."""
 
     def __post_init__(self):
         def fail(what: str) -> None:
@@ -148,6 +152,11 @@ class BenchConfig:
         if not isinstance(self.pfa, dict) or 'planner_id' in self.pfa:
             fail(f'pfa: expected a mapping of PfaConfig settings (the planner is the cell\'s), '
                  f'got {self.pfa!r}')
+        from advocc_ros.attack.task import task_options
+        try:
+            task_options(self.task)
+        except ValueError as exc:
+            fail(f'task: {exc}')
         if not isinstance(self.variants, dict) or not all(
                 isinstance(v, int) and not isinstance(v, bool) and v >= 1
                 for v in self.variants.values()):

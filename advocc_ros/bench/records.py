@@ -121,7 +121,11 @@ def check_run_config(run_dir: pathlib.Path, cfg: BenchConfig) -> None:
     except (OSError, ValueError, KeyError, TypeError) as exc:
         raise BenchError(f'{path}: unreadable ({exc}); remove it to start over') from None
     new = cfg.to_data()
-    diff = [f'{k}: {old.get(k)!r} -> {new[k]!r}' for k in IDENTITY_FIELDS if old.get(k) != new[k]]
+    # A setting an older run folder does not record ran at its default (new settings default
+    # to the old behaviour), so those folders still resume.
+    default = BenchConfig().to_data()
+    diff = [f'{k}: {old.get(k, default[k])!r} -> {new[k]!r}' for k in IDENTITY_FIELDS
+            if old.get(k, default[k]) != new[k]]
     if diff:
         raise BenchError(f'{run_dir} holds trials measured with other settings ({"; ".join(diff)})'
                          '; use another --out folder')

@@ -10,6 +10,7 @@ planners by design (``--workers`` local processes).
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import sys
 
@@ -18,7 +19,8 @@ from advocc_ros.attack import (AttackConfig, AttackStatus, load_method, obstacle
 from advocc_ros.attack.edges import attack_task
 from advocc_ros.cli import UserError
 from advocc_ros.commands.common import (add_attack_args, add_bag_arg, add_scene_args,
-                                        check_bag_arg, refuse_invalid_task, scene_from_args)
+                                        add_task_option_arg, check_bag_arg, refuse_invalid_task,
+                                        scene_from_args, task_options_from_args)
 from advocc_ros.heatmap import HeatmapError, load_heatmap
 from advocc_ros.model.robot import RobotError, load_robot
 from advocc_ros.model.pose import SceneError
@@ -33,6 +35,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     add_scene_args(p)
     p.add_argument('--budget', type=int, required=True, help='M, number of boxes')
     add_attack_args(p)
+    add_task_option_arg(p)
     p.add_argument('--certify', action='store_true',
                    help='under --policy paper/reachable: also find the task\'s witness (one '
                    'RRTConnect run on the unattacked scene, cached per task) so the verdict can '
@@ -67,6 +70,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def _attack(args: argparse.Namespace) -> int:
     check_bag_arg(args)
+    options = task_options_from_args(args, args.method)
     if not load_method(args.method):
         raise UserError(f'method {args.method!r} is not available in this installation')
     try:
@@ -92,12 +96,15 @@ def _attack(args: argparse.Namespace) -> int:
               f'{heatmap.meta.get("scene_name")!r}, not {scene.name!r}; the current scene is '
               'masked, but its heatmap mass may be off', file=sys.stderr)
     extra = {'heatmap_file': str(args.heatmap), 'seed': args.seed}
+    if args.method == 'task':  # what the attack ran with; `advocc export` attacks alike
+        from advocc_ros.attack.task import TaskOptions
+        extra['task_options'] = dataclasses.asdict(options or TaskOptions())
     if args.method in ('pfa', 'pfa++'):
         result = _attack_in_the_loop(args, heatmap, robot, scene, q_init, cfg)
         extra['pfa'] = result.stats.get(args.method, {})
     else:
         result = attack_task(heatmap, robot, scene.objects, q_init, scene.goal, args.budget,
-                             args.method, cfg, seed=args.seed)
+                             args.method, cfg, seed=args.seed, method_options=options)
     if not result.status.ok:
         raise UserError(f'{result.status.value}: {result.message}')
     data = obstacles_data(result, heatmap, scene.name, scene.objects_hash(), extra)

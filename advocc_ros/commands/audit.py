@@ -20,8 +20,10 @@ import sys
 import time
 
 from advocc_ros.cli import UserError
-from advocc_ros.commands.common import (add_attack_args, add_bag_arg, add_scene_args, describe,
-                                        check_bag_arg, refuse_invalid_task, scene_from_args)
+from advocc_ros.commands.common import (add_attack_args, add_bag_arg, add_scene_args,
+                                        add_task_option_arg, check_bag_arg, describe,
+                                        refuse_invalid_task, scene_from_args,
+                                        task_options_from_args)
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -32,6 +34,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help='comma-separated OMPL planner ids or outside victims (mplib; '
                         'docs/transfer.md) (default %(default)s)')
     add_attack_args(p)
+    add_task_option_arg(p)
     p.add_argument('--max-budget', type=int, default=5, metavar='K',
                    help='boxes of the attack whose prefixes are evaluated (default %(default)s)')
     p.add_argument('--trials', type=int, default=10,
@@ -87,7 +90,8 @@ def audit_config(args: argparse.Namespace):
                        time_budget_s=args.time, method=args.method, policy=args.policy,
                        seed=args.seed, workers=args.workers,
                        target_psr=_target_psr(args.target_psr),
-                       prefixes=_prefixes(args.prefixes, args.max_budget))
+                       prefixes=_prefixes(args.prefixes, args.max_budget),
+                       task_options=task_options_from_args(args, args.method))
 
 
 def _target_psr(text: str | None) -> float | None:

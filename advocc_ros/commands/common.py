@@ -62,6 +62,40 @@ def add_attack_args(parser: argparse.ArgumentParser, methods=None) -> None:
                         help='attack seed (task, random, pfa, pfa++) (default %(default)s)')
 
 
+def add_task_option_arg(parser: argparse.ArgumentParser) -> None:
+    """Add the repeatable ``--task-option KEY=VALUE`` (``TaskOptions`` of method ``task``)."""
+    parser.add_argument('--task-option', action='append', default=[], metavar='KEY=VALUE',
+                        help='a setting of --method task (advocc_ros.attack.task.TaskOptions; '
+                             'YAML value, repeatable), e.g. draws=1 (one draw under --policy '
+                             'solvable instead of the best of 8: ~8x faster) or goal_share=0.3')
+
+
+def task_options_from_args(args: argparse.Namespace, method: str):
+    """The ``TaskOptions`` of ``--task-option`` (None when none is given); ``UserError`` for a
+    malformed item, an unknown option, a bad value, or options given to another method."""
+    import yaml
+
+    from advocc_ros.attack.task import task_options
+
+    if not args.task_option:
+        return None
+    if method != 'task':
+        raise UserError(f'--task-option applies to the task method only, not {method!r}')
+    mapping = {}
+    for item in args.task_option:
+        key, sep, text = item.partition('=')
+        if not sep or not key.strip():
+            raise UserError(f'--task-option {item!r}: expected KEY=VALUE, e.g. draws=1')
+        try:
+            mapping[key.strip()] = yaml.safe_load(text)
+        except yaml.YAMLError:
+            raise UserError(f'--task-option {item!r}: the value is not YAML') from None
+    try:
+        return task_options(mapping)
+    except ValueError as exc:
+        raise UserError(f'--task-option: {str(exc).removeprefix("task options: ")}') from None
+
+
 def scene_from_args(args: argparse.Namespace) -> Scene | None:
     """The scene named by ``--scene/--request/--goal-tol``; None if ``--scene`` was optional
     and not given. Errors are ``SceneError`` naming the file and field."""

@@ -7,7 +7,8 @@ where each problem comes from.
 Without ``--variations`` the one problem is the scene with the obstacles file's boxes and its
 witness, re-certified first. With ``--variations N`` the folder holds N seeded variations of
 the scene (objects jittered as ``advocc scenes vary`` does), each attacked again with the
-obstacles file's method and budget under the ``solvable`` policy: the old boxes were placed for
+obstacles file's method, budget and task options (``--task-option`` overrides them) under the
+``solvable`` policy: the old boxes were placed for
 the old geometry, and only a fresh attack keeps a fresh witness valid. As MotionBenchMaker keeps
 only the problems its planner solved, a variation is kept only when its witness is certified
 with its boxes; the others are skipped (and listed) and further variations drawn, up to
@@ -18,12 +19,14 @@ unattacked variation (``advocc_ros.attack.edges``); the attacks themselves query
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import pathlib
 import sys
 
 from advocc_ros.cli import UserError
-from advocc_ros.commands.common import add_scene_args, describe, scene_from_args
+from advocc_ros.commands.common import (add_scene_args, add_task_option_arg, describe,
+                                        scene_from_args, task_options_from_args)
 
 MANIFEST = 'export.yaml'
 
@@ -46,6 +49,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help='variations tried at most for --variations N (default 3 N)')
     p.add_argument('--heatmap', help='heatmap to attack the variations with (default: the '
                    'obstacles file\'s heatmap_file)')
+    add_task_option_arg(p)
     p.add_argument('--time', type=float, default=5.0,
                    help='allowed_planning_time written into the requests [s] (default 5)')
     p.add_argument('--json', action='store_true', help='print the manifest as JSON')
@@ -96,6 +100,20 @@ def _export_one(args, scene, robot, boxes) -> dict:
             'skipped': []}
 
 
+def _variation_options(args, meta: dict):
+    """The ``TaskOptions`` the variations are attacked with: ``--task-option``, else the
+    obstacles file's ``task_options`` (None: not a ``task`` attack)."""
+    from advocc_ros.attack.task import task_options
+
+    given = task_options_from_args(args, meta['method'])
+    if given is not None or meta['method'] != 'task':
+        return given
+    try:
+        return task_options(meta.get('task_options') or {})
+    except ValueError as exc:
+        raise UserError(f'{args.obstacles}: {exc}') from None
+
+
 def _export_variations(args, scene, robot, meta) -> dict:
     """Seeded variations of ``scene``, each attacked again under ``solvable`` (module doc)."""
     from advocc_ros.attack import REGISTRY, AttackConfig
@@ -114,6 +132,7 @@ def _export_variations(args, scene, robot, meta) -> dict:
         raise UserError(f'{args.obstacles}: method {meta.get("method")!r} and budget '
                         f'{meta.get("budget")!r}: the variations are attacked again under '
                         f'--policy solvable, which needs one of {binds} and a budget')
+    options = _variation_options(args, meta)
     heatmap = load_heatmap(heatmap_file, robot_hash=robot.hash)
     try:
         cfg = AttackConfig(box_size_m=meta.get('box_size_m') or AttackConfig().box_size_m,
@@ -132,7 +151,7 @@ def _export_variations(args, scene, robot, meta) -> dict:
             continue
         result = attack_task(heatmap, robot, var.objects, start_configuration(var, robot),
                              var.goal, meta['budget'], meta['method'], cfg,
-                             seed=args.seed + index)
+                             seed=args.seed + index, method_options=options)
         verdict = result.solvable
         why = (f'attack {result.status.value}: {result.message}' if not result.status.ok
                else 'not assessed' if verdict is None
@@ -149,7 +168,10 @@ def _export_variations(args, scene, robot, meta) -> dict:
     if len(problems) < args.variations:
         raise UserError(f'only {len(problems)} of {args.variations} variations kept in '
                         f'{draws} draws (skipped: {skipped}); raise --max-draws')
-    return {'problems': problems, 'skipped': skipped, 'heatmap': str(heatmap_file)}
+    written = {'problems': problems, 'skipped': skipped, 'heatmap': str(heatmap_file)}
+    if options is not None:
+        written['task_options'] = dataclasses.asdict(options)
+    return written
 
 
 def run(args: argparse.Namespace) -> int:
@@ -160,6 +182,9 @@ def run(args: argparse.Namespace) -> int:
 
     if args.variations < 0:
         raise UserError('--variations must be >= 0')
+    if args.task_option and not args.variations:
+        raise UserError('--task-option applies to --variations N (the variations are attacked '
+                        'again; without it the obstacles file\'s boxes are exported)')
     if args.max_draws is not None and args.max_draws < args.variations:
         raise UserError('--max-draws must be >= --variations')
     if not 0 < args.time <= 600:

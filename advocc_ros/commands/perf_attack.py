@@ -6,6 +6,7 @@ Wired into ``advocc perf`` by ``commands/perf.py`` calling :func:`register_attac
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import os
 import pathlib
@@ -16,7 +17,7 @@ import numpy as np
 
 from advocc_ros.attack.types import DEFAULT_METHOD, POLICIES
 from advocc_ros.cli import UserError
-from advocc_ros.commands.common import add_scene_args
+from advocc_ros.commands.common import add_scene_args, add_task_option_arg
 from advocc_ros.ros.spawn import start_node, stop
 
 PAPER_ONLINE_S = 1.27  # paper §V: online attack generation time
@@ -34,6 +35,7 @@ def register_attack(sub: argparse._SubParsersAction) -> None:
     p.add_argument('--method', default=DEFAULT_METHOD, help='attack method (default %(default)s)')
     p.add_argument('--policy', default='paper', choices=POLICIES,
                    help='goal policy (default %(default)s)')
+    add_task_option_arg(p)
     p.add_argument('--repeats', type=int, default=30, help='core runs per budget')
     p.add_argument('--calls', type=int, default=30, help='service calls per budget')
     p.add_argument('--no-service', action='store_true', help='skip the round-trip benchmark')
@@ -49,7 +51,9 @@ def _stats_ms(values_s: list[float]) -> dict:
             'min_ms': round(float(ms.min()), 3), 'n': int(ms.size)}
 
 
-def _core(heatmap, robot, scene, q, budgets, method, repeats, policy='paper') -> dict:
+def _core(heatmap, robot, scene, q, budgets, method, repeats, policy='paper',
+          options=None) -> dict:
+    """Core attack times per budget (``options``: the method's ``method_options``)."""
     from advocc_ros.attack import attack
     from advocc_ros.attack.edges import needs_witness, task_witness
     from advocc_ros.attack.goals import clear_cache
@@ -59,7 +63,7 @@ def _core(heatmap, robot, scene, q, budgets, method, repeats, policy='paper') ->
     if needs_witness(AttackConfig(), policy, certify=False):
         witness = task_witness(robot, scene.objects, q, scene.goal).witness
     attack(heatmap, robot, scene.objects, q, scene.goal, budgets[0], method,
-           goal_policy=policy, witness=witness)  # models, JIT
+           goal_policy=policy, witness=witness, method_options=options)  # models, JIT
     out = {}
     for budget in budgets:
         compute, wall, boxes = [], [], 0
@@ -67,7 +71,8 @@ def _core(heatmap, robot, scene, q, budgets, method, repeats, policy='paper') ->
             clear_cache()  # every call is a new task: its goal samples are computed again
             t0 = time.perf_counter()
             res = attack(heatmap, robot, scene.objects, q, scene.goal, budget, method,
-                         seed=rep, goal_policy=policy, witness=witness)
+                         seed=rep, goal_policy=policy, witness=witness,
+                         method_options=options)
             wall.append(time.perf_counter() - t0)
             compute.append(res.compute_s)
             boxes = len(res.obstacles)
@@ -76,7 +81,8 @@ def _core(heatmap, robot, scene, q, budgets, method, repeats, policy='paper') ->
     return out
 
 
-def _service(heatmap_path, scene, budgets, method, calls, domain) -> dict:
+def _service(heatmap_path, scene, budgets, method, calls, domain, server_params=None) -> dict:
+    """Round trips to a heatmap_server started here (``server_params``: more parameters)."""
     from advocc_msgs.msg import ErrorCodes
     from advocc_msgs.srv import Attack
 
@@ -86,7 +92,8 @@ def _service(heatmap_path, scene, budgets, method, calls, domain) -> dict:
     env = dict(os.environ, ROS_DOMAIN_ID=str(domain), PYTHONUNBUFFERED='1')
     os.environ['ROS_DOMAIN_ID'] = str(domain)  # this process's client joins the same domain
     log = tempfile.TemporaryFile(mode='w+')
-    proc = start_node('heatmap_server', {'heatmap_file': heatmap_path}, env=env, log=log)
+    proc = start_node('heatmap_server', {'heatmap_file': heatmap_path, **(server_params or {})},
+                      env=env, log=log)
     try:
         with ServiceClient('advocc_perf') as client:
             t0 = time.perf_counter()
@@ -127,10 +134,11 @@ def _perf_attack(args: argparse.Namespace) -> int:
     from advocc_ros.evaluation.perf import machine
     from advocc_ros.heatmap import (HeatmapConfig, HeatmapError, build_heatmap, load_heatmap,
                                     save_heatmap)
-    from advocc_ros.commands.common import scene_from_args
+    from advocc_ros.commands.common import scene_from_args, task_options_from_args
     from advocc_ros.model.robot import load_robot
     from advocc_ros.model.pose import SceneError
 
+    options = task_options_from_args(args, args.method)
     try:
         budgets = [int(b) for b in args.budgets.split(',') if b.strip()]
         scene = scene_from_args(args)
@@ -156,12 +164,16 @@ def _perf_attack(args: argparse.Namespace) -> int:
             'heatmap': str(args.heatmap or f'built: {args.samples} samples'),
             'grid_shape': list(heatmap.grid.shape), 'voxel_m': heatmap.grid.voxel_m,
             'policy': args.policy,
+            'task_options': None if options is None else dataclasses.asdict(options),
             'core': _core(heatmap, robot, scene, q, budgets, args.method, args.repeats,
-                          args.policy),
+                          args.policy, options),
         }
         if not args.no_service:
             domain = args.domain if args.domain is not None else 150 + os.getpid() % 80
-            report['service'] = _service(path, scene, budgets, args.method, args.calls, domain)
+            from advocc_ros.nodes.heatmap_server import task_parameters
+            params = dict(task_parameters(report['task_options'] or {}), goal_policy=args.policy)
+            report['service'] = _service(path, scene, budgets, args.method, args.calls, domain,
+                                         params)
     report['paper_online_s'] = PAPER_ONLINE_S
     report['machine'] = machine()
     if args.json:

@@ -2,7 +2,9 @@
 
 Parameters: :data:`PARAMETERS` (defaults = ``advocc_ros.attack.AttackConfig`` and
 ``RobotSpec``, the same in ``config/heatmap_server.yaml``; ``ros2 param describe``):
-``heatmap_file`` (required), the attack parameters, the robot description and ``base_frame``.
+``heatmap_file`` (required), the attack parameters, the ``task`` method's options
+(``task_<option>``: ``advocc_ros.attack.task.TaskOptions``, e.g. ``task_draws:=1``), the robot
+description and ``base_frame``.
 The values of joints outside the planning group (locked at the task's robot state, see
 ``docs/design.md``) come from ``robot_locked`` (``['joint=value', ...]``) or else from the
 heatmap file, which records the robot it was built for (a heatmap of a Panda with open fingers
@@ -42,6 +44,7 @@ from sensor_msgs.msg import PointCloud2
 
 from advocc_ros.attack import AttackConfig, AttackStatus, available_methods
 from advocc_ros.attack.edges import attack_task
+from advocc_ros.attack.task import TaskOptions, task_options
 from advocc_ros.attack.types import DEFAULT_METHOD, POLICIES
 from advocc_ros.ros.conversions import (goal_region_from_msg, obstacle_to_msg, q_from_joint_state,
                                         scene_from_msgs)
@@ -84,6 +87,29 @@ _CONFIG_DOC = {  # description, then (low, high) or constraints AttackConfig che
 }
 
 
+TASK_PREFIX = 'task_'
+"""Parameter ``task_<option>`` is ``TaskOptions.<option>`` of the ``task`` requests."""
+_TASK_DOC = {
+    'goal_samples': 'goal-region IK solutions covered',
+    'approach_points': 'configurations on the final half of each approach path',
+    'detours': 'approach paths per goal through a perturbed midpoint',
+    'detour_rad': 'standard deviation of the midpoint perturbation per joint [rad]',
+    'sampling_cap_s': 'safety cap on goal IK sampling time [s]',
+    'tube_samples': 'solvable: configurations drawn around the witness path',
+    'tube_rad': 'solvable: perturbation of the witness states per joint [rad]',
+    'goal_share': "solvable: the goal configurations' share of the weight (0: tiers)",
+    'draws': 'solvable: draws of the samples, the one leaving the fewest goal configurations '
+             'valid kept (1: fast, one draw)',
+}
+
+
+def task_parameters(options: dict) -> dict:
+    """The server parameters (``task_<option>``: value) that give a ``task`` attack the
+    options of ``options`` (checked by ``task_options``: ``ValueError`` naming a bad one)."""
+    checked = task_options(options)
+    return {f'{TASK_PREFIX}{name}': getattr(checked, name) for name in options}
+
+
 def _config_param(name: str) -> Param:
     description, limits = _CONFIG_DOC.get(name, (f'AttackConfig.{name}', ''))
     default = getattr(AttackConfig, name)
@@ -96,6 +122,8 @@ PARAMETERS = (
     Param('heatmap_file', '', 'heatmap .npz (required; `advocc heatmap build`)',
           read_only=True),
     *(_config_param(name) for name in _CONFIG_PARAMS),
+    *(Param(f'{TASK_PREFIX}{f.name}', f.default, f'task method: {_TASK_DOC[f.name]} '
+            f'(TaskOptions.{f.name})') for f in dataclasses.fields(TaskOptions)),
     *(Param(param, getattr(RobotSpec(), field), f'robot description: RobotSpec.{field}',
             read_only=True) for param, field in _ROBOT_PARAMS.items()),
     Param('robot_locked', [''], "joint=value of the joints outside the group (['']: the "
@@ -175,6 +203,11 @@ class HeatmapServer(Node):
         super().__init__('heatmap_server')
         declare(self, PARAMETERS)
         self.add_on_set_parameters_callback(self._check_parameters)
+        self.task_options = task_options({  # a bad override stops the node before any work
+            name: self.get_parameter(f'{TASK_PREFIX}{name}').value
+            for name in (f.name for f in dataclasses.fields(TaskOptions))})
+        self._last_stats: dict | None = None
+        """The stats of the last attack (``~/get_info``): the Attack response carries none."""
 
         path = self.get_parameter('heatmap_file').value
         if not path:
@@ -222,17 +255,21 @@ class HeatmapServer(Node):
         return AttackConfig(**{name: self.get_parameter(name).value for name in _CONFIG_PARAMS})
 
     def _check_parameters(self, params) -> SetParametersResult:
-        """The attack settings together, as ``AttackConfig`` checks them (ranges and read-only
-        are the descriptors', checked by rclpy before this)."""
+        """The attack settings together, as ``AttackConfig`` and ``task_options`` check them
+        (ranges, types and read-only are the descriptors', checked by rclpy before this)."""
         values = dataclasses.asdict(self.cfg)
+        task = dataclasses.asdict(self.task_options)
         for p in params:
             if p.name in values:
                 values[p.name] = p.value
+            elif p.name.startswith(TASK_PREFIX) and p.name[len(TASK_PREFIX):] in task:
+                task[p.name[len(TASK_PREFIX):]] = p.value
         try:
             cfg = AttackConfig(**values)
+            options = task_options(task)
         except (ValueError, TypeError) as exc:
             return SetParametersResult(successful=False, reason=str(exc))
-        self.cfg = cfg
+        self.cfg, self.task_options = cfg, options
         return SetParametersResult(successful=True)
 
     # -- services ----------------------------------------------------------------------------
@@ -304,7 +341,9 @@ class HeatmapServer(Node):
         result = attack_task(self.heatmap, self.robot, objects, q_init, goal,
                              int(request.budget), method, self.cfg,
                              box_size_m=request.box_size or None, seed=request.seed,
-                             goal_policy=request.goal_policy or None)
+                             goal_policy=request.goal_policy or None,
+                             method_options=self.task_options if method == 'task' else None)
+        self._last_stats = json.loads(json.dumps(result.stats, default=str))
         if 'witness_search_ms' in result.stats:
             self.get_logger().info(f'witness search: {result.stats["witness_search_ms"]:.0f} '
                                    'ms (RRTConnect on the unattacked scene, cached per task)')
@@ -333,6 +372,8 @@ class HeatmapServer(Node):
             'grid': self.heatmap.grid.to_data(),
             'robot_only': self.heatmap.robot_only,
             'parameters': dataclasses.asdict(self.cfg),
+            'task_options': dataclasses.asdict(self.task_options),
+            'last_attack_stats': self._last_stats,
             'methods': available_methods(),
             'requests_served': self._served,
         }

@@ -128,9 +128,11 @@ class AttackSources:
         dirs = [str(d) for d in default_allowed_dirs()] + [str(self.run_dir.resolve())]
         # search_witness: the tables count certified attacks, so every attack gets the task's
         # witness (found once per scene in the server, cached), not only solvable ones.
+        from advocc_ros.nodes.heatmap_server import task_parameters
         self.server = Child(f'advocc_heatmap_{stem}', 'heatmap_server',
                             {'heatmap_file': str(heatmap), 'allowed_dirs': dirs,
-                             'search_witness': True}, self.env, self.run_dir / 'logs')
+                             'search_witness': True, **task_parameters(self.cfg.task)},
+                            self.env, self.run_dir / 'logs')
         self.server.start()
         self.children.append(self.server)
         self._reset_server_clients()
@@ -180,10 +182,13 @@ class AttackSources:
         return {'name': self.task.scene.name, 'file': str(self.task.scene_file),
                 'objects_hash': self.task.scene.objects_hash()}
 
-    @staticmethod
-    def _spec_meta(spec: AttackSpec) -> dict:
-        return {'variant': spec.variant, 'seed': spec.seed, 'planner': spec.planner,
+    def _spec_meta(self, spec: AttackSpec) -> dict:
+        meta = {'variant': spec.variant, 'seed': spec.seed, 'planner': spec.planner,
                 'planner_specific': spec.planner is not None}
+        if spec.method == 'task':
+            from advocc_ros.attack.task import task_options
+            meta['task_options'] = dataclasses.asdict(task_options(self.cfg.task))
+        return meta
 
     def obstacles(self, spec: AttackSpec) -> tuple:
         """The attack's boxes: from the run folder, or generated now and cached there."""

@@ -1,0 +1,120 @@
+"""The ``task`` attack's options without the Python API: one checker (``task_options``) behind
+the CLI's ``--task-option``, the heatmap server's ``task_*`` parameters and the bench's
+``task`` setting."""
+
+import dataclasses
+import json
+
+import pytest
+
+from advocc_ros.attack.task import _OPTION_VALUES, TaskOptions, task_options
+from advocc_ros.bench import BenchConfig, BenchError, check_run_config
+from advocc_ros.cli import main
+
+
+def test_a_valid_mapping_gives_the_options_the_rest_default():
+    opts = task_options({'draws': 1, 'tube_rad': 1, 'goal_share': 0.3})
+    assert opts == TaskOptions(draws=1, tube_rad=1.0, goal_share=0.3)
+    assert isinstance(opts.tube_rad, float)  # an integer for a real option becomes a float
+    assert task_options({}) == TaskOptions()
+    assert set(_OPTION_VALUES) == {f.name for f in dataclasses.fields(TaskOptions)}
+
+
+@pytest.mark.parametrize('mapping, words', [
+    ({'drawz': 1}, "unknown option 'drawz'; known: goal_samples,"),
+    ({'draws': 'many'}, "draws must be an integer >= 1, got 'many'"),
+    ({'draws': 2.5}, 'draws must be an integer >= 1, got 2.5'),
+    ({'goal_samples': True}, 'goal_samples must be an integer >= 1, got True'),
+    ({'tube_rad': [0.1]}, 'tube_rad must be a finite number >= 0'),
+    ({'draws': 0}, 'draws must be an integer >= 1, got 0'),
+    ({'goal_share': 1.0}, 'goal_share must be a number in [0, 1), got 1.0'),
+    ({'detour_rad': float('nan')}, 'detour_rad must be a finite number >= 0, got nan'),
+    ({'sampling_cap_s': 0.0}, 'sampling_cap_s must be a finite number > 0'),
+    ('draws=1', 'expected a mapping of option: value'),
+])
+def test_unknown_options_wrong_types_and_bad_values_are_refused_by_name(mapping, words):
+    with pytest.raises(ValueError) as err:
+        task_options(mapping)
+    assert words in str(err.value)
+
+
+def _attack_args(heatmap_file, tmp_path, *more):
+    return ['attack', '--heatmap', str(heatmap_file), '--scene', 'table_pick', '--budget', '3',
+            '--out', str(tmp_path / 'boxes.yaml'), *more]
+
+
+@pytest.mark.processes  # the solvable policy's witness search runs in a planning worker
+def test_cli_runs_one_draw_when_told(heatmap_file, tmp_path, capsys):
+    from advocc_ros.attack import load_obstacles
+
+    args = _attack_args(heatmap_file, tmp_path, '--method', 'task', '--policy', 'solvable',
+                        '--task-option', 'draws=1', '--task-option', 'goal_share=0.3', '--json')
+    assert main(args) == 0
+    stats = json.loads(capsys.readouterr().out)['stats']
+    assert stats['task_draws'] == 1 and stats['task_draw_kept'] == 0
+    assert stats['task_goal_share'] == 0.3
+    _, meta = load_obstacles(tmp_path / 'boxes.yaml')
+    assert meta['task_options'] == dataclasses.asdict(TaskOptions(draws=1, goal_share=0.3))
+
+
+@pytest.mark.parametrize('more, words', [
+    (['--method', 'task', '--task-option', 'draws=0'],
+     '--task-option: draws must be an integer >= 1, got 0'),
+    (['--method', 'task', '--task-option', 'drawz=1'], "unknown option 'drawz'"),
+    (['--method', 'task', '--task-option', 'draws'], 'expected KEY=VALUE'),
+    (['--method', 'random', '--task-option', 'draws=1'],
+     "--task-option applies to the task method only, not 'random'"),
+])
+def test_cli_refuses_bad_task_options_before_any_work(heatmap_file, tmp_path, capsys, more,
+                                                      words):
+    assert main(_attack_args(heatmap_file, tmp_path, *more)) == 2
+    assert words in capsys.readouterr().err
+    assert not (tmp_path / 'boxes.yaml').exists()
+
+
+@pytest.mark.parametrize('args', [
+    ['audit', '--scene', 'table_pick', '--method', 'ours', '--out', 'unused'],
+    ['perf', 'attack', '--method', 'ours', '--no-service'],
+    ['export', '--scene', 'table_pick', '--obstacles', 'unused.yaml', '--out', 'unused'],
+])
+def test_every_command_that_attacks_takes_the_option(args, capsys):
+    assert main([*args, '--task-option', 'draws=1']) == 2
+    err = capsys.readouterr().err
+    assert '--task-option applies to' in err, err
+
+
+def test_bench_task_setting_is_checked_at_load():
+    cfg = BenchConfig.from_data({'task': {'draws': 1}})
+    assert cfg.task == {'draws': 1}
+    for bad, words in (({'drawz': 1}, "unknown option 'drawz'"),
+                       ({'draws': 0}, 'draws must be an integer >= 1'), ('draws', 'mapping')):
+        with pytest.raises(BenchError, match='bench setting task: ') as err:
+            BenchConfig.from_data({'task': bad})
+        assert words in str(err.value)
+
+
+def test_a_run_folder_refuses_other_task_options(tmp_path):
+    cfg = BenchConfig(task={'draws': 1})
+    (tmp_path / 'config.json').write_text(json.dumps({'config': cfg.to_data()}))
+    check_run_config(tmp_path, BenchConfig(task={'draws': 1}))
+    with pytest.raises(BenchError, match=r"task: \{'draws': 1\} -> \{\}"):
+        check_run_config(tmp_path, BenchConfig())
+    # A folder written before the setting existed ran the defaults: it resumes with them.
+    old = {k: v for k, v in BenchConfig().to_data().items() if k != 'task'}
+    (tmp_path / 'config.json').write_text(json.dumps({'config': old}))
+    check_run_config(tmp_path, BenchConfig())
+    with pytest.raises(BenchError, match='task: '):
+        check_run_config(tmp_path, cfg)
+
+
+def test_server_parameters_of_the_bench_setting():
+    from advocc_ros.nodes.heatmap_server import PARAMETERS, task_parameters
+
+    params = task_parameters({'draws': 1, 'tube_rad': 1})
+    assert params == {'task_draws': 1, 'task_tube_rad': 1.0}
+    assert isinstance(params['task_tube_rad'], float)  # a ROS double parameter
+    declared = {p.name: p.default for p in PARAMETERS}
+    for f in dataclasses.fields(TaskOptions):
+        assert declared[f'task_{f.name}'] == f.default
+    with pytest.raises(ValueError, match='unknown option'):
+        task_parameters({'drawz': 1})
