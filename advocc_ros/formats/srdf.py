@@ -27,6 +27,10 @@ import xml.etree.ElementTree as ET
 import numpy as np
 import pinocchio as pin
 
+from advocc_ros.model.coal_state import exact_boxes
+
+exact_boxes()  # its sampled collisions are queried on geometry it builds itself
+
 REASONS = ('Adjacent', 'Default', 'Always', 'Never')
 
 

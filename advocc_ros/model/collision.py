@@ -12,7 +12,9 @@ geometry, so the verdict is the one the all-pairs loop gives (test/test_collisio
 compares the two on 100,000 configurations per shipped scene), at ~5x the speed (table_pick:
 60 -> 12 us).
 GJK starts cold on every query (see ``_no_warm_start``), so a verdict never depends on which
-configuration was checked before.
+configuration was checked before; coal's one process-wide setting (how much it inflates boxes) is
+fixed before any query by ``advocc_ros.model.coal_state``, so it never depends on what a process
+checked first.
 
 Model and data are apart, as in pinocchio: a ``CollisionWorld`` (geometry, pairs) is built once
 per scene and never changes, so threads share it; its queries run on the calling thread's

@@ -26,9 +26,12 @@ import numpy as np
 import pinocchio as pin
 import trimesh
 
+from advocc_ros.model.coal_state import exact_boxes
 from advocc_ros.model.motion_bound import MotionBound, MotionBoundError, motion_bound
 
 log = logging.getLogger(__name__)
+
+exact_boxes()  # coal's one process-wide setting, fixed before any robot geometry exists
 
 
 class RobotError(ValueError):
