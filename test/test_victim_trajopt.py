@@ -3,6 +3,8 @@
 ``make install`` installs Tesseract (the ``victims`` extra): without it these tests fail.
 """
 
+import tempfile
+
 import numpy as np
 import pinocchio as pin
 import pytest
@@ -32,6 +34,20 @@ def test_tesseract_model_agrees_with_ours(panda, table_scene, solver):
     theirs = solver.tesseract.collisions(Q)
     assert 0.02 < ours.mean() < 0.9  # the sample exercises both verdicts
     assert (ours == theirs).mean() >= 0.99
+
+
+def test_loading_the_robot_leaves_no_files_behind(panda, table_scene, tmp_path, monkeypatch):
+    """The robot files Tesseract reads are gone once it has loaded them, so a worker that is
+    killed leaves nothing in the temporary directory; the loaded model still checks states."""
+    from advocc_ros.planning.victims.tesseract_env import TesseractWorld
+
+    monkeypatch.setattr(tempfile, 'tempdir', str(tmp_path))
+    world = TesseractWorld(panda)
+    assert list(tmp_path.iterdir()) == []
+    world.set_objects(table_scene.shapes)
+    Q = panda.sample_q(np.random.default_rng(2), 50)
+    assert (world.collisions(Q) == CollisionWorld(panda, table_scene.shapes)
+            .collisions_batch(Q)).mean() >= 0.95
 
 
 def test_guess_runs_through_the_via_point():

@@ -169,12 +169,15 @@ class TesseractWorld:
     def __init__(self, robot: RobotModel):
         tc, tcm, te, _, _ = _tesseract()
         self.robot = robot
-        self._files = tempfile.TemporaryDirectory(prefix='advocc_tesseract_')
-        urdf, srdf = write_robot_files(robot, pathlib.Path(self._files.name))
         self._locator = tcm.GeneralResourceLocator()  # must outlive the environment
         self.env = te.Environment()
-        if not self.env.init(tcm.FilesystemPath(str(urdf)), tcm.FilesystemPath(str(srdf)),
-                             self._locator):
+        # The files are read by init only; removed at once, since a worker that is killed
+        # (watchdog, close timeout) would leave them in /tmp.
+        with tempfile.TemporaryDirectory(prefix='advocc_tesseract_') as folder:
+            urdf, srdf = write_robot_files(robot, pathlib.Path(folder))
+            loaded = self.env.init(tcm.FilesystemPath(str(urdf)), tcm.FilesystemPath(str(srdf)),
+                                   self._locator)
+        if not loaded:
             raise RobotError('Tesseract could not load the robot (see its log above)')
         group = list(self.env.getJointGroup(MANIPULATOR).getJointNames())
         if group != list(robot.joint_names):
@@ -231,6 +234,3 @@ class TesseractWorld:
             self._manager.contactTest(contacts, tc.ContactRequest(tc.ContactTestType_FIRST))
             out[i] = contacts.size() > 0
         return out
-
-    def close(self) -> None:
-        self._files.cleanup()
