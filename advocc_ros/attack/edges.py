@@ -9,12 +9,15 @@ once per task, by the tool and never by the victim, and reported apart from the 
 2. the witness, when the ``solvable`` policy needs it or ``AttackConfig.search_witness`` asks for
    a verdict that can say ``certified``: ``planning.witness.find_witness``, one seeded
    RRTConnect run in a fresh planning worker, cached per task in the process and on disk; its
-   wall time is ``stats['witness_search_ms']``, never part of ``compute_s``;
-3. the core attack, with the witness as data.
+   wall time is ``stats['witness_search_ms']``, never part of ``compute_s``; for ``task``
+   under ``solvable`` also witnesses to ``TaskOptions.witness_ends`` goal configurations the
+   planners rarely sample (``planning.end_witnesses``, one worker, cached alike), one of
+   which the attack may keep (``attack.witness_choice``);
+3. the core attack, with the witnesses as data.
 
 ``attack_task`` is what ``advocc attack``, ``advocc export`` and the heatmap server's
 ``~/attack`` call. ``advocc perf attack`` calls :func:`task_witness` once, before its timings,
-and the audit once per task (one witness serves its two attacks and every prefix's verdict).
+and the audit once per task (the witness its attack keeps serves every prefix's verdict).
 """
 
 from __future__ import annotations
@@ -35,22 +38,51 @@ from advocc_ros.model.pose import SceneError
 
 @dataclasses.dataclass(frozen=True)
 class WitnessSearch:
-    """The task's witness and what finding it cost."""
+    """The task's witness, the witnesses to rare goal configurations, and what finding them
+    cost."""
 
     witness: Any
     """``planning.witness.Witness``, or None when the search found no path (or failed)."""
     search_s: float
-    """Wall time of ``find_witness`` [s] (a cached witness: the cache lookup)."""
+    """Wall time of the searches [s] (cached witnesses: the cache lookups)."""
+    ends: tuple = ()
+    """Witnesses to the goal configurations planners rarely sample (``planning.end_witnesses``):
+    the ``task`` attack under ``solvable`` may keep one of them instead."""
+
+    @property
+    def candidates(self) -> tuple | None:
+        """What ``attack(witness=...)`` takes: the task's witness first, then the ends."""
+        return None if self.witness is None else (self.witness, *self.ends)
 
 
-def task_witness(robot: RobotModel, objects, q_init, goal: GoalRegion) -> WitnessSearch:
-    """The witness of the task (see the module docstring); starts a planning worker unless the
-    witness is cached."""
+def task_witness(robot: RobotModel, objects, q_init, goal: GoalRegion,
+                 ends: int = 0) -> WitnessSearch:
+    """The witness of the task (see the module docstring) and, when it has one, witnesses to
+    its ``ends`` rarest goal configurations (``attack.goals.rare_goal_configurations``); starts
+    a planning worker unless they are cached."""
+    from advocc_ros.attack.goals import rare_goal_configurations
+    from advocc_ros.planning.end_witnesses import find_end_witnesses
     from advocc_ros.planning.witness import find_witness
 
     t0 = time.perf_counter()
-    witness = find_witness(robot, tuple(objects), np.asarray(q_init, dtype=float), goal)
-    return WitnessSearch(witness, time.perf_counter() - t0)
+    objects, q_init = tuple(objects), np.asarray(q_init, dtype=float)
+    witness = find_witness(robot, objects, q_init, goal)
+    found = ()
+    if witness is not None and ends > 0:
+        found = find_end_witnesses(robot, objects, q_init, goal,
+                                   rare_goal_configurations(robot, objects, goal, ends))
+    return WitnessSearch(witness, time.perf_counter() - t0, found)
+
+
+def witness_ends(method: str, goal_policy: str, method_options: Any) -> int:
+    """How many rare-end witnesses an attack uses: ``TaskOptions.witness_ends`` for ``task``
+    under ``solvable``, else none."""
+    from advocc_ros.attack.task import TaskOptions
+
+    if method != 'task' or goal_policy != 'solvable':
+        return 0
+    opts = method_options if isinstance(method_options, TaskOptions) else TaskOptions()
+    return opts.witness_ends
 
 
 def needs_witness(cfg: AttackConfig, goal_policy: str | None, certify: bool = True) -> bool:
@@ -73,9 +105,10 @@ def attack_task(heatmap, robot: RobotModel, objects, q_init, goal: GoalRegion, b
     except (AttackError, SceneError, RobotError):  # the core answers it; nothing was started
         return attack(heatmap, robot, objects, q_init, goal, budget, method, cfg,
                       certify=False, **options)
-    search = task_witness(robot, objects, q_init, goal)
+    search = task_witness(robot, objects, q_init, goal,
+                          witness_ends(method, policy, options.get('method_options')))
     result = attack(heatmap, robot, objects, q_init, goal, budget, method, cfg,
-                    certify=certify, witness=search.witness, **options)
+                    certify=certify, witness=search.candidates, **options)
     stats = dict(result.stats, witness_search_ms=round(search.search_s * 1e3, 3))
     if result.status == AttackStatus.NO_WITNESS:
         return dataclasses.replace(result, stats=stats, message=no_witness_message())
@@ -92,4 +125,4 @@ def no_witness_message() -> str:
 
 
 __all__ = ['WitnessSearch', 'attack_task', 'needs_witness', 'no_witness_message',
-           'task_witness']
+           'task_witness', 'witness_ends']

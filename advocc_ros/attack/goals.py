@@ -41,11 +41,18 @@ SELECTION_SEED = 7_345_002
 not the validation set, so ``goal_valid_fraction`` stays an independent diagnostic."""
 SELECTION_SAMPLES = 256
 SELECTION_ATTEMPTS = 16
-"""IK attempts per wanted sample the selection set may spend (an iteration budget: the same set
-on any machine)."""
+"""IK attempts per wanted sample the selection and end sets may spend (an iteration budget: the
+same set on any machine)."""
+END_SEED = 7_345_003
+"""Seed of the goal samples among which ``rare_goal_configurations`` picks witness ends."""
+END_SAMPLES = 256
+RARITY_NEIGHBOUR = 5
+"""The k of the k-NN distance that ranks goal configurations by rarity."""
 
 _GOAL_SAMPLES: BoundedCache = BoundedCache('goal samples', 16)
 """Task hash -> GoalSamples (nodes attack from several executor threads)."""
+_END_SAMPLES: BoundedCache = BoundedCache('goal ends', 16)
+"""Task hash -> the end set, rarest first (``rare_goal_configurations``)."""
 
 
 class GoalSamples:
@@ -135,20 +142,50 @@ def selection_goal_samples(robot: RobotModel, objects: tuple[SceneObject, ...],
     if cached is not None:
         return cached
     world = CollisionWorld(robot, [sh for o in objects for sh in o.shapes])
-    sampler = GoalSampler(robot, world.in_collision, goal,
-                          np.random.default_rng(SELECTION_SEED), IkConfig())
+    Q = _planner_like_goals(robot, world, goal, n, SELECTION_SEED)
+    return _GOAL_SAMPLES.put(key, GoalSamples(world, Q))
+
+
+def rare_goal_configurations(robot: RobotModel, objects: tuple[SceneObject, ...],
+                             goal: GoalRegion, k: int) -> np.ndarray:
+    """(<= k, nq): the goal configurations where the planners' goal samplers land least often,
+    rarest first: of ``END_SAMPLES`` valid ones drawn like theirs (seed ``END_SEED``, not the
+    selection set, which judges the attacks ending there), those farthest from their
+    ``RARITY_NEIGHBOUR``-th nearest neighbour in joint space (a k-NN density estimate)."""
+    if k < 1:
+        return np.zeros((0, robot.nq))
+    key = task_hash(robot.hash, objects, goal, END_SAMPLES, 'ends')
+    Q = _END_SAMPLES.get(key)
+    if Q is None:
+        world = CollisionWorld(robot, [sh for o in objects for sh in o.shapes])
+        Q = _planner_like_goals(robot, world, goal, END_SAMPLES, END_SEED)
+        if len(Q) > RARITY_NEIGHBOUR:
+            gaps = np.linalg.norm(Q[:, None] - Q[None], axis=-1)
+            np.fill_diagonal(gaps, np.inf)
+            rarity = np.sort(gaps, axis=1)[:, RARITY_NEIGHBOUR - 1]
+            Q = Q[np.argsort(-rarity, kind='stable')]
+        Q = _END_SAMPLES.put(key, Q)
+    return Q[:k].copy()
+
+
+def _planner_like_goals(robot: RobotModel, world: CollisionWorld, goal: GoalRegion, n: int,
+                        seed: int) -> np.ndarray:
+    """(<= n, nq) valid goal configurations from random-seed IK, at most
+    ``SELECTION_ATTEMPTS * n`` attempts (an iteration budget: the same set on any machine)."""
+    sampler = GoalSampler(robot, world.in_collision, goal, np.random.default_rng(seed),
+                          IkConfig())
     found = []
     while len(found) < n and sampler.attempts < SELECTION_ATTEMPTS * n:
         q = sampler.attempt()
         if q is not None:
             found.append(q)
-    Q = np.array(found).reshape(-1, robot.nq)
-    return _GOAL_SAMPLES.put(key, GoalSamples(world, Q))
+    return np.array(found).reshape(-1, robot.nq)
 
 
 def clear_cache() -> None:
     """Forget cached goal samples (benchmarks of the cold path call this)."""
     _GOAL_SAMPLES.clear()
+    _END_SAMPLES.clear()
 
 
 class GoalGuard:
@@ -171,4 +208,4 @@ class GoalGuard:
 
 
 __all__ = ['GoalGuard', 'GoalSamples', 'VALIDATION_SAMPLES', 'clear_cache',
-           'goal_samples']
+           'goal_samples', 'rare_goal_configurations', 'selection_goal_samples']

@@ -110,7 +110,13 @@ class TaskOptions:
     draws: int = 8
     """Under the ``solvable`` policy: independent draws of the samples (``draw_seed``), each
     covered greedily; the attack keeps the draw that leaves the fewest goal configurations
-    valid (module docstring). 1: one draw, the attack's seed."""
+    valid (module docstring). 1: one draw, the attack's seed. With several witnesses, the
+    draws are spread over them (``attack.witness_choice``)."""
+    witness_ends: int = 3
+    """Under the ``solvable`` policy: goal configurations the planners' goal samplers rarely
+    land on, each given a witness by the tool before the attack; the attack keeps the witness
+    whose draws leave the fewest goal configurations valid (``attack.witness_choice``). 0: the
+    task's witness only."""
 
     def __post_init__(self):
         for name, (valid, allowed) in _OPTION_VALUES.items():
@@ -130,6 +136,7 @@ _OPTION_VALUES = {
     'tube_rad': (lambda v: 0 <= v < math.inf, 'a finite number >= 0'),
     'goal_share': (lambda v: 0 <= v < 1, 'a number in [0, 1)'),
     'draws': (lambda v: v >= 1, 'an integer >= 1'),
+    'witness_ends': (lambda v: v >= 0, 'an integer >= 0'),
 }
 """What each :class:`TaskOptions` field accepts: (test, the words an error shows)."""
 

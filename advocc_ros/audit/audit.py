@@ -134,7 +134,7 @@ def run_audit(scene, heatmap, cfg: AuditConfig = AuditConfig(),
     themselves query none.
     """
     from advocc_ros.attack import AttackConfig
-    from advocc_ros.attack.edges import task_witness
+    from advocc_ros.attack.edges import task_witness, witness_ends
     from advocc_ros.attack.methods import REGISTRY
     from advocc_ros.model.task_check import require_valid_task
     from advocc_ros.evaluation.perf import machine
@@ -150,9 +150,11 @@ def run_audit(scene, heatmap, cfg: AuditConfig = AuditConfig(),
     robot = load_robot(scene.robot)
     q_init = start_configuration(scene, robot)
     require_valid_task(robot, scene.objects, q_init, scene.goal)
-    search = task_witness(robot, scene.objects, q_init, scene.goal)
-    task = _Task(scene, robot, q_init, search.witness)
+    search = task_witness(robot, scene.objects, q_init, scene.goal,
+                          witness_ends(cfg.method, cfg.policy, cfg.task_options))
+    task = _Task(scene, robot, q_init, search.candidates)
     result = _attack(task, heatmap, cfg, cfg.policy, attack_cfg)
+    task = dataclasses.replace(task, witness=result.witness)  # the one the attack kept
     log.info('audit %s: %d boxes (%s), evaluating prefixes', scene.name,
              len(result.obstacles), result.status.value)
     budgets, psr, stop_reason = _sweep(task, result, cfg, progress, planning_config)
@@ -190,7 +192,7 @@ def run_audit(scene, heatmap, cfg: AuditConfig = AuditConfig(),
 @dataclasses.dataclass(frozen=True)
 class _Task:
     """The task under audit: its scene, robot, start and witness (None: the search found
-    none)."""
+    none; before the attack, the tuple of witnesses it may keep)."""
 
     scene: Any
     robot: Any

@@ -55,13 +55,14 @@ def _core(heatmap, robot, scene, q, budgets, method, repeats, policy='paper',
           options=None) -> dict:
     """Core attack times per budget (``options``: the method's ``method_options``)."""
     from advocc_ros.attack import attack
-    from advocc_ros.attack.edges import needs_witness, task_witness
+    from advocc_ros.attack.edges import needs_witness, task_witness, witness_ends
     from advocc_ros.attack.goals import clear_cache
     from advocc_ros.attack.types import AttackConfig
 
-    witness = None  # found once, before the timings (a solvable attack needs it)
+    witness = None  # found once, before the timings (a solvable attack needs them)
     if needs_witness(AttackConfig(), policy, certify=False):
-        witness = task_witness(robot, scene.objects, q, scene.goal).witness
+        witness = task_witness(robot, scene.objects, q, scene.goal,
+                               witness_ends(method, policy, options)).candidates
     attack(heatmap, robot, scene.objects, q, scene.goal, budgets[0], method,
            goal_policy=policy, witness=witness, method_options=options)  # models, JIT
     out = {}

@@ -100,6 +100,8 @@ _TASK_DOC = {
     'goal_share': "solvable: the goal configurations' share of the weight (0: tiers)",
     'draws': 'solvable: draws of the samples, the one leaving the fewest goal configurations '
              'valid kept (1: fast, one draw)',
+    'witness_ends': 'solvable: witnesses to rarely sampled goal configurations the attack may '
+                    'keep instead of the task\'s (0: the task\'s only)',
 }
 
 

@@ -1,0 +1,127 @@
+"""Method ``task`` under ``solvable`` with witnesses to rare goal configurations: the ends are
+found without a planner, their witnesses are certified paths to them, and the attack keeps the
+witness whose boxes leave the fewest selection goal samples valid."""
+
+import numpy as np
+import pytest
+
+from advocc_ros.attack import attack
+from advocc_ros.attack.edges import attack_task, task_witness, witness_ends
+from advocc_ros.attack.goals import (END_SAMPLES, RARITY_NEIGHBOUR, rare_goal_configurations,
+                                     selection_goal_samples)
+from advocc_ros.attack.task import TaskOptions, task_options
+from advocc_ros.attack.witness_choice import draws_per_witness
+from advocc_ros.heatmap import HeatmapConfig, build_heatmap
+from advocc_ros.model.collision import CollisionWorld
+from advocc_ros.model.robot import load_robot
+from advocc_ros.planning import end_witnesses
+from advocc_ros.planning.witness import _tool_pose, certify
+
+pytestmark = pytest.mark.processes  # the witness searches start a planning worker
+
+
+@pytest.fixture(scope='module')
+def task(table_scene, tmp_path_factory):
+    robot = load_robot(table_scene.robot)
+    q0 = robot.q_from_names(list(table_scene.start), list(table_scene.start.values()), 'start')
+    heatmap = build_heatmap(table_scene, HeatmapConfig(samples=1500), seed=0)
+    search = task_witness(robot, table_scene.objects, q0, table_scene.goal, ends=3)
+    return table_scene, robot, q0, heatmap, search
+
+
+@pytest.mark.parametrize('draws, witnesses, expected', [
+    (8, 4, [2, 2, 2, 2]), (8, 3, [3, 3, 2]), (2, 4, [1, 1, 1, 1]), (1, 1, [1])])
+def test_draws_are_spread_over_the_witnesses(draws, witnesses, expected):
+    assert draws_per_witness(draws, witnesses) == expected
+
+
+def test_rare_ends_are_valid_goal_configurations_rarest_first(task):
+    scene, robot, _, _, _ = task
+    ends = rare_goal_configurations(robot, scene.objects, scene.goal, 4)
+    assert ends.shape == (4, robot.nq)
+    np.testing.assert_array_equal(ends, rare_goal_configurations(robot, scene.objects,
+                                                                 scene.goal, 4))
+    world = CollisionWorld(robot, scene.shapes)
+    assert not world.collisions_batch(ends).any()
+    data = robot.create_data()
+    assert all(scene.goal.contains(_tool_pose(robot, data, q, scene.goal)) for q in ends)
+    # Rarest first: the k-NN distances (over the whole end set) decrease along the list.
+    everything = rare_goal_configurations(robot, scene.objects, scene.goal, END_SAMPLES)
+    gaps = np.linalg.norm(everything[:, None] - everything[None], axis=-1)
+    np.fill_diagonal(gaps, np.inf)
+    rarity = np.sort(gaps, axis=1)[:, RARITY_NEIGHBOUR - 1]
+    assert np.all(np.diff(rarity) <= 0) and rarity[0] > np.median(rarity)
+
+
+def test_end_witnesses_are_certified_paths_to_their_ends(task):
+    scene, robot, q0, _, search = task
+    assert search.witness is not None and 1 <= len(search.ends) <= 3
+    assert search.candidates[0] is search.witness
+    ends = rare_goal_configurations(robot, scene.objects, scene.goal, 3)
+    world = CollisionWorld(robot, scene.shapes)
+    for witness in search.ends:
+        Q = witness.configurations(robot)
+        np.testing.assert_allclose(Q[0], q0, atol=1e-9)
+        assert np.min(np.linalg.norm(ends - Q[-1], axis=1)) < 1e-6
+        assert certify(robot, world, scene.goal, witness, q0).why is None
+
+
+def test_end_witnesses_come_back_from_the_disk_cache(task, tmp_path, monkeypatch):
+    scene, robot, q0, _, search = task
+    monkeypatch.setenv('ADVOCC_WITNESS_CACHE', str(tmp_path))
+    ends = rare_goal_configurations(robot, scene.objects, scene.goal, 3)
+    end_witnesses._FOUND.clear()
+    first = end_witnesses.find_end_witnesses(robot, scene.objects, q0, scene.goal, ends)
+    assert len(list(tmp_path.glob('*.yaml'))) == 1
+    end_witnesses._FOUND.clear()
+    monkeypatch.setattr(end_witnesses, '_search', lambda *a: pytest.fail('searched again'))
+    again = end_witnesses.find_end_witnesses(robot, scene.objects, q0, scene.goal, ends)
+    assert [w.content_hash() for w in again] == [w.content_hash() for w in first]
+
+
+def test_the_kept_witness_leaves_the_fewest_goal_configurations_valid(task):
+    scene, robot, q0, heatmap, search = task
+    candidates = search.candidates
+    best = attack(heatmap, robot, scene.objects, q0, scene.goal, 6, 'task', seed=3,
+                  goal_policy='solvable', witness=candidates,
+                  method_options=TaskOptions(draws=len(candidates)))
+    assert best.status.ok and best.solvable.certified, best.message
+    # Each witness on its own: one draw each, the attack's seed.
+    singles = [attack(heatmap, robot, scene.objects, q0, scene.goal, 6, 'task', seed=3,
+                      goal_policy='solvable', witness=w, method_options=TaskOptions(draws=1))
+               for w in candidates]
+    judge = selection_goal_samples(robot, scene.objects, scene.goal)
+    valid = [judge.valid_fraction(r.centers_m, r.box_size_m) for r in singles]
+    assert best.stats['task_witness_goal_valid'] == pytest.approx(valid, abs=1e-6)
+    kept = best.stats['task_witness_kept']
+    assert valid[kept] == min(valid) and best.witness is candidates[kept]
+    np.testing.assert_array_equal(best.centers_m, singles[kept].centers_m)
+    assert best.stats['task_witnesses'] == len(candidates)
+    assert best.stats['task_witness_draws'] == [1] * len(candidates)
+
+
+def test_other_methods_and_policies_use_the_tasks_witness(task):
+    scene, robot, q0, heatmap, search = task
+    for method, policy in (('random', 'solvable'), ('task', 'paper')):
+        result = attack(heatmap, robot, scene.objects, q0, scene.goal, 3, method, seed=1,
+                        goal_policy=policy, witness=search.candidates)
+        assert result.witness is search.witness and 'task_witnesses' not in result.stats
+    assert witness_ends('random', 'solvable', None) == 0
+    assert witness_ends('task', 'paper', None) == 0
+    assert witness_ends('task', 'solvable', TaskOptions(witness_ends=2)) == 2
+
+
+def test_the_edges_find_the_ends_and_the_attack_keeps_one(task):
+    scene, robot, q0, heatmap, search = task
+    result = attack_task(heatmap, robot, scene.objects, q0, scene.goal, 4, 'task', seed=0,
+                         goal_policy='solvable', method_options=task_options(
+                             {'draws': 2, 'witness_ends': 1}))
+    assert result.status.ok and result.solvable.certified, result.message
+    assert result.stats['task_witnesses'] == 2 and 'witness_search_ms' in result.stats
+    assert result.witness in (search.witness, search.ends[0])
+
+
+@pytest.mark.parametrize('bad', [-1, 1.5, True])
+def test_options_refuse_a_bad_number_of_ends(bad):
+    with pytest.raises(ValueError, match='witness_ends'):
+        task_options({'witness_ends': bad})
