@@ -10,7 +10,6 @@ from advocc_ros.attack.edges import attack_task, task_witness, witness_ends
 from advocc_ros.attack.goals import (END_SAMPLES, RARITY_NEIGHBOUR, rare_goal_configurations,
                                      selection_goal_samples)
 from advocc_ros.attack.task import TaskOptions, task_options
-from advocc_ros.attack.witness_choice import draws_per_witness
 from advocc_ros.heatmap import HeatmapConfig, build_heatmap
 from advocc_ros.model.collision import CollisionWorld
 from advocc_ros.model.robot import load_robot
@@ -27,12 +26,6 @@ def task(table_scene, tmp_path_factory):
     heatmap = build_heatmap(table_scene, HeatmapConfig(samples=1500), seed=0)
     search = task_witness(robot, table_scene.objects, q0, table_scene.goal, ends=3)
     return table_scene, robot, q0, heatmap, search
-
-
-@pytest.mark.parametrize('draws, witnesses, expected', [
-    (8, 4, [2, 2, 2, 2]), (8, 3, [3, 3, 2]), (2, 4, [1, 1, 1, 1]), (1, 1, [1])])
-def test_draws_are_spread_over_the_witnesses(draws, witnesses, expected):
-    assert draws_per_witness(draws, witnesses) == expected
 
 
 def test_rare_ends_are_valid_goal_configurations_rarest_first(task):
@@ -84,7 +77,7 @@ def test_the_kept_witness_leaves_the_fewest_goal_configurations_valid(task):
     candidates = search.candidates
     best = attack(heatmap, robot, scene.objects, q0, scene.goal, 6, 'task', seed=3,
                   goal_policy='solvable', witness=candidates,
-                  method_options=TaskOptions(draws=len(candidates)))
+                  method_options=TaskOptions(draws=1, end_draws=1))
     assert best.status.ok and best.solvable.certified, best.message
     # Each witness on its own: one draw each, the attack's seed.
     singles = [attack(heatmap, robot, scene.objects, q0, scene.goal, 6, 'task', seed=3,
@@ -94,7 +87,8 @@ def test_the_kept_witness_leaves_the_fewest_goal_configurations_valid(task):
     valid = [judge.valid_fraction(r.centers_m, r.box_size_m) for r in singles]
     assert best.stats['task_witness_goal_valid'] == pytest.approx(valid, abs=1e-6)
     kept = best.stats['task_witness_kept']
-    assert valid[kept] == min(valid) and best.witness is candidates[kept]
+    assert kept == valid.index(min(valid))  # the earliest best: the task's witness on a tie
+    assert best.witness is candidates[kept]
     np.testing.assert_array_equal(best.centers_m, singles[kept].centers_m)
     assert best.stats['task_witnesses'] == len(candidates)
     assert best.stats['task_witness_draws'] == [1] * len(candidates)
@@ -111,6 +105,23 @@ def test_other_methods_and_policies_use_the_tasks_witness(task):
     assert witness_ends('task', 'solvable', TaskOptions(witness_ends=2)) == 2
 
 
+def test_the_task_witness_draws_as_many_as_without_ends(task):
+    """An end witness is kept only when it beats the attack the task's witness alone gives."""
+    scene, robot, q0, heatmap, search = task
+    alone = attack(heatmap, robot, scene.objects, q0, scene.goal, 6, 'task', seed=5,
+                   goal_policy='solvable', witness=search.witness,
+                   method_options=TaskOptions(draws=3))
+    both = attack(heatmap, robot, scene.objects, q0, scene.goal, 6, 'task', seed=5,
+                  goal_policy='solvable', witness=search.candidates,
+                  method_options=TaskOptions(draws=3, end_draws=1))
+    assert both.stats['task_witness_draws'] == [3] + [1] * len(search.ends)
+    scores = both.stats['task_witness_goal_valid']
+    if both.stats['task_witness_kept'] == 0:
+        np.testing.assert_array_equal(both.centers_m, alone.centers_m)
+    else:
+        assert min(scores[1:]) < scores[0]
+
+
 def test_the_edges_find_the_ends_and_the_attack_keeps_one(task):
     scene, robot, q0, heatmap, search = task
     result = attack_task(heatmap, robot, scene.objects, q0, scene.goal, 4, 'task', seed=0,
@@ -121,7 +132,8 @@ def test_the_edges_find_the_ends_and_the_attack_keeps_one(task):
     assert result.witness in (search.witness, search.ends[0])
 
 
-@pytest.mark.parametrize('bad', [-1, 1.5, True])
-def test_options_refuse_a_bad_number_of_ends(bad):
-    with pytest.raises(ValueError, match='witness_ends'):
-        task_options({'witness_ends': bad})
+@pytest.mark.parametrize('option, bad', [('witness_ends', -1), ('witness_ends', 1.5),
+                                         ('witness_ends', True), ('end_draws', 0)])
+def test_options_refuse_bad_ends_and_end_draws(option, bad):
+    with pytest.raises(ValueError, match=option):
+        task_options({option: bad})

@@ -16,7 +16,9 @@ The sample set depends on the task only (robot, scene, goal region; seed fixed),
 computed once per task and cached: every attack of one task is judged on the same samples.
 A second, larger fixed set drawn the way the planners draw goals (``selection_goal_samples``)
 chooses among the ``task`` attack's draws; the validation set is kept apart from it, so
-``goal_valid_fraction`` is not the number the attack optimized.
+``goal_valid_fraction`` is not the number the attack optimized. A third set, drawn alike from
+its own seed, names the goal configurations the planners sample least often
+(``rare_goal_configurations``): the ends of the extra witnesses the ``task`` attack may keep.
 """
 
 from __future__ import annotations

@@ -110,13 +110,14 @@ class TaskOptions:
     draws: int = 8
     """Under the ``solvable`` policy: independent draws of the samples (``draw_seed``), each
     covered greedily; the attack keeps the draw that leaves the fewest goal configurations
-    valid (module docstring). 1: one draw, the attack's seed. With several witnesses, the
-    draws are spread over them (``attack.witness_choice``)."""
+    valid (module docstring). 1: one draw, the attack's seed."""
     witness_ends: int = 3
     """Under the ``solvable`` policy: goal configurations the planners' goal samplers rarely
-    land on, each given a witness by the tool before the attack; the attack keeps the witness
-    whose draws leave the fewest goal configurations valid (``attack.witness_choice``). 0: the
-    task's witness only."""
+    land on, each given a witness by the tool before the attack; the attack keeps another
+    witness when its draws leave strictly fewer goal configurations valid than the task's
+    witness's (``attack.witness_choice``). 0: the task's witness only."""
+    end_draws: int = 2
+    """Draws of each of those witnesses (the task's witness gets ``draws``)."""
 
     def __post_init__(self):
         for name, (valid, allowed) in _OPTION_VALUES.items():
@@ -137,6 +138,7 @@ _OPTION_VALUES = {
     'goal_share': (lambda v: 0 <= v < 1, 'a number in [0, 1)'),
     'draws': (lambda v: v >= 1, 'an integer >= 1'),
     'witness_ends': (lambda v: v >= 0, 'an integer >= 0'),
+    'end_draws': (lambda v: v >= 1, 'an integer >= 1'),
 }
 """What each :class:`TaskOptions` field accepts: (test, the words an error shows)."""
 

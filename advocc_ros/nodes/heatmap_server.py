@@ -102,6 +102,7 @@ _TASK_DOC = {
              'valid kept (1: fast, one draw)',
     'witness_ends': 'solvable: witnesses to rarely sampled goal configurations the attack may '
                     'keep instead of the task\'s (0: the task\'s only)',
+    'end_draws': 'solvable: draws of each of those witnesses',
 }
 
 
