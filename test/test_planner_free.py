@@ -104,6 +104,32 @@ def test_task_draws_are_chosen_without_a_planner(table, witness, no_process):
     assert result.solvable.certified, result.solvable.message
 
 
+@pytest.fixture(scope='module')
+def candidates(table, witness):
+    """The task's witness and its rare-end witnesses, found as the edges find them (a planning
+    worker), before any test forbids processes."""
+    from advocc_ros.attack.edges import task_witness
+
+    heatmap, robot, scene, q = table
+    search = task_witness(robot, scene.objects, q, scene.goal, ends=2)
+    assert search.witness.content_hash() == witness.content_hash() and search.ends
+    return search.candidates
+
+
+@pytest.mark.processes  # the fixtures' searches (a planning worker)
+def test_the_witness_is_chosen_without_a_planner(table, candidates, no_process):
+    """Choosing among the task's and the rare-end witnesses runs in this process."""
+    from advocc_ros.attack import attack
+    from advocc_ros.attack.task import TaskOptions
+
+    heatmap, robot, scene, q = table
+    result = attack(heatmap, robot, scene.objects, q, scene.goal, 2, 'task', seed=1,
+                    goal_policy='solvable', witness=candidates,
+                    method_options=TaskOptions(draws=2, end_draws=1))
+    assert result.status.ok and result.stats['task_witnesses'] == len(candidates)
+    assert no_process == [] and result.solvable.certified, result.solvable.message
+
+
 @pytest.mark.processes  # a fresh interpreter
 def test_the_core_modules_import_no_planner():
     code = ('import sys, advocc_ros.attack, advocc_ros.attack.api, advocc_ros.attack.task\n'

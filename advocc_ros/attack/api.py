@@ -42,6 +42,7 @@ locally. Random baseline: candidates in a seeded random order under the same con
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import time
 from typing import Any
@@ -222,8 +223,6 @@ def _over_witnesses(heatmap, robot, objects, q_init, goal, budget, cfg, box_size
                     method_options, certify, witnesses) -> AttackResult:
     """``task`` under ``solvable`` with several witnesses (``attack_over_witnesses``); only the
     kept attack is certified."""
-    import dataclasses
-
     from advocc_ros.attack.goals import selection_goal_samples
     from advocc_ros.attack.task import TaskOptions
     from advocc_ros.attack.witness_choice import attack_over_witnesses
