@@ -53,7 +53,8 @@ one for RRTConnect and BKPIECE1 (table_pick 0 / 60 / 0 % RRTConnect / PRM* / BKP
 a mean of 43 / 58 / 28 % over the six draws), not for PRM*. On the 20-trial scenes5 bench
 the gain was smaller: mean task PSR at M = 10 ~6 points lower over the five scenes, lower on
 three, not on table_pick (docs/results.md). It costs the compute of 8 draws (table_pick,
-M = 10: 2.2 s against 0.27 s); ``draws=1`` is the fast setting. The draw is chosen for the
+M = 10: 2.2 s against 0.27 s); ``draws=1`` with ``witness_ends=0`` is the fast setting
+(the rare-end witnesses add their own draws: ``attack.witness_choice``). The draw is chosen for the
 requested budget: the first m boxes of the kept draw are a budget-m attack of that draw (the
 audit's prefixes), not necessarily the draw a budget-m request would keep.
 
