@@ -14,6 +14,9 @@ from conftest import REPO
 SPAWN_EVENTS = ('subprocess.Popen', 'os.fork', 'os.forkpty', 'os.posix_spawn', 'os.spawn',
                 'os.exec', 'os.system')
 """Python audit events of every way a Python process starts another one."""
+JUDGE = 256
+"""Selection goal samples in these tests: the coarse set, for speed (the default is
+``TaskOptions.selection_samples``)."""
 
 
 @pytest.fixture(scope='module')
@@ -99,7 +102,8 @@ def test_task_draws_are_chosen_without_a_planner(table, witness, no_process):
 
     heatmap, robot, scene, q = table
     result = attack(heatmap, robot, scene.objects, q, scene.goal, 2, 'task', seed=1,
-                    goal_policy='solvable', witness=witness, method_options=TaskOptions(draws=3))
+                    goal_policy='solvable', witness=witness,
+                    method_options=TaskOptions(draws=3, selection_samples=JUDGE))
     assert result.status.ok and result.stats['task_draws'] == 3 and no_process == []
     assert result.solvable.certified, result.solvable.message
 
@@ -125,7 +129,7 @@ def test_the_witness_is_chosen_without_a_planner(table, candidates, no_process):
     heatmap, robot, scene, q = table
     result = attack(heatmap, robot, scene.objects, q, scene.goal, 2, 'task', seed=1,
                     goal_policy='solvable', witness=candidates,
-                    method_options=TaskOptions(draws=2, end_draws=1))
+                    method_options=TaskOptions(draws=2, end_draws=1, selection_samples=JUDGE))
     assert result.status.ok and result.stats['task_witnesses'] == len(candidates)
     assert no_process == [] and result.solvable.certified, result.solvable.message
 

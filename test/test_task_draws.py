@@ -11,6 +11,9 @@ from advocc_ros.model.robot import load_robot
 from advocc_ros.planning.witness import find_witness
 
 pytestmark = pytest.mark.processes  # the witness search starts a planning worker
+JUDGE = 256
+"""Selection goal samples in these tests: the coarse set, for speed (the default is
+``TaskOptions.selection_samples``)."""
 
 
 @pytest.fixture(scope='module')
@@ -24,20 +27,22 @@ def task(table_scene):
 
 def _attack(task, draws: int, seed: int = 3, policy: str = 'solvable'):
     scene, robot, q0, heatmap, witness = task
+    options = TaskOptions(draws=draws, selection_samples=JUDGE)
     return attack(heatmap, robot, scene.objects, q0, scene.goal, 6, 'task', seed=seed,
-                  goal_policy=policy, witness=witness, method_options=TaskOptions(draws=draws))
+                  goal_policy=policy, witness=witness, method_options=options)
 
 
 def test_the_kept_draw_leaves_the_fewest_goal_configurations_valid(task):
     scene, robot, _, _, _ = task
     best = _attack(task, draws=4)
     assert best.status.ok and best.solvable.certified, best.message
-    judge = selection_goal_samples(robot, scene.objects, scene.goal)
+    judge = selection_goal_samples(robot, scene.objects, scene.goal, JUDGE)
     assert len(judge.Q) > 100
     # Each draw on its own: the attack with draws=1 and that draw's seed.
     singles = [_attack(task, draws=1, seed=draw_seed(3, k)) for k in range(4)]
     valid = [judge.valid_fraction(r.centers_m, r.box_size_m) for r in singles]
     assert best.stats['task_draw_goal_valid'] == pytest.approx(valid, abs=1e-6)
+    assert best.stats['task_selection_samples'] == len(judge.Q)
     kept = best.stats['task_draw_kept']
     assert valid[kept] == min(valid)
     np.testing.assert_array_equal(best.centers_m, singles[kept].centers_m)

@@ -17,6 +17,9 @@ from advocc_ros.planning import end_witnesses
 from advocc_ros.planning.witness import _tool_pose, certify
 
 pytestmark = pytest.mark.processes  # the witness searches start a planning worker
+JUDGE = 256
+"""Selection goal samples in these tests: the coarse set, for speed (the default is
+``TaskOptions.selection_samples``)."""
 
 
 @pytest.fixture(scope='module')
@@ -77,13 +80,14 @@ def test_the_kept_witness_leaves_the_fewest_goal_configurations_valid(task):
     candidates = search.candidates
     best = attack(heatmap, robot, scene.objects, q0, scene.goal, 6, 'task', seed=3,
                   goal_policy='solvable', witness=candidates,
-                  method_options=TaskOptions(draws=1, end_draws=1))
+                  method_options=TaskOptions(draws=1, end_draws=1, selection_samples=JUDGE))
     assert best.status.ok and best.solvable.certified, best.message
     # Each witness on its own: one draw each, the attack's seed.
     singles = [attack(heatmap, robot, scene.objects, q0, scene.goal, 6, 'task', seed=3,
-                      goal_policy='solvable', witness=w, method_options=TaskOptions(draws=1))
+                      goal_policy='solvable', witness=w,
+                      method_options=TaskOptions(draws=1, selection_samples=JUDGE))
                for w in candidates]
-    judge = selection_goal_samples(robot, scene.objects, scene.goal)
+    judge = selection_goal_samples(robot, scene.objects, scene.goal, JUDGE)
     valid = [judge.valid_fraction(r.centers_m, r.box_size_m) for r in singles]
     assert best.stats['task_witness_goal_valid'] == pytest.approx(valid, abs=1e-6)
     kept = best.stats['task_witness_kept']
@@ -110,10 +114,10 @@ def test_the_task_witness_draws_as_many_as_without_ends(task):
     scene, robot, q0, heatmap, search = task
     alone = attack(heatmap, robot, scene.objects, q0, scene.goal, 6, 'task', seed=5,
                    goal_policy='solvable', witness=search.witness,
-                   method_options=TaskOptions(draws=3))
+                   method_options=TaskOptions(draws=3, selection_samples=JUDGE))
     both = attack(heatmap, robot, scene.objects, q0, scene.goal, 6, 'task', seed=5,
                   goal_policy='solvable', witness=search.candidates,
-                  method_options=TaskOptions(draws=3, end_draws=1))
+                  method_options=TaskOptions(draws=3, end_draws=1, selection_samples=JUDGE))
     assert both.stats['task_witness_draws'] == [3] + [1] * len(search.ends)
     scores = both.stats['task_witness_goal_valid']
     if both.stats['task_witness_kept'] == 0:

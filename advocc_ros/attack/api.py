@@ -232,8 +232,9 @@ def _over_witnesses(heatmap, robot, objects, q_init, goal, budget, cfg, box_size
                       seed, options, 'solvable', False, witness)
 
     options = method_options if isinstance(method_options, TaskOptions) else TaskOptions()
-    result = attack_over_witnesses(run, witnesses, options,
-                                   lambda: selection_goal_samples(robot, tuple(objects), goal))
+    result = attack_over_witnesses(
+        run, witnesses, options,
+        lambda: selection_goal_samples(robot, tuple(objects), goal, options.selection_samples))
     if not certify or not result.status.ok:
         return result
     t0 = time.perf_counter()

@@ -41,7 +41,6 @@ VALIDATION_SAMPLES = 32
 SELECTION_SEED = 7_345_002
 """Seed of the goal samples that choose among the ``task`` attack's draws (``attack.task``):
 not the validation set, so ``goal_valid_fraction`` stays an independent diagnostic."""
-SELECTION_SAMPLES = 256
 SELECTION_ATTEMPTS = 16
 """IK attempts per wanted sample the selection and end sets may spend (an iteration budget: the
 same set on any machine)."""
@@ -134,11 +133,11 @@ def goal_samples(robot: RobotModel, objects: tuple[SceneObject, ...], goal: Goal
 
 
 def selection_goal_samples(robot: RobotModel, objects: tuple[SceneObject, ...],
-                           goal: GoalRegion, n: int = SELECTION_SAMPLES) -> GoalSamples:
+                           goal: GoalRegion, n: int) -> GoalSamples:
     """Up to ``n`` valid goal configurations drawn the way the planners draw theirs (random-seed
     IK, ``GoalSampler``; not ``goal_set``'s walks, which stay near a few IK branches), from a
-    fixed seed and at most ``SELECTION_ATTEMPTS * n`` attempts; cached per task (~1-4 s for 256
-    on the Panda scenes)."""
+    fixed seed and at most ``SELECTION_ATTEMPTS * n`` attempts; cached per task (~4-16 s for
+    1024 on the Panda scenes)."""
     key = task_hash(robot.hash, objects, goal, n, 'selection')
     cached = _GOAL_SAMPLES.get(key)
     if cached is not None:

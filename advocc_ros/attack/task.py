@@ -119,6 +119,10 @@ class TaskOptions:
     witness's (``attack.witness_choice``). 0: the task's witness only."""
     end_draws: int = 2
     """Draws of each of those witnesses (the task's witness gets ``draws``)."""
+    selection_samples: int = 1024
+    """Goal configurations drawn the way the planners draw theirs that judge the draws and
+    the witnesses (``attack.goals.selection_goal_samples``): the resolution of the choice, at
+    ~5-16 ms of IK each, once per task (256 measured too coarse: module docstring)."""
 
     def __post_init__(self):
         for name, (valid, allowed) in _OPTION_VALUES.items():
@@ -140,6 +144,7 @@ _OPTION_VALUES = {
     'draws': (lambda v: v >= 1, 'an integer >= 1'),
     'witness_ends': (lambda v: v >= 0, 'an integer >= 0'),
     'end_draws': (lambda v: v >= 1, 'an integer >= 1'),
+    'selection_samples': (lambda v: v >= 1, 'an integer >= 1'),
 }
 """What each :class:`TaskOptions` field accepts: (test, the words an error shows)."""
 
@@ -254,7 +259,8 @@ def _select_task(region: SearchRegion, budget: int, seed: int, cfg: AttackConfig
         if isinstance(region.guard, WitnessGuard):  # draws apply under solvable only
             region.stats.update(task_draws=1, task_draw_kept=0)
         return picks, rejected
-    judge = selection_goal_samples(context.robot, context.objects, context.goal)
+    judge = selection_goal_samples(context.robot, context.objects, context.goal,
+                                   opts.selection_samples)
     draws, scores = [], []
     for k in range(opts.draws):
         picks, rejected, stats = _draw(region, budget, draw_seed(seed, k), cfg, context, opts)

@@ -103,6 +103,7 @@ _TASK_DOC = {
     'witness_ends': 'solvable: witnesses to rarely sampled goal configurations the attack may '
                     'keep instead of the task\'s (0: the task\'s only)',
     'end_draws': 'solvable: draws of each of those witnesses',
+    'selection_samples': 'solvable: goal configurations that judge the draws and witnesses',
 }
 
 
