@@ -19,11 +19,19 @@ chooses among the ``task`` attack's draws; the validation set is kept apart from
 ``goal_valid_fraction`` is not the number the attack optimized. A third set, drawn alike from
 its own seed, names the goal configurations the planners sample least often
 (``rare_goal_configurations``): the ends of the extra witnesses the ``task`` attack may keep.
+These two sets cost seconds of IK per task, so they are also kept on disk beside the witnesses
+(``planning.witness.witness_cache_dir``); a file is used only when every configuration in it is
+still a valid goal configuration of the task.
 """
 
 from __future__ import annotations
 
+import contextlib
+import dataclasses
+import logging
 import math
+import pathlib
+import zipfile
 
 import coal
 import numpy as np
@@ -34,6 +42,10 @@ from advocc_ros.model.cache import BoundedCache
 from advocc_ros.model.robot import RobotModel
 from advocc_ros.model.goal import GoalRegion
 from advocc_ros.model.scene import SceneObject, task_hash
+from advocc_ros.fileio import atomic_open
+from advocc_ros.planning.witness import witness_cache_dir
+
+log = logging.getLogger(__name__)
 
 VALIDATION_SEED = 7_345_001
 """Seed of the goal samples behind ``goal_valid_fraction`` (fixed: comparable attacks)."""
@@ -49,11 +61,15 @@ END_SEED = 7_345_003
 END_SAMPLES = 256
 RARITY_NEIGHBOUR = 5
 """The k of the k-NN distance that ranks goal configurations by rarity."""
+GOALS_FORMAT = 'advocc_goal_set_1'
+"""Part of the disk cache's key: a new format or sampler changes it."""
 
 _GOAL_SAMPLES: BoundedCache = BoundedCache('goal samples', 16)
 """Task hash -> GoalSamples (nodes attack from several executor threads)."""
 _END_SAMPLES: BoundedCache = BoundedCache('goal ends', 16)
 """Task hash -> the end set, rarest first (``rare_goal_configurations``)."""
+_DISK = {'on': True}
+"""Whether the goal sets use the disk cache (off inside :func:`sampled_afresh`)."""
 
 
 class GoalSamples:
@@ -143,7 +159,7 @@ def selection_goal_samples(robot: RobotModel, objects: tuple[SceneObject, ...],
     if cached is not None:
         return cached
     world = CollisionWorld(robot, [sh for o in objects for sh in o.shapes])
-    Q = _planner_like_goals(robot, world, goal, n, SELECTION_SEED)
+    Q = _planner_like_goals(robot, world, objects, goal, n, SELECTION_SEED)
     return _GOAL_SAMPLES.put(key, GoalSamples(world, Q))
 
 
@@ -159,7 +175,7 @@ def rare_goal_configurations(robot: RobotModel, objects: tuple[SceneObject, ...]
     Q = _END_SAMPLES.get(key)
     if Q is None:
         world = CollisionWorld(robot, [sh for o in objects for sh in o.shapes])
-        Q = _planner_like_goals(robot, world, goal, END_SAMPLES, END_SEED)
+        Q = _planner_like_goals(robot, world, objects, goal, END_SAMPLES, END_SEED)
         if len(Q) > RARITY_NEIGHBOUR:
             gaps = np.linalg.norm(Q[:, None] - Q[None], axis=-1)
             np.fill_diagonal(gaps, np.inf)
@@ -169,10 +185,26 @@ def rare_goal_configurations(robot: RobotModel, objects: tuple[SceneObject, ...]
     return Q[:k].copy()
 
 
-def _planner_like_goals(robot: RobotModel, world: CollisionWorld, goal: GoalRegion, n: int,
-                        seed: int) -> np.ndarray:
+def _planner_like_goals(robot: RobotModel, world: CollisionWorld, objects, goal: GoalRegion,
+                        n: int, seed: int) -> np.ndarray:
     """(<= n, nq) valid goal configurations from random-seed IK, at most
-    ``SELECTION_ATTEMPTS * n`` attempts (an iteration budget: the same set on any machine)."""
+    ``SELECTION_ATTEMPTS * n`` attempts (an iteration budget: the same set on any machine),
+    read from the disk cache when it holds them."""
+    cache_dir = witness_cache_dir() if _DISK['on'] else None
+    key = task_hash(robot.hash, objects, goal, n, seed, SELECTION_ATTEMPTS,
+                    dataclasses.astuple(IkConfig()), GOALS_FORMAT)
+    path = cache_dir / f'{key}.goals.npz' if cache_dir is not None else None
+    Q = _read_goals(path, world, goal, n) if path is not None and path.exists() else None
+    if Q is not None:
+        return Q
+    Q = _sample_goals(robot, world, goal, n, seed)
+    if path is not None:
+        _write_goals(path, Q)
+    return Q
+
+
+def _sample_goals(robot: RobotModel, world: CollisionWorld, goal: GoalRegion, n: int,
+                  seed: int) -> np.ndarray:
     sampler = GoalSampler(robot, world.in_collision, goal, np.random.default_rng(seed),
                           IkConfig())
     found = []
@@ -183,10 +215,54 @@ def _planner_like_goals(robot: RobotModel, world: CollisionWorld, goal: GoalRegi
     return np.array(found).reshape(-1, robot.nq)
 
 
+def _read_goals(path: pathlib.Path, world: CollisionWorld, goal: GoalRegion,
+                n: int) -> np.ndarray | None:
+    """The cached set of ``path``, or None (with a warning) when the file is unreadable or any
+    of its configurations is not a valid goal configuration of this task."""
+    robot = world.robot
+    try:
+        with np.load(path, allow_pickle=False) as data:
+            Q = np.asarray(data['Q'], dtype=float)
+    except (OSError, ValueError, KeyError, zipfile.BadZipFile) as exc:
+        log.warning('goal set cache: cannot read %s (%s): sampling again', path, exc)
+        return None
+    sampler = GoalSampler(robot, world.in_collision, goal, np.random.default_rng(0), IkConfig())
+    valid = (Q.ndim == 2 and Q.shape[1] == robot.nq and len(Q) <= n
+             and bool(np.isfinite(Q).all())
+             and bool(np.all((Q >= robot.lower) & (Q <= robot.upper)))
+             and not (len(Q) and world.collisions_batch(Q).any())
+             and all(sampler.region_distance(q) == 0.0 for q in Q))
+    if not valid:
+        log.warning('goal set cache: %s does not hold valid goal configurations of this task: '
+                    'sampling again', path)
+        return None
+    return Q
+
+
+def _write_goals(path: pathlib.Path, Q: np.ndarray) -> None:
+    try:
+        with atomic_open(path, 'wb') as handle:
+            np.savez(handle, Q=Q)
+    except OSError as exc:
+        log.warning('goal set cache: cannot write %s (%s)', path, exc)
+
+
 def clear_cache() -> None:
     """Forget cached goal samples (benchmarks of the cold path call this)."""
     _GOAL_SAMPLES.clear()
     _END_SAMPLES.clear()
+
+
+@contextlib.contextmanager
+def sampled_afresh():
+    """Within: the goal sets neither read nor write the disk cache, so that with
+    :func:`clear_cache` every attack samples them as for a new task (``advocc perf attack``'s
+    cold timings; not for threads that attack meanwhile)."""
+    _DISK['on'] = False
+    try:
+        yield
+    finally:
+        _DISK['on'] = True
 
 
 class GoalGuard:
@@ -209,4 +285,5 @@ class GoalGuard:
 
 
 __all__ = ['GoalGuard', 'GoalSamples', 'VALIDATION_SAMPLES', 'clear_cache',
-           'goal_samples', 'rare_goal_configurations', 'selection_goal_samples']
+           'goal_samples', 'rare_goal_configurations', 'sampled_afresh',
+           'selection_goal_samples']

@@ -56,7 +56,7 @@ def _core(heatmap, robot, scene, q, budgets, method, repeats, policy='paper',
     """Core attack times per budget (``options``: the method's ``method_options``)."""
     from advocc_ros.attack import attack
     from advocc_ros.attack.edges import needs_witness, task_witness, witness_ends
-    from advocc_ros.attack.goals import clear_cache
+    from advocc_ros.attack.goals import clear_cache, sampled_afresh
     from advocc_ros.attack.types import AttackConfig
 
     witness = None  # found once, before the timings (a solvable attack needs them)
@@ -71,9 +71,10 @@ def _core(heatmap, robot, scene, q, budgets, method, repeats, policy='paper',
         for rep in range(max(repeats, 1)):
             clear_cache()  # every call is a new task: its goal samples are computed again
             t0 = time.perf_counter()
-            res = attack(heatmap, robot, scene.objects, q, scene.goal, budget, method,
-                         seed=rep, goal_policy=policy, witness=witness,
-                         method_options=options)
+            with sampled_afresh():
+                res = attack(heatmap, robot, scene.objects, q, scene.goal, budget, method,
+                             seed=rep, goal_policy=policy, witness=witness,
+                             method_options=options)
             wall.append(time.perf_counter() - t0)
             compute.append(res.compute_s)
             boxes = len(res.obstacles)

@@ -236,7 +236,8 @@ WITNESSES: BoundedCache = BoundedCache('witnesses', 32)
 
 
 def witness_cache_dir() -> pathlib.Path | None:
-    """The on-disk witness cache: ``$ADVOCC_WITNESS_CACHE`` (``off``: none), by default
+    """The on-disk witness cache (also the goal sets that choose among witnesses,
+    ``attack.goals``): ``$ADVOCC_WITNESS_CACHE`` (``off``: none), by default
     ``$XDG_CACHE_HOME/advocc_ros/witness`` (``~/.cache/advocc_ros/witness``)."""
     value = os.environ.get(CACHE_ENV, '')
     if value == 'off':
