@@ -94,20 +94,25 @@ class GoalSamples:
         self.radii_m = np.array(radii).reshape(len(Q), len(self.links))
         self._req = coal.CollisionRequest()
 
-    def _near_pairs(self, center_m: np.ndarray, box_size_m: float):
-        """(sample, link) pairs whose bounding spheres reach the box, nearest first."""
+    def _near_pairs(self, center_m: np.ndarray, box_size_m: float, among=None):
+        """(sample, link) pairs whose bounding spheres reach the box, nearest first (only the
+        samples of the bool mask ``among`` when given)."""
         gap = np.linalg.norm(self.centres_m - center_m, axis=-1) - self.radii_m
-        near = np.flatnonzero(gap.ravel() <= box_size_m * math.sqrt(3) / 2)
+        reach = gap <= box_size_m * math.sqrt(3) / 2
+        if among is not None:
+            reach &= among[:, None]
+        near = np.flatnonzero(reach.ravel())
         near = near[np.argsort(gap.ravel()[near], kind='stable')]
         return zip(*np.unravel_index(near, gap.shape))
 
-    def blocked_by(self, center_m: np.ndarray, box_size_m: float) -> np.ndarray:
-        """bool (n,): samples whose body the axis-aligned box at ``center_m`` touches."""
+    def blocked_by(self, center_m: np.ndarray, box_size_m: float, among=None) -> np.ndarray:
+        """bool (n,): samples whose body the axis-aligned box at ``center_m`` touches (of the
+        bool mask ``among`` when given; the others are False)."""
         center_m = np.asarray(center_m, dtype=float)
         out = np.zeros(len(self.Q), dtype=bool)
         box = coal.Box(box_size_m, box_size_m, box_size_m)
         tf = coal.Transform3s(np.eye(3), center_m)
-        for s, li in self._near_pairs(center_m, box_size_m):
+        for s, li in self._near_pairs(center_m, box_size_m, among):
             if not out[s]:
                 out[s] = coal.collide(box, tf, self.links[li], self.tfs[s][li], self._req,
                                       coal.CollisionResult())
@@ -128,7 +133,7 @@ class GoalSamples:
             return None
         valid = np.ones(len(self.Q), dtype=bool)
         for c in np.asarray(centers_m).reshape(-1, 3):
-            valid &= ~self.blocked_by(c, box_size_m)
+            valid &= ~self.blocked_by(c, box_size_m, among=valid)
         return float(valid.mean())
 
 
@@ -277,7 +282,7 @@ class GoalGuard:
     def admit(self, center_m: np.ndarray) -> bool:
         if not len(self.valid):
             return True
-        left = self.valid & ~self.samples.blocked_by(center_m, self.box_size_m)
+        left = self.valid & ~self.samples.blocked_by(center_m, self.box_size_m, among=self.valid)
         if left.mean() < self.min_fraction - 1e-12:
             return False
         self.valid = left
