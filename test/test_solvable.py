@@ -131,7 +131,8 @@ def test_a_damaged_cache_file_costs_a_search_not_a_wrong_verdict(task, tmp_path,
 
 def test_attack_cli_reuses_the_witness_of_an_earlier_run(task, tmp_path):
     """Two ``advocc attack`` processes: the second reads the first one's witnesses (the task's
-    and the rare ends', two cache files, not written again) and certifies the same path."""
+    and the rare ends', two cache files) and goal sets (the judge's and the rare ends', two
+    more), writes none of them again, and certifies the same path."""
     scene, robot, q0, heatmap = task
     save_heatmap(heatmap, tmp_path / 'h.npz')
     cache = tmp_path / 'cache'
@@ -145,7 +146,9 @@ def test_attack_cli_reuses_the_witness_of_an_earlier_run(task, tmp_path):
                                str(out)], capture_output=True, text=True, timeout=180, env=env)
         assert proc.returncode == 0, proc.stderr[-2000:]
         files = sorted(cache.iterdir())
-        assert len(files) == 2, files
+        assert len([f for f in files if f.suffix == '.yaml']) == 2, files
+        assert len([f for f in files if f.name.endswith('.goals.npz')]) == 2, files
+        assert len(files) == 4, files
         runs.append((json.loads(proc.stdout), [f.stat().st_mtime_ns for f in files],
                      load_witness(witness_file(out)).waypoints))
     assert runs[0][1] == runs[1][1], 'the second run searched and wrote the cache again'
