@@ -30,6 +30,8 @@ def test_a_valid_mapping_gives_the_options_the_rest_default():
     ({'goal_share': 1.0}, 'goal_share must be a number in [0, 1), got 1.0'),
     ({'detour_rad': float('nan')}, 'detour_rad must be a finite number >= 0, got nan'),
     ({'sampling_cap_s': 0.0}, 'sampling_cap_s must be a finite number > 0'),
+    ({'selection_samples': 0}, 'selection_samples must be an integer in [1, 16384], got 0'),
+    ({'selection_samples': 10**9}, 'selection_samples must be an integer in [1, 16384]'),
     ('draws=1', 'expected a mapping of option: value'),
 ])
 def test_unknown_options_wrong_types_and_bad_values_are_refused_by_name(mapping, words):

@@ -125,7 +125,8 @@ class TaskOptions:
     selection_samples: int = 1024
     """Goal configurations drawn the way the planners draw theirs that judge the draws and
     the witnesses (``attack.goals.selection_goal_samples``): the resolution of the choice, at
-    ~5-16 ms of IK each, once per task (256 measured too coarse: module docstring)."""
+    ~4-16 ms of IK each on the Panda scenes, once per task (256 measured too coarse: module
+    docstring; at most ``MAX_SELECTION_SAMPLES``)."""
 
     def __post_init__(self):
         for name, (valid, allowed) in _OPTION_VALUES.items():
@@ -134,6 +135,9 @@ class TaskOptions:
             if isinstance(value, bool) or not isinstance(value, kind) or not valid(value):
                 raise ValueError(f'task options: {name} must be {allowed}, got {value!r}')
 
+
+MAX_SELECTION_SAMPLES = 16_384
+"""Largest ``selection_samples`` accepted: its IK has no time cap, and 16,384 is minutes."""
 
 _OPTION_VALUES = {
     'goal_samples': (lambda v: v >= 1, 'an integer >= 1'),
@@ -147,7 +151,8 @@ _OPTION_VALUES = {
     'draws': (lambda v: v >= 1, 'an integer >= 1'),
     'witness_ends': (lambda v: v >= 0, 'an integer >= 0'),
     'end_draws': (lambda v: v >= 1, 'an integer >= 1'),
-    'selection_samples': (lambda v: v >= 1, 'an integer >= 1'),
+    'selection_samples': (lambda v: 1 <= v <= MAX_SELECTION_SAMPLES,
+                          f'an integer in [1, {MAX_SELECTION_SAMPLES}]'),
 }
 """What each :class:`TaskOptions` field accepts: (test, the words an error shows)."""
 
