@@ -9,14 +9,11 @@ import sys
 import numpy as np
 import pytest
 
-from conftest import REPO
+from conftest import JUDGE, REPO
 
 SPAWN_EVENTS = ('subprocess.Popen', 'os.fork', 'os.forkpty', 'os.posix_spawn', 'os.spawn',
                 'os.exec', 'os.system')
 """Python audit events of every way a Python process starts another one."""
-JUDGE = 256
-"""Selection goal samples in these tests: the coarse set, for speed (the default is
-``TaskOptions.selection_samples``)."""
 
 
 @pytest.fixture(scope='module')

@@ -9,11 +9,9 @@ from advocc_ros.attack.task import TaskOptions, draw_seed
 from advocc_ros.heatmap import HeatmapConfig, build_heatmap
 from advocc_ros.model.robot import load_robot
 from advocc_ros.planning.witness import find_witness
+from conftest import JUDGE
 
 pytestmark = pytest.mark.processes  # the witness search starts a planning worker
-JUDGE = 256
-"""Selection goal samples in these tests: the coarse set, for speed (the default is
-``TaskOptions.selection_samples``)."""
 
 
 @pytest.fixture(scope='module')

@@ -15,11 +15,9 @@ from advocc_ros.model.collision import CollisionWorld
 from advocc_ros.model.robot import load_robot
 from advocc_ros.planning import end_witnesses
 from advocc_ros.planning.witness import _tool_pose, certify
+from conftest import JUDGE
 
 pytestmark = pytest.mark.processes  # the witness searches start a planning worker
-JUDGE = 256
-"""Selection goal samples in these tests: the coarse set, for speed (the default is
-``TaskOptions.selection_samples``)."""
 
 
 @pytest.fixture(scope='module')
