@@ -222,30 +222,29 @@ def test_guard_bodies_agree_with_a_plain_check(task):
     """The guard's fast paths (placements from one FK per state, the box pre-test) give the
     verdicts of a plain geometry update + coal collide over every (state, link) pair."""
     import coal
-    from advocc_ros.heatmap import placement_arrays
+    from advocc_ros.attack.bodies import LinkBoxes
 
     scene, robot, q0, witness = task
     world = CollisionWorld(robot)
     bodies = WitnessBodies(robot, world, witness)
-    R, t = placement_arrays(world, bodies.states[::50])
-    np.testing.assert_allclose(bodies._R[::50], R, atol=1e-12)
-    np.testing.assert_allclose(bodies._t[::50], t, atol=1e-12)
+    for q, R, t in zip(bodies.states[::50], bodies.boxes.R[::50], bodies.boxes.t[::50]):
+        plain = world.link_placements(q)
+        np.testing.assert_allclose(R, [T.rotation for T in plain], atol=1e-12)
+        np.testing.assert_allclose(t, [T.translation for T in plain], atol=1e-12)
     rng = np.random.default_rng(3)
     states = bodies.states[::25]
-    sparse = WitnessBodies.__new__(WitnessBodies)  # the same object on a subset of the states
-    sparse.__dict__.update(bodies.__dict__, states=states, _R=bodies._R[::25],
-                           _t=bodies._t[::25], centres_m=bodies.centres_m[::25],
-                           _reach_m=bodies._reach_m[::25])
+    sparse = LinkBoxes(world, states)  # the same bodies on a subset of the states
     request, touched = coal.CollisionRequest(), 0
     for _ in range(150):  # near the body: some touch it, some do not
         near = sparse.centres_m[rng.integers(len(states)), rng.integers(world.n_links)]
         centre, size = near + rng.normal(0.0, 0.1, 3), rng.uniform(0.01, 0.1)
         box = coal.Box(size, size, size)
         tf = coal.Transform3s(np.eye(3), centre)
-        plain = any(coal.collide(box, tf, world.geom_model.geometryObjects[g].geometry,
-                                 coal.Transform3s(T.rotation, T.translation), request,
-                                 coal.CollisionResult())
-                    for q in states for g, T in enumerate(world.link_placements(q)))
-        assert sparse.touched_by(centre, size) == plain, (centre, size)
-        touched += plain
+        plain = [any(coal.collide(box, tf, world.geom_model.geometryObjects[g].geometry,
+                                  coal.Transform3s(T.rotation, T.translation), request,
+                                  coal.CollisionResult())
+                     for g, T in enumerate(world.link_placements(q))) for q in states]
+        assert sparse.touched_by(centre, size) == any(plain), (centre, size)
+        np.testing.assert_array_equal(sparse.blocked_by(centre, size), plain)
+        touched += any(plain)
     assert 10 < touched < 140  # both answers occur

@@ -29,13 +29,12 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import logging
-import math
 import pathlib
 import zipfile
 
-import coal
 import numpy as np
 
+from advocc_ros.attack.bodies import LinkBoxes
 from advocc_ros.model.collision import CollisionWorld
 from advocc_ros.kinematics.ik import GoalSampler, IkConfig, goal_set
 from advocc_ros.model.cache import BoundedCache
@@ -79,62 +78,27 @@ class GoalSamples:
         self.Q = Q
         self.time_cap_hit = time_cap_hit
         """Whether ``goal_set``'s safety cap cut the sampling short (then machine-dependent)."""
-        self.links = [g.geometry for g in world.geom_model.geometryObjects[:world.n_links]]
-        self.tfs, centres, radii = [], [], []
-        for q in Q:
-            tfs = [coal.Transform3s(T.rotation, T.translation) for T in world.link_placements(q)]
-            self.tfs.append(tfs)
-            for g, tf in zip(self.links, tfs):
-                g.computeLocalAABB()
-                lo, hi = np.asarray(g.aabb_local.min_), np.asarray(g.aabb_local.max_)
-                centres.append(tf.getRotation() @ ((lo + hi) / 2) + tf.getTranslation())
-                radii.append(np.linalg.norm(hi - lo) / 2)
-        self.centres_m = np.array(centres).reshape(len(Q), len(self.links), 3)
-        """(n, links, 3) centre of each link's bounding box at each sample."""
-        self.radii_m = np.array(radii).reshape(len(Q), len(self.links))
-        self._req = coal.CollisionRequest()
-
-    def _near_pairs(self, center_m: np.ndarray, box_size_m: float, among=None):
-        """(sample, link) pairs whose bounding spheres reach the box, nearest first (only the
-        samples of the bool mask ``among`` when given)."""
-        gap = np.linalg.norm(self.centres_m - center_m, axis=-1) - self.radii_m
-        reach = gap <= box_size_m * math.sqrt(3) / 2
-        if among is not None:
-            reach &= among[:, None]
-        near = np.flatnonzero(reach.ravel())
-        near = near[np.argsort(gap.ravel()[near], kind='stable')]
-        return zip(*np.unravel_index(near, gap.shape))
+        self.bodies = LinkBoxes(world, Q)
 
     def blocked_by(self, center_m: np.ndarray, box_size_m: float, among=None) -> np.ndarray:
         """bool (n,): samples whose body the axis-aligned box at ``center_m`` touches (of the
         bool mask ``among`` when given; the others are False)."""
-        center_m = np.asarray(center_m, dtype=float)
-        out = np.zeros(len(self.Q), dtype=bool)
-        box = coal.Box(box_size_m, box_size_m, box_size_m)
-        tf = coal.Transform3s(np.eye(3), center_m)
-        for s, li in self._near_pairs(center_m, box_size_m, among):
-            if not out[s]:
-                out[s] = coal.collide(box, tf, self.links[li], self.tfs[s][li], self._req,
-                                      coal.CollisionResult())
-        return out
+        return self.bodies.blocked_by(center_m, box_size_m, among)
 
     def touched_by(self, center_m: np.ndarray, box_size_m: float) -> bool:
         """Whether the box touches any sample's body (stops at the first contact)."""
-        center_m = np.asarray(center_m, dtype=float)
-        box = coal.Box(box_size_m, box_size_m, box_size_m)
-        tf = coal.Transform3s(np.eye(3), center_m)
-        return any(coal.collide(box, tf, self.links[li], self.tfs[s][li], self._req,
-                                coal.CollisionResult())
-                   for s, li in self._near_pairs(center_m, box_size_m))
+        return self.bodies.touched_by(center_m, box_size_m)
+
+    def valid_mask(self, centers_m: np.ndarray, box_size_m: float) -> np.ndarray:
+        """bool (n,): the samples no box (centres (k, 3)) touches."""
+        valid = np.ones(len(self.Q), dtype=bool)
+        for c in np.asarray(centers_m, dtype=float).reshape(-1, 3):
+            valid &= ~self.blocked_by(c, box_size_m, among=valid)
+        return valid
 
     def valid_fraction(self, centers_m: np.ndarray, box_size_m: float) -> float | None:
         """Fraction of the samples no box touches; None without samples (no IK solution)."""
-        if not len(self.Q):
-            return None
-        valid = np.ones(len(self.Q), dtype=bool)
-        for c in np.asarray(centers_m).reshape(-1, 3):
-            valid &= ~self.blocked_by(c, box_size_m, among=valid)
-        return float(valid.mean())
+        return float(self.valid_mask(centers_m, box_size_m).mean()) if len(self.Q) else None
 
 
 def goal_samples(robot: RobotModel, objects: tuple[SceneObject, ...], goal: GoalRegion,

@@ -29,10 +29,9 @@ import dataclasses
 import enum
 import time
 
-import coal
 import numpy as np
-import pinocchio as pin
 
+from advocc_ros.attack.bodies import LinkBoxes
 from advocc_ros.model.cache import BoundedCache
 from advocc_ros.attack.coverage import box_distance
 from advocc_ros.heatmap import link_tables
@@ -137,24 +136,6 @@ def assess(robot: RobotModel, objects: tuple[SceneObject, ...], boxes: tuple[Sce
                        'collision', probe, states, ms)
 
 
-def _placements(world: CollisionWorld, Q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """``T_base_geom`` of every robot geometry at each q of ``Q``: rotations (N, L, 3, 3) and
-    translations (N, L, 3). One forward kinematics per q, the joints read once and composed with
-    the geometries' fixed placements in numpy (~10x faster than a geometry update per q)."""
-    geoms = world.geom_model.geometryObjects[:world.n_links]
-    joints = sorted({g.parentJoint for g in geoms})
-    column = [joints.index(g.parentJoint) for g in geoms]
-    data = world.model.createData()
-    T_joint = np.empty((len(Q), len(joints), 4, 4))
-    for i, q in enumerate(Q):
-        pin.forwardKinematics(world.model, data, q)
-        for a, j in enumerate(joints):
-            T_joint[i, a] = data.oMi[j].homogeneous
-    T_geom = np.einsum('nlij,ljk->nlik', T_joint[:, column],
-                       np.array([g.placement.homogeneous for g in geoms]))
-    return np.ascontiguousarray(T_geom[..., :3, :3]), np.ascontiguousarray(T_geom[..., :3, 3])
-
-
 class WitnessBodies:
     """The robot's body at every guard state of the witness: exact box tests and the lattice
     swept volume (built once per task and kept: ``witness_bodies``)."""
@@ -165,51 +146,17 @@ class WitnessBodies:
         self.step_rad = config.guard_step_rad(robot.motion_bound.max_m_per_rad)
         """Largest joint-space distance between guard states [rad] (L2)."""
         self.states = witness_states(witness.configurations(robot), self.step_rad)
-        self._R, self._t = _placements(world, self.states)
-        self.links = [g.geometry for g in world.geom_model.geometryObjects[:world.n_links]]
-        lo, hi = np.empty((len(self.links), 3)), np.empty((len(self.links), 3))
-        for k, geometry in enumerate(self.links):
-            geometry.computeLocalAABB()
-            lo[k], hi[k] = geometry.aabb_local.min_, geometry.aabb_local.max_
-        self.centres_m = np.einsum('nlij,lj->nli', self._R, (lo + hi) / 2) + self._t
-        """(states, links, 3) centre of each link's bounding box at each guard state."""
-        self._half_m = (hi - lo) / 2
-        """(links, 3) half extents of each link's bounding box in its own frame [m]."""
-        self._reach_m = np.einsum('nlij,lj->nli', np.abs(self._R), self._half_m)
-        """(states, links, 3) half extents of the world-aligned box around each link box."""
+        self.boxes = LinkBoxes(world, self.states)
         # The lattice prune may use any subset of the states (it only drops boxes the exact
         # test would refuse): every k-th, about the witness search's step apart, and the last.
         k = max(int(WITNESS_STEP_RAD / self.step_rad), 1)
         self._lattice = np.unique(np.r_[np.arange(0, len(self.states), k), len(self.states) - 1])
         self._swept: dict = {}
-        self._request = coal.CollisionRequest()
-
-    def _overlapping(self, center_m: np.ndarray, half_m: float) -> np.ndarray:
-        """(state, link) flat indices whose link box may meet the axis-aligned cube (centre,
-        half edge): not separated on the world axes nor the link box's own axes (a subset of
-        the separating-axis test, so it never drops a pair that meets), nearest first."""
-        d = (self.centres_m - center_m).reshape(-1, 3)
-        near = np.flatnonzero(np.all(np.abs(d) <= half_m + self._reach_m.reshape(-1, 3), axis=1))
-        R = self._R.reshape(-1, 3, 3)[near]
-        along = np.abs(np.einsum('kij,ki->kj', R, d[near]))
-        links = near % self.centres_m.shape[1]
-        near = near[np.all(along <= self._half_m[links] + half_m * np.abs(R).sum(axis=1),
-                           axis=1)]
-        return near[np.argsort(np.linalg.norm(d[near], axis=1), kind='stable')]
 
     def touched_by(self, center_m: np.ndarray, box_size_m: float) -> bool:
         """Whether the axis-aligned cube of edge ``box_size_m`` at ``center_m`` touches the body
         at any guard state (coal on the hulls, for the pairs whose bounding boxes meet)."""
-        center_m = np.asarray(center_m, dtype=float)
-        box = coal.Box(box_size_m, box_size_m, box_size_m)
-        tf = coal.Transform3s(np.eye(3), center_m)
-        near = self._overlapping(center_m, box_size_m / 2)
-        for s, li in zip(*np.unravel_index(near, self.centres_m.shape[:2])):
-            link_tf = coal.Transform3s(self._R[s, li], self._t[s, li])
-            if coal.collide(box, tf, self.links[li], link_tf, self._request,
-                            coal.CollisionResult()):
-                return True
-        return False
+        return self.boxes.touched_by(center_m, box_size_m)
 
     def swept_mask(self, grid, lo: np.ndarray, hi: np.ndarray, pitch_m: float) -> np.ndarray:
         """Voxel centres of the window ``[lo, hi)`` of ``grid`` inside the robot at some guard
@@ -219,7 +166,8 @@ class WitnessBodies:
             origin = np.asarray(grid.origin_m) + np.asarray(lo) * grid.voxel_m
             mask = np.zeros(tuple(np.asarray(hi) - lo), dtype=bool)
             self._swept[key] = link_tables(self.robot, pitch_m).rasterize(
-                mask, origin, grid.voxel_m, self._R[self._lattice], self._t[self._lattice])
+                mask, origin, grid.voxel_m, self.boxes.R[self._lattice],
+                self.boxes.t[self._lattice])
         return self._swept[key]
 
 

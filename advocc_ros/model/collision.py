@@ -313,13 +313,20 @@ class CollisionWorld:
 
     def link_transforms(self, Q: np.ndarray) -> np.ndarray:
         """``T_base_geom`` of each robot collision geometry for each q of ``Q``, as
-        (N, n_links, 4, 4) homogeneous matrices (one array per link: ~2x faster than reading
-        rotation and translation apart)."""
-        H = np.empty((len(Q), self.n_links, 4, 4))
+        (N, n_links, 4, 4) homogeneous matrices: one forward kinematics per q, the joints read
+        once and composed with the geometries' fixed placements in numpy (~10x faster than a
+        geometry update per q)."""
+        geoms = self.geom_model.geometryObjects[:self.n_links]
+        joints = sorted({g.parentJoint for g in geoms})
+        column = [joints.index(g.parentJoint) for g in geoms]
+        data = self.model.createData()
+        T_joint = np.empty((len(Q), len(joints), 4, 4))
         for i, q in enumerate(Q):
-            for li, T in enumerate(self.link_placements(q)):
-                H[i, li] = T.homogeneous
-        return H
+            pin.forwardKinematics(self.model, data, q)
+            for a, j in enumerate(joints):
+                T_joint[i, a] = data.oMi[j].homogeneous
+        return np.einsum('nlij,ljk->nlik', T_joint[:, column],
+                         np.array([g.placement.homogeneous for g in geoms]))
 
     def occupied(self, grid: VoxelGrid) -> np.ndarray:
         """Voxels of ``grid`` whose centre lies inside a scene shape, computed once per grid:
