@@ -5,8 +5,11 @@ import pytest
 
 from advocc_ros.attack import attack
 from advocc_ros.attack.goals import selection_goal_samples
-from advocc_ros.attack.task import TaskOptions, draw_seed
+from advocc_ros.attack.judge import judge, kept_index
+from advocc_ros.attack.solvable import witness_bodies
+from advocc_ros.attack.task import TaskOptions, draw_seed, passage_samples
 from advocc_ros.heatmap import HeatmapConfig, build_heatmap
+from advocc_ros.model.collision import shared_world
 from advocc_ros.model.robot import load_robot
 from advocc_ros.planning.witness import find_witness
 from conftest import JUDGE
@@ -30,19 +33,25 @@ def _attack(task, draws: int, seed: int = 3, policy: str = 'solvable'):
                   goal_policy=policy, witness=witness, method_options=options)
 
 
-def test_the_kept_draw_leaves_the_fewest_goal_configurations_valid(task):
-    scene, robot, _, _, _ = task
+def test_the_kept_draw_is_the_one_the_judge_keeps(task):
+    scene, robot, _, _, witness = task
     best = _attack(task, draws=4)
     assert best.status.ok and best.solvable.certified, best.message
-    judge = selection_goal_samples(robot, scene.objects, scene.goal, JUDGE)
-    assert len(judge.Q) > 100
+    goals = selection_goal_samples(robot, scene.objects, scene.goal, JUDGE)
+    assert len(goals.Q) > 100
+    bodies = witness_bodies(robot, shared_world(robot), witness)
+    passage = passage_samples(robot, scene.objects, scene.goal, bodies.states)
+    assert len(passage.Q) > 500
     # Each draw on its own: the attack with draws=1 and that draw's seed.
     singles = [_attack(task, draws=1, seed=draw_seed(3, k)) for k in range(4)]
-    valid = [judge.valid_fraction(r.centers_m, r.box_size_m) for r in singles]
-    assert best.stats['task_draw_goal_valid'] == pytest.approx(valid, abs=1e-6)
-    assert best.stats['task_selection_samples'] == len(judge.Q)
+    judged = [judge(goals, passage, r.centers_m, r.box_size_m) for r in singles]
+    assert best.stats['task_draw_goal_valid'] == pytest.approx(
+        [goals.valid_fraction(r.centers_m, r.box_size_m) for r in singles], abs=1e-6)
+    assert best.stats['task_draw_passage_free'] == pytest.approx(
+        [j.passage_free for j in judged], abs=1e-4)
+    assert best.stats['task_selection_samples'] == len(goals.Q)
     kept = best.stats['task_draw_kept']
-    assert valid[kept] == min(valid)
+    assert kept == kept_index(judged)
     np.testing.assert_array_equal(best.centers_m, singles[kept].centers_m)
     assert best.solvable.certified and all(r.solvable.certified for r in singles)
 

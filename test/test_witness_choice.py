@@ -9,9 +9,11 @@ from advocc_ros.attack import attack
 from advocc_ros.attack.edges import attack_task, task_witness, witness_ends
 from advocc_ros.attack.goals import (END_SAMPLES, RARITY_NEIGHBOUR, rare_goal_configurations,
                                      selection_goal_samples)
-from advocc_ros.attack.task import TaskOptions, task_options
+from advocc_ros.attack.judge import Judged, judge, kept_index
+from advocc_ros.attack.solvable import witness_bodies
+from advocc_ros.attack.task import TaskOptions, passage_samples, task_options
 from advocc_ros.heatmap import HeatmapConfig, build_heatmap
-from advocc_ros.model.collision import CollisionWorld
+from advocc_ros.model.collision import CollisionWorld, shared_world
 from advocc_ros.model.robot import load_robot
 from advocc_ros.planning import end_witnesses
 from advocc_ros.planning.witness import _tool_pose, certify
@@ -73,7 +75,7 @@ def test_end_witnesses_come_back_from_the_disk_cache(task, tmp_path, monkeypatch
     assert [w.content_hash() for w in again] == [w.content_hash() for w in first]
 
 
-def test_the_kept_witness_leaves_the_fewest_goal_configurations_valid(task):
+def test_the_kept_witness_is_the_one_the_judge_keeps(task):
     scene, robot, q0, heatmap, search = task
     candidates = search.candidates
     best = attack(heatmap, robot, scene.objects, q0, scene.goal, 6, 'task', seed=3,
@@ -85,11 +87,16 @@ def test_the_kept_witness_leaves_the_fewest_goal_configurations_valid(task):
                       goal_policy='solvable', witness=w,
                       method_options=TaskOptions(draws=1, selection_samples=JUDGE))
                for w in candidates]
-    judge = selection_goal_samples(robot, scene.objects, scene.goal, JUDGE)
-    valid = [judge.valid_fraction(r.centers_m, r.box_size_m) for r in singles]
-    assert best.stats['task_witness_goal_valid'] == pytest.approx(valid, abs=1e-6)
+    goals = selection_goal_samples(robot, scene.objects, scene.goal, JUDGE)
+    judged = [judge(goals, passage_samples(robot, scene.objects, scene.goal,
+                                           witness_bodies(robot, shared_world(robot), w).states),
+                    r.centers_m, r.box_size_m) for w, r in zip(candidates, singles)]
+    assert best.stats['task_witness_goal_valid'] == pytest.approx(
+        [j.goal_fraction for j in judged], abs=1e-6)
+    assert best.stats['task_witness_passage_free'] == pytest.approx(
+        [j.passage_free for j in judged], abs=1e-4)
     kept = best.stats['task_witness_kept']
-    assert kept == valid.index(min(valid))  # the earliest best: the task's witness on a tie
+    assert kept == kept_index(judged)
     assert best.witness is candidates[kept]
     np.testing.assert_array_equal(best.centers_m, singles[kept].centers_m)
     assert best.stats['task_witnesses'] == len(candidates)
@@ -108,7 +115,8 @@ def test_other_methods_and_policies_use_the_tasks_witness(task):
 
 
 def test_the_task_witness_draws_as_many_as_without_ends(task):
-    """An end witness is kept only when it beats the attack the task's witness alone gives."""
+    """The task's witness keeps its draws beside the ends: with it kept, the attack is the
+    one without ends; an end is kept only when the judge ranks its attack first."""
     scene, robot, q0, heatmap, search = task
     alone = attack(heatmap, robot, scene.objects, q0, scene.goal, 6, 'task', seed=5,
                    goal_policy='solvable', witness=search.witness,
@@ -117,11 +125,12 @@ def test_the_task_witness_draws_as_many_as_without_ends(task):
                   goal_policy='solvable', witness=search.candidates,
                   method_options=TaskOptions(draws=3, end_draws=1, selection_samples=JUDGE))
     assert both.stats['task_witness_draws'] == [3] + [1] * len(search.ends)
-    scores = both.stats['task_witness_goal_valid']
+    n = both.stats['task_selection_samples']
+    judged = [Judged(round(g * n), n, p) for g, p in zip(
+        both.stats['task_witness_goal_valid'], both.stats['task_witness_passage_free'])]
+    assert both.stats['task_witness_kept'] == kept_index(judged)
     if both.stats['task_witness_kept'] == 0:
         np.testing.assert_array_equal(both.centers_m, alone.centers_m)
-    else:
-        assert min(scores[1:]) < scores[0]
 
 
 def test_the_edges_find_the_ends_and_the_attack_keeps_one(task):

@@ -224,17 +224,23 @@ def _over_witnesses(heatmap, robot, objects, q_init, goal, budget, cfg, box_size
     """``task`` under ``solvable`` with several witnesses (``attack_over_witnesses``); only the
     kept attack is certified."""
     from advocc_ros.attack.goals import selection_goal_samples
-    from advocc_ros.attack.task import TaskOptions
+    from advocc_ros.attack.judge import judge
+    from advocc_ros.attack.task import TaskOptions, passage_samples
     from advocc_ros.attack.witness_choice import attack_over_witnesses
+
+    objects = tuple(objects)
 
     def run(witness, options):
         return attack(heatmap, robot, objects, q_init, goal, budget, 'task', cfg, box_size_m,
                       seed, options, 'solvable', False, witness)
 
+    def judge_boxes(witness, centers_m, size_m):
+        goals = selection_goal_samples(robot, objects, goal, options.selection_samples)
+        states = witness_bodies(robot, shared_world(robot), witness).states
+        return judge(goals, passage_samples(robot, objects, goal, states), centers_m, size_m)
+
     options = method_options if isinstance(method_options, TaskOptions) else TaskOptions()
-    result = attack_over_witnesses(
-        run, witnesses, options,
-        lambda: selection_goal_samples(robot, tuple(objects), goal, options.selection_samples))
+    result = attack_over_witnesses(run, witnesses, options, judge_boxes)
     if not certify or not result.status.ok:
         return result
     t0 = time.perf_counter()

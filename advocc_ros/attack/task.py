@@ -66,6 +66,7 @@ audit's prefixes), not necessarily the draw a budget-m request would keep.
 from __future__ import annotations
 
 import dataclasses
+import hashlib
 import math
 import numbers
 import os
@@ -76,13 +77,19 @@ import numpy as np
 from scipy import sparse
 
 from advocc_ros.attack.configurations import cover_matrix, greedy_configurations
-from advocc_ros.attack.goals import GoalGuard, selection_goal_samples
+from advocc_ros.attack.goals import GoalGuard, GoalSamples, selection_goal_samples
+from advocc_ros.attack.judge import (PASSAGE_RAD, PASSAGE_SAMPLES, PASSAGE_SEED, judge,
+                                     kept_index)
 from advocc_ros.attack.methods import MethodContext, register_method
 from advocc_ros.attack.region import SearchRegion
 from advocc_ros.attack.solvable import WitnessGuard
 from advocc_ros.attack.types import AttackConfig
 from advocc_ros.heatmap import placement_arrays, sample_weights
+from advocc_ros.model.cache import BoundedCache
 from advocc_ros.model.collision import CollisionWorld, shared_world
+from advocc_ros.model.goal import GoalRegion
+from advocc_ros.model.robot import RobotModel
+from advocc_ros.model.scene import task_hash
 from advocc_ros.kinematics.ik import GOAL_SET_CAP_S, goal_set
 
 
@@ -213,6 +220,25 @@ def tube_samples(world: CollisionWorld, states: np.ndarray, n: int, sigma_rad: f
     return Q[~world.collisions_batch(Q, THREADS)] if len(Q) else Q
 
 
+_PASSAGES: BoundedCache = BoundedCache('passage samples', 16)
+"""task hash (robot, scene, goal, witness states) -> the witness's tight tube."""
+
+
+def passage_samples(robot: RobotModel, objects: tuple, goal: GoalRegion,
+                    states: np.ndarray) -> GoalSamples:
+    """The tight tube around the witness states ``states`` that ``attack.judge`` scores the
+    passage on (fixed seed; cached per task and witness)."""
+    digest = hashlib.sha256(np.ascontiguousarray(states, dtype=float).tobytes()).hexdigest()
+    key = task_hash(robot.hash, objects, goal, digest, PASSAGE_SAMPLES, PASSAGE_RAD,
+                    PASSAGE_SEED, 'passage')
+
+    def make() -> GoalSamples:
+        world = shared_world(robot, [sh for o in objects for sh in o.shapes])
+        return GoalSamples(world, tube_samples(world, states, PASSAGE_SAMPLES, PASSAGE_RAD,
+                                               np.random.default_rng(PASSAGE_SEED)))
+    return _PASSAGES.get_or_make(key, make)
+
+
 WEIGHT_FLOOR = 1e-3
 """Smallest goal weight w(q) the lexicographic scaling is exact for (see
 :func:`lexicographic_weights`)."""
@@ -257,6 +283,10 @@ def draw_seed(seed: int, k: int) -> int:
     return seed if k == 0 else int(np.random.SeedSequence([seed, k]).generate_state(1)[0])
 
 
+def _rounded(fraction: float | None) -> float | None:
+    return None if fraction is None else round(fraction, 6)
+
+
 def _select_task(region: SearchRegion, budget: int, seed: int, cfg: AttackConfig,
                  context: MethodContext):
     """The task attack; under ``solvable``, the best of ``TaskOptions.draws`` draws."""
@@ -267,22 +297,23 @@ def _select_task(region: SearchRegion, budget: int, seed: int, cfg: AttackConfig
         if isinstance(region.guard, WitnessGuard):  # draws apply under solvable only
             region.stats.update(task_draws=1, task_draw_kept=0)
         return picks, rejected
-    judge = selection_goal_samples(context.robot, context.objects, context.goal,
+    goals = selection_goal_samples(context.robot, context.objects, context.goal,
                                    opts.selection_samples)
-    draws, scores = [], []
+    passage = passage_samples(context.robot, context.objects, context.goal,
+                              region.guard.bodies.states)
+    draws, judged = [], []
     for k in range(opts.draws):
         picks, rejected, stats = _draw(region, budget, draw_seed(seed, k), cfg, context, opts)
         centers = (region.center_m(np.array([c for c, _ in picks])) if picks
                    else np.zeros((0, 3)))
-        valid = judge.valid_fraction(centers, region.box_size_m)
         draws.append((picks, rejected, stats))
-        # Fewest goal configurations left valid; ties: more of the draw's own weight covered.
-        scores.append((1.0 if valid is None else valid, -sum(m for _, m in picks), k))
-    kept = min(scores)[2]
+        judged.append(judge(goals, passage, centers, region.box_size_m))
+    kept = kept_index(judged)
     picks, rejected, stats = draws[kept]
     region.stats.update(stats, task_draws=opts.draws, task_draw_kept=kept,
-                        task_draw_goal_valid=[round(v, 6) for v, _, _ in scores],
-                        task_selection_samples=len(judge.Q))
+                        task_draw_goal_valid=[_rounded(j.goal_fraction) for j in judged],
+                        task_draw_passage_free=[round(j.passage_free, 4) for j in judged],
+                        task_selection_samples=len(goals.Q))
     return picks, rejected
 
 

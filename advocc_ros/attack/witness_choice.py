@@ -27,38 +27,42 @@ defaults are in docs/results.md.
 from __future__ import annotations
 
 import dataclasses
-from typing import Callable
+from typing import Any, Callable
 
 import numpy as np
 
-from advocc_ros.attack.goals import GoalSamples
+from advocc_ros.attack.judge import Judged, kept_index
 from advocc_ros.attack.types import AttackResult
 
 
 def attack_over_witnesses(run: Callable, witnesses: tuple, options,
-                          judge: Callable[[], GoalSamples]) -> AttackResult:
+                          judge_boxes: Callable[[Any, np.ndarray, float], Judged]
+                          ) -> AttackResult:
     """The kept attack of ``run(witness, options)`` (``attack`` with the rest fixed) over
     ``witnesses`` (module docstring); ``options`` the ``TaskOptions`` (``draws`` for the task's
-    witness, ``end_draws`` for each other one), ``judge()`` the selection goal samples. A
-    request the first attack refuses is answered by it. The kept result's ``compute_s`` is the
-    sum over all attacks."""
+    witness, ``end_draws`` for each other one), ``judge_boxes(witness, centres, box size)`` the
+    scores of ``attack.judge``. A request the first attack refuses is answered by it. The kept
+    result's ``compute_s`` is the sum over all attacks."""
     draws = [options.draws] + [options.end_draws] * (len(witnesses) - 1)
     results = [run(witnesses[0], dataclasses.replace(options, draws=draws[0]))]
     if not results[0].status.ok:
         return results[0]
     results += [run(w, dataclasses.replace(options, draws=d))
                 for w, d in zip(witnesses[1:], draws[1:])]
-    samples = judge()
-    scores = []
-    for i, result in enumerate(results):
-        centers = np.array([o.shapes[0].pose.position_m for o in result.obstacles])
-        valid = samples.valid_fraction(centers.reshape(-1, 3), result.box_size_m)
-        ok = result.status.ok
-        scores.append((not ok, 1.0 if valid is None or not ok else valid, i))
-    kept = min(scores)[2]
+    ok = [i for i, r in enumerate(results) if r.status.ok]
+    judged = {i: judge_boxes(witnesses[i], results[i].centers_m, results[i].box_size_m)
+              for i in ok}
+    kept = ok[kept_index([judged[i] for i in ok])]
     stats = dict(results[kept].stats, task_witnesses=len(witnesses), task_witness_kept=kept,
-                 task_witness_goal_valid=[None if s[0] else round(s[1], 6) for s in scores],
-                 task_draws=options.draws, task_witness_draws=draws)
+                 task_witness_goal_valid=[
+                     round(judged[i].goal_fraction, 6) if i in judged
+                     and judged[i].goal_fraction is not None else None
+                     for i in range(len(results))],
+                 task_witness_passage_free=[
+                     round(judged[i].passage_free, 4) if i in judged else None
+                     for i in range(len(results))],
+                 task_draws=options.draws, task_witness_draws=draws,
+                 task_selection_samples=judged[kept].goals)
     return dataclasses.replace(results[kept], stats=stats,
                                compute_s=sum(r.compute_s for r in results))
 
