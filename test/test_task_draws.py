@@ -40,7 +40,7 @@ def test_the_kept_draw_is_the_one_the_judge_keeps(task):
     goals = selection_goal_samples(robot, scene.objects, scene.goal, JUDGE)
     assert len(goals.Q) > 100
     bodies = witness_bodies(robot, shared_world(robot), witness)
-    passage = passage_samples(robot, scene.objects, scene.goal, bodies.states)
+    passage = passage_samples(robot, scene.objects, scene.goal, bodies.states, 4096)
     assert len(passage.Q) > 500
     # Each draw on its own: the attack with draws=1 and that draw's seed.
     singles = [_attack(task, draws=1, seed=draw_seed(3, k)) for k in range(4)]
@@ -54,6 +54,16 @@ def test_the_kept_draw_is_the_one_the_judge_keeps(task):
     assert kept == kept_index(judged)
     np.testing.assert_array_equal(best.centers_m, singles[kept].centers_m)
     assert best.solvable.certified and all(r.solvable.certified for r in singles)
+
+
+def test_without_the_passage_the_fewest_goals_decide(task):
+    scene, robot, q0, heatmap, witness = task
+    options = TaskOptions(draws=4, selection_samples=JUDGE, passage_samples=0)
+    result = attack(heatmap, robot, scene.objects, q0, scene.goal, 6, 'task', seed=3,
+                    goal_policy='solvable', witness=witness, method_options=options)
+    valid = result.stats['task_draw_goal_valid']
+    assert result.stats['task_draw_passage_free'] == [1.0] * 4
+    assert result.stats['task_draw_kept'] == valid.index(min(valid))
 
 
 def test_one_draw_is_the_attack_of_the_seed_itself(task):

@@ -89,7 +89,8 @@ def test_the_kept_witness_is_the_one_the_judge_keeps(task):
                for w in candidates]
     goals = selection_goal_samples(robot, scene.objects, scene.goal, JUDGE)
     judged = [judge(goals, passage_samples(robot, scene.objects, scene.goal,
-                                           witness_bodies(robot, shared_world(robot), w).states),
+                                           witness_bodies(robot, shared_world(robot), w).states,
+                                           TaskOptions().passage_samples),
                     r.centers_m, r.box_size_m) for w, r in zip(candidates, singles)]
     assert best.stats['task_witness_goal_valid'] == pytest.approx(
         [j.goal_fraction for j in judged], abs=1e-6)

@@ -237,7 +237,8 @@ def _over_witnesses(heatmap, robot, objects, q_init, goal, budget, cfg, box_size
     def judge_boxes(witness, centers_m, size_m):
         goals = selection_goal_samples(robot, objects, goal, options.selection_samples)
         states = witness_bodies(robot, shared_world(robot), witness).states
-        return judge(goals, passage_samples(robot, objects, goal, states), centers_m, size_m)
+        passage = passage_samples(robot, objects, goal, states, options.passage_samples)
+        return judge(goals, passage, centers_m, size_m)
 
     options = method_options if isinstance(method_options, TaskOptions) else TaskOptions()
     result = attack_over_witnesses(run, witnesses, options, judge_boxes)

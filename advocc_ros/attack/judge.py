@@ -6,9 +6,10 @@ Planner-free, two scores per candidate:
    samplers draw theirs (``attack.goals.selection_goal_samples``); a planner that never samples
    a valid goal fails ("goal not sampled");
 2. passage left free: the fraction of a tight tube around the candidate's witness
-   (``PASSAGE_SAMPLES`` witness states, each plus N(0, ``PASSAGE_RAD``) per joint, collision-free
-   on the unattacked scene) that no box touches. The lower, the closer the boxes hug the witness:
-   a narrow passage, which is what makes sampling planners time out.
+   (``TaskOptions.passage_samples`` witness states, each plus N(0, ``PASSAGE_RAD``) per joint,
+   collision-free on the unattacked scene) that no box touches. The lower, the closer the
+   boxes hug the witness: a narrow passage, which is what makes sampling planners time out.
+   ``passage_samples`` 0 leaves the goals alone to decide.
 
 Candidates whose goal counts differ from the fewest by less than sampling noise (two standard
 deviations of the difference of two counts, ``|n - n_min| <= 2 sqrt(n + n_min)``) are ties;
@@ -33,8 +34,6 @@ import numpy as np
 
 from advocc_ros.attack.goals import GoalSamples
 
-PASSAGE_SAMPLES = 4096
-"""Tube configurations drawn per witness (before the collision filter keeps ~40-70 %)."""
 PASSAGE_RAD = 0.05
 """Standard deviation of the tube's perturbation per joint [rad]: 0.05 tracked PSR on box,
 0.1 and 0.2 less (rank correlation 0.81 / 0.67 / -0.42, same rows)."""
@@ -73,4 +72,4 @@ def kept_index(judged: list[Judged]) -> int:
     return min(ties, key=lambda i: (judged[i].passage_free, judged[i].goals_valid, i))
 
 
-__all__ = ['PASSAGE_RAD', 'PASSAGE_SAMPLES', 'Judged', 'judge', 'kept_index']
+__all__ = ['PASSAGE_RAD', 'Judged', 'judge', 'kept_index']

@@ -44,9 +44,10 @@ first M of budget M + 1's, which ``advocc audit`` relies on.
 
 Best of several draws (``solvable`` only). What one draw of the samples gives varies more than
 any weighting measured: table_pick at M = 10 went from 0 to 90 % RRTConnect PSR across seeds. So
-the attack covers ``draws`` independent draws and keeps the one that leaves the fewest goal
-configurations valid, judged on a fixed set of goal configurations drawn the way the planners
-draw theirs (``attack.goals.selection_goal_samples``: IK only, no planner; 1,024 of them,
+the attack covers ``draws`` independent draws and keeps the one ``attack.judge`` ranks first:
+among the draws whose goal configurations left valid tie within sampling noise, the narrowest
+passage around the witness. The goals are a fixed set drawn the way the planners draw theirs
+(``attack.goals.selection_goal_samples``: IK only, no planner; 1,024 of them,
 ``selection_samples``: with 256 most draws tied at 0-3 valid, and on table_pick the kept attack
 left 18 of 4,096 held-out goal configurations valid against 7 with 1,024; 20 trials, M = 10:
 PSR 25 / 10 / 35 -> 5 / 5 / 0 %, box 5 / 25 / 0 -> 20 / 50 / 5 %, docs/results/issue27_hard).
@@ -78,8 +79,7 @@ from scipy import sparse
 
 from advocc_ros.attack.configurations import cover_matrix, greedy_configurations
 from advocc_ros.attack.goals import GoalGuard, GoalSamples, selection_goal_samples
-from advocc_ros.attack.judge import (PASSAGE_RAD, PASSAGE_SAMPLES, PASSAGE_SEED, judge,
-                                     kept_index)
+from advocc_ros.attack.judge import PASSAGE_RAD, PASSAGE_SEED, judge, kept_index
 from advocc_ros.attack.methods import MethodContext, register_method
 from advocc_ros.attack.region import SearchRegion
 from advocc_ros.attack.solvable import WitnessGuard
@@ -120,13 +120,13 @@ class TaskOptions:
     measured weaker with a 1 cm guard margin and alike with 1 mm: module docstring)."""
     draws: int = 8
     """Under the ``solvable`` policy: independent draws of the samples (``draw_seed``), each
-    covered greedily; the attack keeps the draw that leaves the fewest goal configurations
-    valid (module docstring). 1: one draw, the attack's seed."""
+    covered greedily; the attack keeps the draw ``attack.judge`` ranks first (module
+    docstring). 1: one draw, the attack's seed."""
     witness_ends: int = 3
     """Under the ``solvable`` policy: goal configurations the planners' goal samplers rarely
-    land on, each given a witness by the tool before the attack; the attack keeps another
-    witness when its draws leave strictly fewer goal configurations valid than the task's
-    witness's (``attack.witness_choice``). 0: the task's witness only."""
+    land on, each given a witness by the tool before the attack; the attack keeps the witness
+    whose kept draw ``attack.judge`` ranks first (``attack.witness_choice``). 0: the task's
+    witness only."""
     end_draws: int = 2
     """Draws of each of those witnesses (the task's witness gets ``draws``)."""
     selection_samples: int = 1024
@@ -134,6 +134,9 @@ class TaskOptions:
     the witnesses (``attack.goals.selection_goal_samples``): the resolution of the choice, at
     ~4-16 ms of IK each on the Panda scenes, once per task (256 measured too coarse: module
     docstring; at most ``MAX_SELECTION_SAMPLES``)."""
+    passage_samples: int = 4096
+    """Configurations drawn in the tight tube around each witness that ``attack.judge``
+    scores the passage on (0: goals alone decide, ties to the earlier draw or witness)."""
 
     def __post_init__(self):
         for name, (valid, allowed) in _OPTION_VALUES.items():
@@ -160,6 +163,8 @@ _OPTION_VALUES = {
     'end_draws': (lambda v: v >= 1, 'an integer >= 1'),
     'selection_samples': (lambda v: 1 <= v <= MAX_SELECTION_SAMPLES,
                           f'an integer in [1, {MAX_SELECTION_SAMPLES}]'),
+    'passage_samples': (lambda v: 0 <= v <= MAX_SELECTION_SAMPLES,
+                        f'an integer in [0, {MAX_SELECTION_SAMPLES}]'),
 }
 """What each :class:`TaskOptions` field accepts: (test, the words an error shows)."""
 
@@ -225,16 +230,15 @@ _PASSAGES: BoundedCache = BoundedCache('passage samples', 16)
 
 
 def passage_samples(robot: RobotModel, objects: tuple, goal: GoalRegion,
-                    states: np.ndarray) -> GoalSamples:
-    """The tight tube around the witness states ``states`` that ``attack.judge`` scores the
-    passage on (fixed seed; cached per task and witness)."""
+                    states: np.ndarray, n: int) -> GoalSamples:
+    """The tight tube (``n`` draws) around the witness states ``states`` that ``attack.judge``
+    scores the passage on (fixed seed; cached per task and witness)."""
     digest = hashlib.sha256(np.ascontiguousarray(states, dtype=float).tobytes()).hexdigest()
-    key = task_hash(robot.hash, objects, goal, digest, PASSAGE_SAMPLES, PASSAGE_RAD,
-                    PASSAGE_SEED, 'passage')
+    key = task_hash(robot.hash, objects, goal, digest, n, PASSAGE_RAD, PASSAGE_SEED, 'passage')
 
     def make() -> GoalSamples:
         world = shared_world(robot, [sh for o in objects for sh in o.shapes])
-        return GoalSamples(world, tube_samples(world, states, PASSAGE_SAMPLES, PASSAGE_RAD,
+        return GoalSamples(world, tube_samples(world, states, n, PASSAGE_RAD,
                                                np.random.default_rng(PASSAGE_SEED)))
     return _PASSAGES.get_or_make(key, make)
 
@@ -300,7 +304,7 @@ def _select_task(region: SearchRegion, budget: int, seed: int, cfg: AttackConfig
     goals = selection_goal_samples(context.robot, context.objects, context.goal,
                                    opts.selection_samples)
     passage = passage_samples(context.robot, context.objects, context.goal,
-                              region.guard.bodies.states)
+                              region.guard.bodies.states, opts.passage_samples)
     draws, judged = [], []
     for k in range(opts.draws):
         picks, rejected, stats = _draw(region, budget, draw_seed(seed, k), cfg, context, opts)

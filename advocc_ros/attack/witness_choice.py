@@ -1,4 +1,4 @@
-"""The ``task`` attack over several witnesses: keep the one that leaves planners the fewest goals.
+"""The ``task`` attack over several witnesses: keep the one that leaves planners the least.
 
 Under the ``solvable`` policy the boxes keep one witness valid, so the witness decides which goal
 configurations stay free: those whose body stays near its last one. The task's own witness ends
@@ -7,9 +7,9 @@ planners sample that branch often. ``attack.edges`` also hands the attack witnes
 configurations the planners' goal samplers land on least often
 (``attack.goals.rare_goal_configurations``, ``planning.end_witnesses``). The task's witness
 gets the attack's ``TaskOptions.draws``, each other witness ``end_draws``; the attack keeps the
-one that leaves the fewest of the selection goal samples valid, the score the draws are kept by
-(``attack.task``), and the task's witness on a tie: another witness is kept only when it
-scores strictly better than the attack without it. No planner is queried here.
+witness whose kept draw ``attack.judge`` ranks first, the rule the draws are kept by
+(``attack.task``): fewest goals left valid up to sampling noise, then the narrowest passage
+around that witness, then the task's own witness. No planner is queried here.
 
 Measured before it was built (scratch experiment, 10 trials x 5 s, M = 10, 8 draws per witness,
 the task's witness against the best of it and six rare ends, RRTConnect / PRM* / BKPIECE1 PSR):

@@ -98,12 +98,13 @@ _TASK_DOC = {
     'tube_samples': 'solvable: configurations drawn around the witness path',
     'tube_rad': 'solvable: perturbation of the witness states per joint [rad]',
     'goal_share': "solvable: the goal configurations' share of the weight (0: tiers)",
-    'draws': 'solvable: draws of the samples, the one leaving the fewest goal configurations '
-             'valid kept (1: fast, one draw)',
+    'draws': 'solvable: draws of the samples, the one attack.judge ranks first kept '
+             '(1: fast, one draw)',
     'witness_ends': 'solvable: witnesses to rarely sampled goal configurations the attack may '
                     'keep instead of the task\'s (0: the task\'s only)',
     'end_draws': 'solvable: draws of each of those witnesses',
     'selection_samples': 'solvable: goal configurations that judge the draws and witnesses',
+    'passage_samples': 'solvable: tube configurations that score the passage (0: goals only)',
 }
 
 
