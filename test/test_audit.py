@@ -161,12 +161,36 @@ def test_audit_policy_solvable_gives_both_answers(tmp_path, table_scene, small_h
     imp = audit['impossible']
     assert not imp['same_attack'] and imp['goal_blocked_m'] == 1 and len(imp['boxes']) >= 1
     assert audit['min_budget_solvable'] == audit['min_budget']  # every prefix certified
+    _prefix_one_is_the_one_box_attack(audit, table_scene, small_heatmap, cfg)
+    assert '- m = 1 (witness ' in audit_markdown(audit)
     row = audit['budgets'][0]['planners']['rrtconnect']
     assert row['first_solution_median_s'] > 0 and set(row['psr_at']) == {'1'}
     text = audit_answer(audit)
     assert 'Impossible: 1 box of the Task attack under goal policy paper makes the pick ' \
         'impossible' in text
     assert '- RRTConnect ' in text and 'certified' in text
+
+
+def _prefix_one_is_the_one_box_attack(audit, scene, heatmap, cfg):
+    """The kept draw is judged on all its boxes, so prefix 1 is an attack of its own: the one
+    a one-box request places, not the first box of the two-box attack."""
+    from advocc_ros.attack import attack
+    from advocc_ros.attack.edges import task_witness, witness_ends
+    from advocc_ros.kinematics.ik import start_configuration
+    from advocc_ros.model.robot import load_robot
+
+    own = [b for b in audit['budgets'] if 'boxes' in b]
+    assert [b['m'] for b in own] == [1]  # m = 0 has no box, m = 2 is the audit's attack
+    robot = load_robot(scene.robot)
+    q_init = start_configuration(scene, robot)
+    candidates = task_witness(robot, scene.objects, q_init, scene.goal,
+                              witness_ends('task', 'solvable', cfg.task_options)).candidates
+    one = attack(heatmap, robot, scene.objects, q_init, scene.goal, 1, 'task', seed=cfg.seed,
+                 goal_policy='solvable', witness=candidates, method_options=cfg.task_options)
+    assert own[0]['boxes'][0]['center_m'] == [round(float(v), 4) for v in one.centers_m[0]]
+    assert own[0]['attack']['stats']['task_draws'] == 2
+    assert own[0]['witness'] == one.witness.to_data()
+    assert own[0]['solvable'] == 'certified'
 
 
 def _hand_audit(psr, verdicts, goal_blocked_m):
@@ -227,7 +251,7 @@ def test_audit_target_and_grid_stop_early(tmp_path, table_scene, small_heatmap):
     cfg = AuditConfig(planners=('rrtconnect',), max_budget=2, trials=2, time_budget_s=1.0,
                       workers=1, target_psr=0.5, prefixes=(2,))
     audit = run_audit(table_scene, small_heatmap, cfg)
-    assert len(audit['boxes']) == 2 and audit['version'] == AUDIT_VERSION == 3
+    assert len(audit['boxes']) == 2 and audit['version'] == AUDIT_VERSION == 4
     assert [b['m'] for b in audit['budgets']] == [0, 2]
     psr = audit['psr']['rrtconnect']
     assert len(psr) == 3 and psr[1] is None and psr[0] > 0.5 >= psr[2]

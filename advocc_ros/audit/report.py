@@ -52,6 +52,13 @@ def _last_m(audit: dict, planner: str | None = None) -> int:
                if planner is None or b['planners'].get(planner) is not None)
 
 
+def prefix_boxes(audit: dict, m: int) -> list[dict]:
+    """The boxes of prefix m: its own attack's (an entry holding ``boxes``, version 4) or the
+    first m of the audit's attack."""
+    entry = _entry(audit, m)
+    return entry['boxes'] if entry is not None and 'boxes' in entry else audit['boxes'][:m]
+
+
 def _gap(audit: dict, m: int, planner: str) -> str:
     """`` (m = a..b not evaluated)`` when prefixes just below m were not evaluated for
     ``planner`` (a coarse ``--prefixes`` grid): the fewest boxes lies in a..m."""
@@ -89,10 +96,10 @@ def audit_answer(audit: dict) -> str:
                      + ', '.join(str(b['m']) for b in audit['budgets'])
                      + '; the m between them were not, so a fewest-boxes answer is an upper '
                      'bound.')
-    placed = ', '.join(f'#{b["pick"]} at {b["center_m"]}'
-                       for b in audit['boxes'][:_last_m(audit)])
+    last = _last_m(audit)
+    placed = ', '.join(f'#{b["pick"]} at {b["center_m"]}' for b in prefix_boxes(audit, last))
     if placed:
-        lines.append(f'Boxes (robot base frame, pick order): {placed}.')
+        lines.append(f'Boxes of m = {last} (robot base frame, pick order): {placed}.')
     lines.append('Goal poses left valid: ' + ', '.join(
         f'm={b["m"]}: {_pct(b["goal_valid_fraction"])}' for b in audit['budgets'])
         + f'. Stopped: {audit["stopped"]}.')
@@ -213,7 +220,9 @@ def audit_markdown(audit: dict) -> str:
         out.append(f'| {b["pick"]} | {b["id"]} | {b["center_m"]} | {b["mass"]:.4g} | '
                    f'{"yes" if b["pick"] <= evaluated else "no (stopped earlier)"} |')
     out += ['', 'Box #m is the last box of prefix m (edge '
-            f'{s["box_size_m"]} m, robot base frame).', '',
+            f'{s["box_size_m"]} m, robot base frame)'
+            + (', except for the prefixes below.' if _own_attacks(audit) else '.'),
+            *_own_attack_lines(audit), '',
             '![slices](audit_slices.png)', '', '![PSR vs budget](audit_psr.png)', '',
             '## Settings', '',
             f'- attack: {audit["method"]}, goal policy {audit["policy"]}, max budget '
@@ -231,6 +240,26 @@ def audit_markdown(audit: dict) -> str:
             f'{audit["machine"]["cpu"]} ({audit["machine"]["cores"]} cores), Python '
             f'{audit["machine"]["python"]}', '']
     return '\n'.join(out)
+
+
+def _own_attacks(audit: dict) -> list[dict]:
+    return [b for b in audit['budgets'] if 'boxes' in b]
+
+
+def _own_attack_lines(audit: dict) -> list[str]:
+    """Markdown lines: the prefixes that are attacks of their own (``task`` under ``solvable``
+    keeps the candidate judged best at its budget), with their boxes."""
+    own = _own_attacks(audit)
+    if not own:
+        return []
+    lines = ['', 'Prefixes that are attacks of their own (the candidate kept at that budget, '
+             'what `advocc attack --budget m` places; witness and draw kept):', '']
+    for b in own:
+        stats = b['attack']['stats']
+        lines.append(f'- m = {b["m"]} (witness {stats.get("task_witness_kept", 0)}, draw '
+                     f'{stats.get("task_draw_kept", 0)}): '
+                     + ', '.join(f'#{x["pick"]} at {x["center_m"]}' for x in b['boxes']))
+    return lines
 
 
 def _impossible_attack(audit: dict) -> str:
