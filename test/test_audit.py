@@ -332,3 +332,16 @@ def test_audit_markdown_minimal_budgets_with_skipped_cells():
     md = audit_markdown(audit)
     assert '| RRTConnect | 2 | 2 | 2 | 2 | > 2 |' in md  # not evaluated after m = 2
     assert '| PRM* | 2 | 2 | 5 | 5 | 5 |' in md
+
+
+def test_audit_figure_dots_the_lines_across_unevaluated_budgets():
+    """With a grid of prefixes, the curve between evaluated m was not measured: dotted there."""
+    import matplotlib.pyplot as plt
+
+    from advocc_ros.evaluation.figures import _join
+
+    fig, ax = plt.subplots()
+    _join(ax, [1.0, 0.9, None, 0.5, None, None, 0.2], color='C0', ls='-')
+    styles = [(tuple(line.get_xdata()), line.get_linestyle()) for line in ax.get_lines()]
+    plt.close(fig)
+    assert styles == [((0, 1), '-'), ((1, 3), ':'), ((3, 6), ':')]

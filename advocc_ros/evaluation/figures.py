@@ -97,21 +97,36 @@ def plot_heatmap_slices(heatmap: Heatmap, out: str | pathlib.Path, scene: Scene 
     save_png(fig, out)
 
 
+def _evaluated(curve: list[float | None]) -> tuple[list[int], list[float]]:
+    """The evaluated m of ``curve`` and their values [%]."""
+    m = [i for i, v in enumerate(curve) if v is not None]
+    return m, [100 * curve[i] for i in m]
+
+
+def _join(ax, curve: list[float | None], color, ls: str) -> None:
+    """Consecutive evaluated points of ``curve`` joined: ``ls`` between adjacent m, dotted
+    across a gap."""
+    m, y = _evaluated(curve)
+    for (m0, y0), (m1, y1) in zip(zip(m, y), zip(m[1:], y[1:])):
+        ax.plot([m0, m1], [y0, y1], color=color, ls=ls if m1 == m0 + 1 else ':')
+
+
 def plot_audit_psr(psr: dict[str, list[float | None]], goal_valid: list[float | None],
                    out: str | pathlib.Path, title: str = '') -> None:
-    """An audit's curves: PSR [%] of each planner against the prefix budget m (one attack's
-    first m boxes; lists indexed by m, None where not evaluated), and the share of goal poses
-    the boxes leave valid (dashed)."""
+    """An audit's curves: PSR [%] of each planner against the budget m (lists indexed by m,
+    None where not evaluated), and the share of goal poses the boxes leave valid (dashed).
+    Points at adjacent m are joined by a solid line, points across unevaluated m by a dotted
+    one: the curve between them was not measured."""
     fig, ax = plt.subplots(figsize=(6.5, 4.2), constrained_layout=True)
     for planner, curve in psr.items():
-        m = [i for i, v in enumerate(curve) if v is not None]
-        ax.plot(m, [100 * curve[i] for i in m], marker='o', label=planner)
-    m = [i for i, v in enumerate(goal_valid) if v is not None]
-    ax.plot(m, [100 * goal_valid[i] for i in m], ls='--', color='gray',
+        line, = ax.plot(*_evaluated(curve), marker='o', ls='none', label=planner)
+        _join(ax, curve, color=line.get_color(), ls='-')
+    ax.plot(*_evaluated(goal_valid), ls='none', marker='.', color='gray',
             label='goal poses valid')
+    _join(ax, goal_valid, color='gray', ls='--')
     for level in (80, 60, 40, 20):
         ax.axhline(level, color='black', lw=0.5, alpha=0.25)
-    ax.set_xlabel('boxes m (prefix of the attack, pick order)')
+    ax.set_xlabel('boxes m')
     ax.set_ylabel('PSR, goal poses valid [%]')
     percent_axes(ax)
     if title:
