@@ -105,6 +105,23 @@ def test_the_cache_facility_is_bounded_lru_and_keeps_the_first_value():
         t.join()
     assert len(set(got)) == 1 and got[0] == cache.get('d')  # every thread sees the kept value
     assert len(cache) == 2
+
+
+def test_clear_task_caches_forgets_what_a_new_task_computes_again():
+    """The cold timings of ``advocc perf attack``: per-task caches go, the others stay."""
+    from advocc_ros.attack import goals, solvable, task
+    from advocc_ros.model import collision
+    from advocc_ros.model.cache import BoundedCache, clear_task_caches
+
+    mine, kept = BoundedCache('test task', 2, per_task=True), BoundedCache('test model', 2)
+    mine.put('a', 1)
+    kept.put('a', 1)
+    clear_task_caches()
+    assert 'a' not in mine and 'a' in kept
+    from advocc_ros.model.cache import _PER_TASK
+    for cache in (goals._GOAL_SAMPLES, goals._END_SAMPLES, task._PASSAGES, solvable._BODIES):
+        assert cache in _PER_TASK, cache.name
+    assert collision._WORLDS not in _PER_TASK
     cache.clear()
     assert len(cache) == 0 and cache.get('a') is None
 

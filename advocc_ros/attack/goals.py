@@ -63,9 +63,9 @@ RARITY_NEIGHBOUR = 5
 GOALS_FORMAT = 'advocc_goal_set_1'
 """Part of the disk cache's key: a new format or sampler changes it."""
 
-_GOAL_SAMPLES: BoundedCache = BoundedCache('goal samples', 16)
+_GOAL_SAMPLES: BoundedCache = BoundedCache('goal samples', 16, per_task=True)
 """Task hash -> GoalSamples (nodes attack from several executor threads)."""
-_END_SAMPLES: BoundedCache = BoundedCache('goal ends', 16)
+_END_SAMPLES: BoundedCache = BoundedCache('goal ends', 16, per_task=True)
 """Task hash -> the end set, rarest first (``rare_goal_configurations``)."""
 _DISK = {'on': True}
 """Whether the goal sets use the disk cache (off inside :func:`sampled_afresh`)."""

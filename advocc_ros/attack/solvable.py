@@ -197,7 +197,7 @@ class WitnessGuard:
         region.stats['witness_clear'] = int(region.candidates.sum())
 
 
-_BODIES: BoundedCache = BoundedCache('witness bodies', 8)
+_BODIES: BoundedCache = BoundedCache('witness bodies', 8, per_task=True)
 """(robot hash, witness content hash) -> WitnessBodies."""
 
 

@@ -225,7 +225,7 @@ def tube_samples(world: CollisionWorld, states: np.ndarray, n: int, sigma_rad: f
     return Q[~world.collisions_batch(Q, THREADS)] if len(Q) else Q
 
 
-_PASSAGES: BoundedCache = BoundedCache('passage samples', 16)
+_PASSAGES: BoundedCache = BoundedCache('passage samples', 16, per_task=True)
 """task hash (robot, scene, goal, witness states) -> the witness's tight tube."""
 
 

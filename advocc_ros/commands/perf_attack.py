@@ -56,7 +56,8 @@ def _core(heatmap, robot, scene, q, budgets, method, repeats, policy='paper',
     """Core attack times per budget (``options``: the method's ``method_options``)."""
     from advocc_ros.attack import attack
     from advocc_ros.attack.edges import needs_witness, task_witness, witness_ends
-    from advocc_ros.attack.goals import clear_cache, sampled_afresh
+    from advocc_ros.attack.goals import sampled_afresh
+    from advocc_ros.model.cache import clear_task_caches
     from advocc_ros.attack.types import AttackConfig
 
     witness = None  # found once, before the timings (a solvable attack needs them)
@@ -69,7 +70,7 @@ def _core(heatmap, robot, scene, q, budgets, method, repeats, policy='paper',
     for budget in budgets:
         compute, wall, boxes = [], [], 0
         for rep in range(max(repeats, 1)):
-            clear_cache()  # every call is a new task: its goal samples are computed again
+            clear_task_caches()  # every call is a new task: its samples are computed again
             t0 = time.perf_counter()
             with sampled_afresh():
                 res = attack(heatmap, robot, scene.objects, q, scene.goal, budget, method,

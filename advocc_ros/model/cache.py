@@ -24,12 +24,14 @@ class BoundedCache(Generic[V]):
     once, the first value stored is kept and returned to both.
     """
 
-    def __init__(self, name: str, max_entries: int):
+    def __init__(self, name: str, max_entries: int, per_task: bool = False):
         if max_entries < 1:
             raise ValueError(f'cache {name}: max_entries must be >= 1, got {max_entries}')
         self.name, self.max_entries = name, max_entries
         self._entries: collections.OrderedDict[Hashable, V] = collections.OrderedDict()
         self._lock = threading.Lock()
+        if per_task:
+            _PER_TASK.append(self)
 
     def get(self, key: Hashable) -> V | None:
         with self._lock:
@@ -64,4 +66,17 @@ class BoundedCache(Generic[V]):
             return key in self._entries
 
 
-__all__ = ['BoundedCache']
+_PER_TASK: list[BoundedCache] = []
+"""The caches of what an attack on a new task computes again (``per_task``): its goal sets, the
+witness bodies, the passage tube; not the witness searches (``advocc perf attack`` times them
+apart), robot models, link tables or collision worlds."""
+
+
+def clear_task_caches() -> None:
+    """Forget every per-task cache in this process, so that the next attack pays what an attack
+    on a new task pays (``advocc perf attack``'s cold timings)."""
+    for cache in _PER_TASK:
+        cache.clear()
+
+
+__all__ = ['BoundedCache', 'clear_task_caches']
