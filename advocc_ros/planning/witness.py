@@ -63,8 +63,12 @@ START_TOLERANCE_RAD = 1e-9
 """Largest difference [rad] between a witness's first waypoint and the task's start (and
 between its locked values and the robot's)."""
 WITNESS_PLANNER = 'rrtconnect'
-WITNESS_SEED = 0
-"""Seed of the witness search: the witness belongs to the task, not to one attack's seed."""
+WITNESS_SEED = 9_200_001
+"""Seed of the witness search: the witness belongs to the task, not to one attack's seed, and
+its random stream is not a victim's: trial k plans with seed ``seed + k`` (small integers), and
+with the witness at seed 0 trial 0 of every seed-0 run sampled the witness's own goal
+configuration first, the one the boxes must leave free (PRM* solved trial 0 on box and cage and
+2 of the other 228 non-bookshelf trials: docs/results/issue27_hard/prmstar)."""
 WITNESS_TIME_S = 30.0
 """Budget of one witness search [s] (RRTConnect solves the shipped scenes in < 1 s)."""
 WAYPOINT_DECIMALS = 12
