@@ -105,6 +105,8 @@ def test_the_cache_facility_is_bounded_lru_and_keeps_the_first_value():
         t.join()
     assert len(set(got)) == 1 and got[0] == cache.get('d')  # every thread sees the kept value
     assert len(cache) == 2
+    cache.clear()
+    assert len(cache) == 0 and cache.get('a') is None
 
 
 def test_clear_task_caches_forgets_what_a_new_task_computes_again():
@@ -122,8 +124,6 @@ def test_clear_task_caches_forgets_what_a_new_task_computes_again():
     for cache in (goals._GOAL_SAMPLES, goals._END_SAMPLES, task._PASSAGES, solvable._BODIES):
         assert cache in _PER_TASK, cache.name
     assert collision._WORLDS not in _PER_TASK
-    cache.clear()
-    assert len(cache) == 0 and cache.get('a') is None
 
 
 def test_a_collision_world_is_freed_when_dropped(panda, table_scene):
