@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from advocc_ros.attack import goals
+from advocc_ros.model.cache import clear_task_caches
 from advocc_ros.model.collision import CollisionWorld
 from advocc_ros.model.robot import load_robot
 from advocc_ros.model.scene import make_box
@@ -19,9 +20,9 @@ N = 12
 @pytest.fixture
 def task(table_scene, tmp_path, monkeypatch):
     monkeypatch.setenv('ADVOCC_WITNESS_CACHE', str(tmp_path))
-    goals.clear_cache()
+    clear_task_caches()
     yield table_scene, load_robot(table_scene.robot), tmp_path
-    goals.clear_cache()
+    clear_task_caches()
 
 
 def _selection(scene, robot):
@@ -36,7 +37,7 @@ def test_a_goal_set_comes_back_from_disk(task, monkeypatch):
     scene, robot, cache = task
     first = _selection(scene, robot)
     assert len(first) == N and len(list(cache.glob('*.goals.npz'))) == 1
-    goals.clear_cache()
+    clear_task_caches()
     _no_sampling(monkeypatch)
     np.testing.assert_array_equal(_selection(scene, robot), first)
 
@@ -45,7 +46,7 @@ def test_the_rare_ends_come_back_from_disk(task, monkeypatch):
     scene, robot, cache = task
     monkeypatch.setattr(goals, 'END_SAMPLES', N)
     first = goals.rare_goal_configurations(robot, scene.objects, scene.goal, 3)
-    goals.clear_cache()
+    clear_task_caches()
     _no_sampling(monkeypatch)
     again = goals.rare_goal_configurations(robot, scene.objects, scene.goal, 3)
     np.testing.assert_array_equal(again, first)
@@ -62,7 +63,7 @@ def _rewrite(cache, **arrays):
 def test_a_damaged_or_foreign_file_is_sampled_again(task, damage, caplog):
     scene, robot, cache = task
     first = _selection(scene, robot)
-    goals.clear_cache()
+    clear_task_caches()
     Q = first.copy()
     if damage == 'garbage':
         next(cache.glob('*.goals.npz')).write_bytes(b'not an npz file')
@@ -103,10 +104,10 @@ def test_cold_timings_neither_read_nor_write_the_disk(task, monkeypatch):
         first = _selection(scene, robot)
     assert not list(cache.iterdir())
     _selection(scene, robot)  # memory cache: still nothing written
-    goals.clear_cache()
+    clear_task_caches()
     _selection(scene, robot)
     assert len(list(cache.glob('*.goals.npz'))) == 1
-    goals.clear_cache()
+    clear_task_caches()
     calls = []
     monkeypatch.setattr(goals, '_sample_goals',
                         lambda *a: calls.append(1) or first)

@@ -216,17 +216,11 @@ def _write_goals(path: pathlib.Path, Q: np.ndarray) -> None:
         log.warning('goal set cache: cannot write %s (%s)', path, exc)
 
 
-def clear_cache() -> None:
-    """Forget cached goal samples (benchmarks of the cold path call this)."""
-    _GOAL_SAMPLES.clear()
-    _END_SAMPLES.clear()
-
-
 @contextlib.contextmanager
 def sampled_afresh():
     """Within: the goal sets neither read nor write the disk cache, so that with
-    :func:`clear_cache` every attack samples them as for a new task (``advocc perf attack``'s
-    cold timings; not for threads that attack meanwhile)."""
+    ``model.cache.clear_task_caches`` every attack samples them as for a new task (``advocc
+    perf attack``'s cold timings; not for threads that attack meanwhile)."""
     _DISK['on'] = False
     try:
         yield
@@ -253,6 +247,5 @@ class GoalGuard:
         return True
 
 
-__all__ = ['GoalGuard', 'GoalSamples', 'VALIDATION_SAMPLES', 'clear_cache',
-           'goal_samples', 'rare_goal_configurations', 'sampled_afresh',
-           'selection_goal_samples']
+__all__ = ['GoalGuard', 'GoalSamples', 'VALIDATION_SAMPLES', 'goal_samples',
+           'rare_goal_configurations', 'sampled_afresh', 'selection_goal_samples']

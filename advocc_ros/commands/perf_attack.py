@@ -57,8 +57,8 @@ def _core(heatmap, robot, scene, q, budgets, method, repeats, policy='paper',
     from advocc_ros.attack import attack
     from advocc_ros.attack.edges import needs_witness, task_witness, witness_ends
     from advocc_ros.attack.goals import sampled_afresh
-    from advocc_ros.model.cache import clear_task_caches
     from advocc_ros.attack.types import AttackConfig
+    from advocc_ros.model.cache import clear_task_caches
 
     witness = None  # found once, before the timings (a solvable attack needs them)
     if needs_witness(AttackConfig(), policy, certify=False):
