@@ -175,7 +175,7 @@ def _prefix_one_is_the_one_box_attack(audit, scene, heatmap, cfg):
     """The kept draw is judged on all its boxes, so prefix 1 is an attack of its own: the one
     a one-box request places, not the first box of the two-box attack."""
     from advocc_ros.attack import attack
-    from advocc_ros.attack.edges import task_witness, witness_ends
+    from advocc_ros.attack.edges import task_witness, witness_plan
     from advocc_ros.kinematics.ik import start_configuration
     from advocc_ros.model.robot import load_robot
 
@@ -184,7 +184,7 @@ def _prefix_one_is_the_one_box_attack(audit, scene, heatmap, cfg):
     robot = load_robot(scene.robot)
     q_init = start_configuration(scene, robot)
     candidates = task_witness(robot, scene.objects, q_init, scene.goal,
-                              witness_ends('task', 'solvable', cfg.task_options)).candidates
+                              **witness_plan('task', 'solvable', cfg.task_options)).candidates
     one = attack(heatmap, robot, scene.objects, q_init, scene.goal, 1, 'task', seed=cfg.seed,
                  goal_policy='solvable', witness=candidates, method_options=cfg.task_options)
     assert own[0]['boxes'][0]['center_m'] == [round(float(v), 4) for v in one.centers_m[0]]

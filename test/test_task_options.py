@@ -51,7 +51,8 @@ def test_cli_runs_one_draw_when_told(heatmap_file, tmp_path, capsys):
 
     args = _attack_args(heatmap_file, tmp_path, '--method', 'task', '--policy', 'solvable',
                         '--task-option', 'draws=1', '--task-option', 'witness_ends=0',
-                        '--task-option', 'goal_share=0.3', '--json')
+                        '--task-option', 'witness_seeds=1', '--task-option', 'goal_share=0.3',
+                        '--json')
     assert main(args) == 0
     stats = json.loads(capsys.readouterr().out)['stats']
     assert stats['task_draws'] == 1 and stats['task_draw_kept'] == 0
@@ -59,7 +60,7 @@ def test_cli_runs_one_draw_when_told(heatmap_file, tmp_path, capsys):
     assert stats['task_goal_share'] == 0.3
     _, meta = load_obstacles(tmp_path / 'boxes.yaml')
     assert meta['task_options'] == dataclasses.asdict(
-        TaskOptions(draws=1, witness_ends=0, goal_share=0.3))
+        TaskOptions(draws=1, witness_ends=0, witness_seeds=1, goal_share=0.3))
 
 
 @pytest.mark.parametrize('more, words', [

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from advocc_ros.attack import attack
-from advocc_ros.attack.edges import attack_task, task_witness, witness_ends
+from advocc_ros.attack.edges import attack_task, task_witness, witness_plan
 from advocc_ros.attack.goals import (END_SAMPLES, RARITY_NEIGHBOUR, rare_goal_configurations,
                                      selection_goal_samples)
 from advocc_ros.attack.judge import Judged, judge, kept_index
@@ -120,9 +120,10 @@ def test_other_methods_and_policies_use_the_tasks_witness(task):
         result = attack(heatmap, robot, scene.objects, q0, scene.goal, 3, method, seed=1,
                         goal_policy=policy, witness=search.candidates)
         assert result.witness is search.witness and 'task_witnesses' not in result.stats
-    assert witness_ends('random', 'solvable', None) == 0
-    assert witness_ends('task', 'paper', None) == 0
-    assert witness_ends('task', 'solvable', TaskOptions(witness_ends=2)) == 2
+    assert witness_plan('random', 'solvable', None) == {'seeds': 1, 'ends': 0}
+    assert witness_plan('task', 'paper', None) == {'seeds': 1, 'ends': 0}
+    assert witness_plan('task', 'solvable', TaskOptions(witness_ends=2, witness_seeds=4)) == \
+        {'seeds': 4, 'ends': 2}
 
 
 def test_the_task_witness_draws_as_many_as_without_ends(task):
@@ -148,7 +149,7 @@ def test_the_edges_find_the_ends_and_the_attack_keeps_one(task):
     scene, robot, q0, heatmap, search = task
     result = attack_task(heatmap, robot, scene.objects, q0, scene.goal, 4, 'task', seed=0,
                          goal_policy='solvable', method_options=task_options(
-                             {'draws': 2, 'witness_ends': 1}))
+                             {'draws': 2, 'witness_ends': 1, 'witness_seeds': 1}))
     assert result.status.ok and result.solvable.certified, result.message
     assert result.stats['task_witnesses'] == 2 and 'witness_search_ms' in result.stats
     assert result.witness in (search.witness, search.ends[0])
@@ -159,3 +160,63 @@ def test_the_edges_find_the_ends_and_the_attack_keeps_one(task):
 def test_options_refuse_bad_ends_and_end_draws(option, bad):
     with pytest.raises(ValueError, match=option):
         task_options({option: bad})
+
+
+def test_more_searches_give_distinct_certified_witnesses_on_seeds_of_their_own(task):
+    from advocc_ros.planning.witness import (WITNESS_SEED, WITNESS_SEED_STRIDE, WITNESS_TRIES,
+                                             find_witness)
+
+    scene, robot, q0, _, first = task
+    search = task_witness(robot, scene.objects, q0, scene.goal, seeds=3)
+    assert search.witness.content_hash() == first.witness.content_hash()
+    assert search.witness.content_hash() == find_witness(
+        robot, scene.objects, q0, scene.goal).content_hash()
+    hashes = [w.content_hash() for w in (search.witness, *search.others)]
+    assert len(hashes) == len(set(hashes)) == 3  # table_pick: three different straight lines
+    world = CollisionWorld(robot, scene.shapes)
+    for k, witness in enumerate((search.witness, *search.others)):
+        own = WITNESS_SEED + k * WITNESS_SEED_STRIDE
+        assert own <= witness.source['seed'] < own + WITNESS_TRIES
+        assert certify(robot, world, scene.goal, witness, q0).why is None
+    assert search.candidates == (search.witness, *search.others)
+    assert WITNESS_SEED_STRIDE >= WITNESS_TRIES  # no search retries on another's seeds
+
+
+def test_a_path_found_twice_is_one_candidate_and_no_path_ends_the_searches(monkeypatch, task):
+    from advocc_ros.planning import witness as witness_module
+
+    scene, robot, q0, _, search = task
+    seeds = []
+
+    def same_path(robot, objects, q_init, goal, seed):
+        seeds.append(seed)
+        return search.witness
+    monkeypatch.setattr(witness_module, 'find_witness', same_path)
+    assert witness_module.find_witnesses(robot, scene.objects, q0, scene.goal, 3) == \
+        (search.witness,)
+    assert len(seeds) == 3
+    seeds.clear()
+    monkeypatch.setattr(witness_module, 'find_witness',
+                        lambda robot, objects, q_init, goal, seed: seeds.append(seed))
+    assert witness_module.find_witnesses(robot, scene.objects, q0, scene.goal, 3) == ()
+    assert len(seeds) == 1  # the first search found nothing: the others are not started
+
+
+def test_the_attack_keeps_one_of_the_searches_witnesses(task):
+    scene, robot, q0, heatmap, _ = task
+    search = task_witness(robot, scene.objects, q0, scene.goal, seeds=2)
+    result = attack_task(heatmap, robot, scene.objects, q0, scene.goal, 4, 'task', seed=0,
+                         goal_policy='solvable', method_options=task_options(
+                             {'draws': 1, 'witness_ends': 0, 'witness_seeds': 2,
+                              'selection_samples': JUDGE}))
+    assert result.status.ok and result.solvable.certified, result.message
+    assert result.stats['task_witnesses'] == 2
+    assert result.stats['task_witness_draws'] == [1, TaskOptions().end_draws]
+    assert result.witness.content_hash() == \
+        search.candidates[result.stats['task_witness_kept']].content_hash()
+
+
+@pytest.mark.parametrize('bad', [0, 9, 1.5, True])
+def test_options_refuse_bad_witness_seeds(bad):
+    with pytest.raises(ValueError, match='witness_seeds'):
+        task_options({'witness_seeds': bad})

@@ -10,9 +10,11 @@ once per task, by the tool and never by the victim, and reported apart from the 
    a verdict that can say ``certified``: ``planning.witness.find_witness``, one seeded
    RRTConnect run in a fresh planning worker, cached per task in the process and on disk; its
    wall time is ``stats['witness_search_ms']``, never part of ``compute_s``; for ``task``
-   under ``solvable`` also witnesses to ``TaskOptions.witness_ends`` goal configurations the
-   planners rarely sample (``planning.end_witnesses``, one worker, cached alike), one of
-   which the attack may keep (``attack.witness_choice``);
+   under ``solvable`` also the witnesses of ``TaskOptions.witness_seeds - 1`` more searches
+   on seeds of their own (``planning.witness.find_witnesses``) and witnesses to
+   ``TaskOptions.witness_ends`` goal configurations the planners rarely sample
+   (``planning.end_witnesses``, one worker, cached alike), one of which the attack may keep
+   (``attack.witness_choice``);
 3. the core attack, with the witnesses as data.
 
 ``attack_task`` is what ``advocc attack``, ``advocc export`` and the heatmap server's
@@ -38,7 +40,7 @@ from advocc_ros.model.pose import SceneError
 
 @dataclasses.dataclass(frozen=True)
 class WitnessSearch:
-    """The task's witness, the witnesses to rare goal configurations, and what finding them
+    """The task's witnesses, the witnesses to rare goal configurations, and what finding them
     cost."""
 
     witness: Any
@@ -48,41 +50,47 @@ class WitnessSearch:
     ends: tuple = ()
     """Witnesses to the goal configurations planners rarely sample (``planning.end_witnesses``):
     the ``task`` attack under ``solvable`` may keep one of them instead."""
+    others: tuple = ()
+    """Distinct witnesses of further searches on seeds of their own
+    (``planning.witness.find_witnesses``), kept alike."""
 
     @property
     def candidates(self) -> tuple | None:
-        """What ``attack(witness=...)`` takes: the task's witness first, then the ends."""
-        return None if self.witness is None else (self.witness, *self.ends)
+        """What ``attack(witness=...)`` takes: the task's witness first, then the other
+        searches' witnesses, then the ends."""
+        return None if self.witness is None else (self.witness, *self.others, *self.ends)
 
 
 def task_witness(robot: RobotModel, objects, q_init, goal: GoalRegion,
-                 ends: int = 0) -> WitnessSearch:
-    """The witness of the task (see the module docstring) and, when it has one, witnesses to
-    its ``ends`` rarest goal configurations (``attack.goals.rare_goal_configurations``); starts
-    a planning worker unless they are cached."""
+                 ends: int = 0, seeds: int = 1) -> WitnessSearch:
+    """The witness of the task (see the module docstring) and, when it has one, those of
+    ``seeds - 1`` more searches and witnesses to its ``ends`` rarest goal configurations
+    (``attack.goals.rare_goal_configurations``); starts planning workers unless they are
+    cached."""
     from advocc_ros.attack.goals import rare_goal_configurations
     from advocc_ros.planning.end_witnesses import find_end_witnesses
-    from advocc_ros.planning.witness import find_witness
+    from advocc_ros.planning.witness import find_witnesses
 
     t0 = time.perf_counter()
     objects, q_init = tuple(objects), np.asarray(q_init, dtype=float)
-    witness = find_witness(robot, objects, q_init, goal)
+    witness, *others = find_witnesses(robot, objects, q_init, goal, max(seeds, 1)) or (None,)
     found = ()
     if witness is not None and ends > 0:
         found = find_end_witnesses(robot, objects, q_init, goal,
                                    rare_goal_configurations(robot, objects, goal, ends))
-    return WitnessSearch(witness, time.perf_counter() - t0, found)
+    return WitnessSearch(witness, time.perf_counter() - t0, found, tuple(others))
 
 
-def witness_ends(method: str, goal_policy: str, method_options: Any) -> int:
-    """How many rare-end witnesses an attack uses: ``TaskOptions.witness_ends`` for ``task``
-    under ``solvable``, else none."""
+def witness_plan(method: str, goal_policy: str, method_options: Any) -> dict:
+    """The witness searches an attack uses, as ``task_witness``'s keyword arguments:
+    ``TaskOptions.witness_seeds`` and ``witness_ends`` for ``task`` under ``solvable``, else
+    the task's witness alone."""
     from advocc_ros.attack.task import TaskOptions
 
     if method != 'task' or goal_policy != 'solvable':
-        return 0
+        return {'seeds': 1, 'ends': 0}
     opts = method_options if isinstance(method_options, TaskOptions) else TaskOptions()
-    return opts.witness_ends
+    return {'seeds': opts.witness_seeds, 'ends': opts.witness_ends}
 
 
 def needs_witness(cfg: AttackConfig, goal_policy: str | None, certify: bool = True) -> bool:
@@ -106,7 +114,7 @@ def attack_task(heatmap, robot: RobotModel, objects, q_init, goal: GoalRegion, b
         return attack(heatmap, robot, objects, q_init, goal, budget, method, cfg,
                       certify=False, **options)
     search = task_witness(robot, objects, q_init, goal,
-                          witness_ends(method, policy, options.get('method_options')))
+                          **witness_plan(method, policy, options.get('method_options')))
     result = attack(heatmap, robot, objects, q_init, goal, budget, method, cfg,
                     certify=certify, witness=search.candidates, **options)
     stats = dict(result.stats, witness_search_ms=round(search.search_s * 1e3, 3))
@@ -125,4 +133,4 @@ def no_witness_message() -> str:
 
 
 __all__ = ['WitnessSearch', 'attack_task', 'needs_witness', 'no_witness_message',
-           'task_witness', 'witness_ends']
+           'task_witness', 'witness_plan']

@@ -57,10 +57,10 @@ one for RRTConnect and BKPIECE1 (table_pick 0 / 60 / 0 % RRTConnect / PRM* / BKP
 a mean of 43 / 58 / 28 % over the six draws), not for PRM*. On the 20-trial scenes5 bench
 the gain was smaller: mean task PSR at M = 10 ~6 points lower over the five scenes, lower on
 three, not on table_pick (docs/results.md). It costs the compute of 8 draws (table_pick,
-M = 10: 2.2 s against 0.27 s); ``draws=1`` with ``witness_ends=0`` is the fast setting
-(the rare-end witnesses add their own draws: ``attack.witness_choice``). The draw is chosen for the
-requested budget: the first m boxes of the kept draw are a budget-m attack of that draw (the
-audit's prefixes), not necessarily the draw a budget-m request would keep.
+M = 10: 2.2 s against 0.27 s); ``draws=1`` with ``witness_seeds=1`` and ``witness_ends=0`` is
+the fast setting (the other witnesses add their own draws: ``attack.witness_choice``). The draw
+is chosen for the requested budget: the first m boxes of the kept draw are a budget-m attack of
+that draw (the audit's prefixes), not necessarily the draw a budget-m request would keep.
 
 """
 
@@ -127,8 +127,15 @@ class TaskOptions:
     land on, each given a witness by the tool before the attack; the attack keeps the witness
     whose kept draw ``attack.judge`` ranks first (``attack.witness_choice``). 0: the task's
     witness only."""
+    witness_seeds: int = 5
+    """Under the ``solvable`` policy: independent searches for the task's witness, each on a
+    seed of its own (``planning.witness.find_witnesses``); the distinct witnesses are
+    candidates beside the rare ends, kept by the same rule (``attack.witness_choice``). Which
+    witness one search happens to find moved whole scenes in and out of reach (module
+    docstring of ``attack.witness_choice``). 1: the task's witness only."""
     end_draws: int = 2
-    """Draws of each of those witnesses (the task's witness gets ``draws``)."""
+    """Draws of each witness besides the task's own (the other searches' and the rare ends';
+    the task's witness gets ``draws``)."""
     selection_samples: int = 1024
     """Goal configurations drawn the way the planners draw theirs that judge the draws and
     the witnesses (``attack.goals.selection_goal_samples``): the resolution of the choice, at
@@ -148,6 +155,9 @@ class TaskOptions:
 
 MAX_SELECTION_SAMPLES = 16_384
 """Largest ``selection_samples`` accepted: its IK has no time cap, and 16,384 is minutes."""
+MAX_WITNESS_SEEDS = 8
+"""Largest ``witness_seeds`` accepted: a search that finds no path spends its whole budget, so
+many seeds on a hard task would look like a hang."""
 
 _OPTION_VALUES = {
     'goal_samples': (lambda v: v >= 1, 'an integer >= 1'),
@@ -160,6 +170,8 @@ _OPTION_VALUES = {
     'goal_share': (lambda v: 0 <= v < 1, 'a number in [0, 1)'),
     'draws': (lambda v: v >= 1, 'an integer >= 1'),
     'witness_ends': (lambda v: v >= 0, 'an integer >= 0'),
+    'witness_seeds': (lambda v: 1 <= v <= MAX_WITNESS_SEEDS,
+                      f'an integer in [1, {MAX_WITNESS_SEEDS}]'),
     'end_draws': (lambda v: v >= 1, 'an integer >= 1'),
     'selection_samples': (lambda v: 1 <= v <= MAX_SELECTION_SAMPLES,
                           f'an integer in [1, {MAX_SELECTION_SAMPLES}]'),

@@ -3,7 +3,10 @@
 Under the ``solvable`` policy the boxes keep one witness valid, so the witness decides which goal
 configurations stay free: those whose body stays near its last one. The task's own witness ends
 where RRTConnect's goal sampler happened to land first, often in a common IK branch, and
-planners sample that branch often. ``attack.edges`` also hands the attack witnesses to the goal
+planners sample that branch often. ``attack.edges`` also hands the attack the witnesses of
+``TaskOptions.witness_seeds - 1`` more searches on seeds of their own
+(``planning.witness.find_witnesses``: which path one search finds moved whole scenes, cage
+PSR 5 / 5 / 10 % with one witness, 95 / 100 / 95 % with another), and witnesses to the goal
 configurations the planners' goal samplers land on least often
 (``attack.goals.rare_goal_configurations``, ``planning.end_witnesses``). The task's witness
 gets the attack's ``TaskOptions.draws``, each other witness ``end_draws``; the attack keeps the

@@ -142,7 +142,7 @@ def run_audit(scene, heatmap, cfg: AuditConfig = AuditConfig(),
     themselves query none.
     """
     from advocc_ros.attack import AttackConfig
-    from advocc_ros.attack.edges import task_witness, witness_ends
+    from advocc_ros.attack.edges import task_witness, witness_plan
     from advocc_ros.attack.methods import REGISTRY
     from advocc_ros.model.task_check import require_valid_task
     from advocc_ros.evaluation.perf import machine
@@ -159,7 +159,7 @@ def run_audit(scene, heatmap, cfg: AuditConfig = AuditConfig(),
     q_init = start_configuration(scene, robot)
     require_valid_task(robot, scene.objects, q_init, scene.goal)
     search = task_witness(robot, scene.objects, q_init, scene.goal,
-                          witness_ends(cfg.method, cfg.policy, cfg.task_options))
+                          **witness_plan(cfg.method, cfg.policy, cfg.task_options))
     candidates = _Task(scene, robot, q_init, search.candidates)
     result = _attack(candidates, heatmap, cfg, cfg.policy, attack_cfg)
     task = dataclasses.replace(candidates, witness=result.witness)  # the one the attack kept

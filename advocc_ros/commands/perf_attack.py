@@ -55,7 +55,7 @@ def _core(heatmap, robot, scene, q, budgets, method, repeats, policy='paper',
           options=None) -> dict:
     """Core attack times per budget (``options``: the method's ``method_options``)."""
     from advocc_ros.attack import attack
-    from advocc_ros.attack.edges import needs_witness, task_witness, witness_ends
+    from advocc_ros.attack.edges import needs_witness, task_witness, witness_plan
     from advocc_ros.attack.goals import sampled_afresh
     from advocc_ros.attack.types import AttackConfig
     from advocc_ros.model.cache import clear_task_caches
@@ -63,7 +63,7 @@ def _core(heatmap, robot, scene, q, budgets, method, repeats, policy='paper',
     witness = None  # found once, before the timings (a solvable attack needs them)
     if needs_witness(AttackConfig(), policy, certify=False):
         witness = task_witness(robot, scene.objects, q, scene.goal,
-                               witness_ends(method, policy, options)).candidates
+                               **witness_plan(method, policy, options)).candidates
     attack(heatmap, robot, scene.objects, q, scene.goal, budgets[0], method,
            goal_policy=policy, witness=witness, method_options=options)  # models, JIT
     out = {}

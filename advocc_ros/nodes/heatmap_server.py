@@ -102,7 +102,9 @@ _TASK_DOC = {
              '(1: fast, one draw)',
     'witness_ends': 'solvable: witnesses to rarely sampled goal configurations the attack may '
                     'keep instead of the task\'s (0: the task\'s only)',
-    'end_draws': 'solvable: draws of each of those witnesses',
+    'witness_seeds': 'solvable: independent searches for the task\'s witness, each witness '
+                     'a candidate (1: the first search only)',
+    'end_draws': 'solvable: draws of each witness besides the task\'s own',
     'selection_samples': 'solvable: goal configurations that judge the draws and witnesses',
     'passage_samples': 'solvable: tube configurations that score the passage (0: goals only)',
 }

@@ -70,6 +70,9 @@ with the witness at seed 0 trial 0 of every seed-0 run sampled the witness's own
 configuration first, the one the boxes must leave free (in the seed-0 task runs of
 docs/results/issue27_hard/scenes5_judge_t20, trial 0 was solved in 2 of the 12 non-bookshelf
 cells, PRM* on box and cage; the other 228 trials 5 times)."""
+WITNESS_SEED_STRIDE = 1000
+"""Seeds between two independent searches of one task (``find_witnesses``): search k starts at
+``WITNESS_SEED + k * WITNESS_SEED_STRIDE``, so its retries never meet another search's seeds."""
 WITNESS_TIME_S = 30.0
 """Budget of one witness search [s] (RRTConnect solves the shipped scenes in < 1 s)."""
 WAYPOINT_DECIMALS = 12
@@ -279,6 +282,25 @@ def find_witness(robot: RobotModel, objects: tuple[SceneObject, ...] | list,
     return WITNESSES.put(key, witness)
 
 
+def find_witnesses(robot: RobotModel, objects: tuple[SceneObject, ...] | list,
+                   q_init: np.ndarray, goal: GoalRegion, searches: int) -> tuple[Witness, ...]:
+    """The distinct witnesses of ``searches`` independent searches of the task (search k:
+    ``find_witness`` at ``WITNESS_SEED + k * WITNESS_SEED_STRIDE``), in search order; search 0
+    is the task's witness. A search that finds nothing is left out, and so is a path found
+    before (RRTConnect's simplified path is often the same straight line); when search 0 finds
+    nothing, none is tried after it (the others would spend their whole budgets too)."""
+    found: list[Witness] = []
+    for k in range(searches):
+        witness = find_witness(robot, objects, q_init, goal,
+                               WITNESS_SEED + k * WITNESS_SEED_STRIDE)
+        if witness is None and k == 0:
+            return ()
+        if witness is not None and \
+                witness.content_hash() not in {w.content_hash() for w in found}:
+            found.append(witness)
+    return tuple(found)
+
+
 def _search_certified(robot: RobotModel, world: CollisionWorld,
                       objects: tuple[SceneObject, ...], q_init: np.ndarray, goal: GoalRegion,
                       seed: int, time_s: float) -> Witness | None:
@@ -350,5 +372,5 @@ def _to_disk(path: pathlib.Path, witness: Witness) -> None:
 
 
 __all__ = ['CACHE_ENV', 'WITNESS_STEP_RAD', 'Certified', 'Witness', 'certify', 'find_witness',
-           'load_witness', 'object_shape_names', 'save_witness', 'witness_cache_dir',
-           'witness_file', 'witness_states']
+           'find_witnesses', 'load_witness', 'object_shape_names', 'save_witness',
+           'witness_cache_dir', 'witness_file', 'witness_states']
