@@ -286,19 +286,18 @@ def find_witnesses(robot: RobotModel, objects: tuple[SceneObject, ...] | list,
                    q_init: np.ndarray, goal: GoalRegion, searches: int) -> tuple[Witness, ...]:
     """The distinct witnesses of ``searches`` independent searches of the task (search k:
     ``find_witness`` at ``WITNESS_SEED + k * WITNESS_SEED_STRIDE``), in search order; search 0
-    is the task's witness. A search that finds nothing is left out, and so is a path found
-    before (RRTConnect's simplified path is often the same straight line); when search 0 finds
-    nothing, none is tried after it (the others would spend their whole budgets too)."""
-    found: list[Witness] = []
+    is the task's witness. A search that finds nothing is left out, and so is a path an earlier
+    search found (two seeds may end in the same simplified path); when search 0 finds nothing,
+    none is tried after it (the others would spend their whole budgets too)."""
+    found: dict[str, Witness] = {}
     for k in range(searches):
         witness = find_witness(robot, objects, q_init, goal,
                                WITNESS_SEED + k * WITNESS_SEED_STRIDE)
         if witness is None and k == 0:
             return ()
-        if witness is not None and \
-                witness.content_hash() not in {w.content_hash() for w in found}:
-            found.append(witness)
-    return tuple(found)
+        if witness is not None:
+            found.setdefault(witness.content_hash(), witness)
+    return tuple(found.values())
 
 
 def _search_certified(robot: RobotModel, world: CollisionWorld,
