@@ -1,0 +1,68 @@
+"""Scratch: how far can ANY set of admissible boxes narrow a task? (planner-free)
+
+Per scene (seed-0 heatmap), on the attack's own lattice relation (``cover_matrix``: a box
+covers a configuration when a voxel centre inside the robot lies in the box's voxel cube):
+
+- c3: the candidate centres C1-C3 admit (``search_region``, the paper's region);
+- per witness candidate of the default attack (task's witness + 4 more searches + 3 rare
+  ends, the ones ``attack_task`` would hand the attack): the same candidates after the
+  ``solvable`` guard of that witness (``WitnessGuard.prune``).
+
+For each: of the 1,024 selection goal configurations (drawn like the planners' goal samplers)
+and of the 4,096 tight-tube configurations around the witness (``passage_samples``), the
+fraction NO admissible box touches, whatever the budget: a floor under ``goal valid`` and
+``passage free`` for every attack under these constraints.
+"""
+import json
+import sys
+import time
+
+import numpy as np
+
+from advocc_ros.attack.configurations import cover_matrix
+from advocc_ros.attack.edges import task_witness
+from advocc_ros.attack.goals import selection_goal_samples
+from advocc_ros.attack.region import search_region
+from advocc_ros.attack.solvable import WitnessGuard, witness_bodies
+from advocc_ros.attack.task import TaskOptions, passage_samples
+from advocc_ros.attack.types import AttackConfig
+from advocc_ros.heatmap.store import load_heatmap
+from advocc_ros.kinematics.ik import start_configuration
+from advocc_ros.model.collision import shared_world
+from advocc_ros.model.robot import load_robot
+from advocc_ros.model.scene import load_scene
+
+
+def untouched(robot, world, Q, region):
+    cover = cover_matrix(robot, world, Q, region)
+    return float(np.mean(cover.getnnz(axis=1) == 0)) if len(Q) else None
+
+
+opts = TaskOptions()
+cfg = AttackConfig()
+for name in sys.argv[1].split(','):
+    t0 = time.perf_counter()
+    scene = load_scene(f'config/scenes/{name}.yaml')
+    robot = load_robot(scene.robot)
+    q0 = start_configuration(scene, robot)
+    hm = load_heatmap(f'/tmp/s37/heatmaps/{name}_s0.npz')
+    objects = tuple(scene.objects)
+    world = shared_world(robot, [sh for o in objects for sh in o.shapes])
+    goals = selection_goal_samples(robot, objects, scene.goal, opts.selection_samples)
+    region = search_region(hm, robot, objects, q0, scene.goal, cfg)
+    row = {'scene': name, 'candidates_c3': int(region.candidates.sum()),
+           'goals': len(goals.Q), 'goal_untouchable_c3': untouched(robot, world, goals.Q, region)}
+    search = task_witness(robot, objects, q0, scene.goal, ends=opts.witness_ends,
+                          seeds=opts.witness_seeds)
+    rows = []
+    for i, w in enumerate(search.candidates or ()):
+        r = search_region(hm, robot, objects, q0, scene.goal, cfg)
+        bodies = witness_bodies(robot, world, w)
+        WitnessGuard(bodies, r.box_size_m).prune(r, hm.lut_pitch_m)
+        tube = passage_samples(robot, objects, scene.goal, bodies.states, opts.passage_samples)
+        rows.append({'witness': i, 'candidates': int(r.candidates.sum()),
+                     'goal_untouchable': untouched(robot, world, goals.Q, r),
+                     'passage_untouchable': untouched(robot, world, tube.Q, r)})
+    row['witnesses'] = rows
+    row['s'] = round(time.perf_counter() - t0, 1)
+    print(json.dumps(row), flush=True)
