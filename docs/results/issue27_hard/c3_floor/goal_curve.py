@@ -1,11 +1,14 @@
 """Scratch: how many admissible boxes does it take to cover the goal set alone? (planner-free)
 
-Per scene and witness (argv: scenes, witness indices of ``attack_task``'s candidates), greedy
+Per scene and witness (argv: scenes, witness indices of ``attack_task``'s candidates, and
+optionally ``POS,ROT``: the goal region's position half-extents [m] and orientation tolerances
+[rad] on every axis instead of the scene's), greedy
 maximum coverage of the 1,024 selection goal configurations only (uniform weights, lattice
 relation, d_min, the exact C1-C3 checks and the witness guard on every pick): goal
 configurations left untouched after m = 1..20 boxes. An optimistic bound for the goal term of
 the attack (it covers the very set that judges it), against what the attack keeps.
 """
+import dataclasses
 import json
 import sys
 
@@ -27,6 +30,10 @@ from advocc_ros.model.scene import load_scene
 opts, cfg = TaskOptions(), AttackConfig()
 for name in sys.argv[1].split(','):
     scene = load_scene(f'config/scenes/{name}.yaml')
+    if len(sys.argv) > 3:
+        pos, rot = map(float, sys.argv[3].split(','))
+        scene = dataclasses.replace(scene, goal=dataclasses.replace(
+            scene.goal, position_tolerance_m=(pos,) * 3, orientation_tolerance_rad=(rot,) * 3))
     robot = load_robot(scene.robot)
     q0 = start_configuration(scene, robot)
     hm = load_heatmap(f'/tmp/s37/heatmaps/{name}_s0.npz')
@@ -51,5 +58,6 @@ for name in sys.argv[1].split(','):
             covered[cols.indices[cols.indptr[j]:cols.indptr[j + 1]]] = True
             left.append(int((~covered).sum()))
         exact = goals.valid_mask(region.center_m(cand[picks[:10]]), region.box_size_m).sum()
-        print(json.dumps({'scene': name, 'witness': i, 'left_lattice_m1_20': left,
+        print(json.dumps({'scene': name, 'tolerance': sys.argv[3] if len(sys.argv) > 3 else None,
+                          'goals': len(goals.Q), 'witness': i, 'left_lattice_m1_20': left,
                           'left_exact_m10': int(exact)}), flush=True)
