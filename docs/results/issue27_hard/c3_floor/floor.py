@@ -20,17 +20,11 @@ import time
 import numpy as np
 
 from advocc_ros.attack.configurations import cover_matrix
-from advocc_ros.attack.edges import task_witness
-from advocc_ros.attack.goals import selection_goal_samples
 from advocc_ros.attack.region import search_region
 from advocc_ros.attack.solvable import WitnessGuard, witness_bodies
-from advocc_ros.attack.task import TaskOptions, passage_samples
+from advocc_ros.attack.task import passage_samples
 from advocc_ros.attack.types import AttackConfig
-from advocc_ros.heatmap.store import load_heatmap
-from advocc_ros.kinematics.ik import start_configuration
-from advocc_ros.model.collision import shared_world
-from advocc_ros.model.robot import load_robot
-from advocc_ros.model.scene import load_scene
+from task_setup import OPTIONS, load_task
 
 
 def untouched(robot, world, Q, region):
@@ -38,30 +32,23 @@ def untouched(robot, world, Q, region):
     return float(np.mean(cover.getnnz(axis=1) == 0)) if len(Q) else None
 
 
-opts = TaskOptions()
 cfg = AttackConfig()
 for name in sys.argv[1].split(','):
     t0 = time.perf_counter()
-    scene = load_scene(f'config/scenes/{name}.yaml')
-    robot = load_robot(scene.robot)
-    q0 = start_configuration(scene, robot)
-    hm = load_heatmap(f'/tmp/s37/heatmaps/{name}_s0.npz')
-    objects = tuple(scene.objects)
-    world = shared_world(robot, [sh for o in objects for sh in o.shapes])
-    goals = selection_goal_samples(robot, objects, scene.goal, opts.selection_samples)
-    region = search_region(hm, robot, objects, q0, scene.goal, cfg)
+    t = load_task(name)
+    robot, world, hm = t.robot, t.world, t.heatmap
+    region = search_region(hm, robot, t.objects, t.q0, t.goal, cfg)
     row = {'scene': name, 'candidates_c3': int(region.candidates.sum()),
-           'goals': len(goals.Q), 'goal_untouchable_c3': untouched(robot, world, goals.Q, region)}
-    search = task_witness(robot, objects, q0, scene.goal, ends=opts.witness_ends,
-                          seeds=opts.witness_seeds)
+           'goals': len(t.goals.Q),
+           'goal_untouchable_c3': untouched(robot, world, t.goals.Q, region)}
     rows = []
-    for i, w in enumerate(search.candidates or ()):
-        r = search_region(hm, robot, objects, q0, scene.goal, cfg)
+    for i, w in enumerate(t.witnesses):
+        r = search_region(hm, robot, t.objects, t.q0, t.goal, cfg)
         bodies = witness_bodies(robot, world, w)
         WitnessGuard(bodies, r.box_size_m).prune(r, hm.lut_pitch_m)
-        tube = passage_samples(robot, objects, scene.goal, bodies.states, opts.passage_samples)
+        tube = passage_samples(robot, t.objects, t.goal, bodies.states, OPTIONS.passage_samples)
         rows.append({'witness': i, 'candidates': int(r.candidates.sum()),
-                     'goal_untouchable': untouched(robot, world, goals.Q, r),
+                     'goal_untouchable': untouched(robot, world, t.goals.Q, r),
                      'passage_untouchable': untouched(robot, world, tube.Q, r)})
     row['witnesses'] = rows
     row['s'] = round(time.perf_counter() - t0, 1)
