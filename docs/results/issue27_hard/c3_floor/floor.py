@@ -1,4 +1,4 @@
-"""Scratch: how far can ANY set of admissible boxes narrow a task? (planner-free)
+"""Scratch: how far can ANY set of admissible boxes narrow a task? (no victim planner)
 
 Per scene (seed-0 heatmap), on the attack's own lattice relation (``cover_matrix``: a box
 covers a configuration when a voxel centre inside the robot lies in the box's voxel cube):

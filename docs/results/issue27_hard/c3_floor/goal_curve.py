@@ -1,4 +1,4 @@
-"""Scratch: how many admissible boxes does it take to cover the goal set alone? (planner-free)
+"""Scratch: how many admissible boxes does it take to cover the goal set alone? (no victim planner)
 
 Per scene and witness (argv: scenes, witness indices of ``attack_task``'s candidates, and
 optionally ``POS,ROT``: the goal region's position half-extents [m] and orientation tolerances

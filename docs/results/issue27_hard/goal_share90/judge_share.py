@@ -1,7 +1,8 @@
-"""Scratch: would the judge pick the better goal share per scene? (planner-free)
+"""Scratch: would the judge pick the better goal share per scene? (no victim planner)
 
 The seed-0, M = 10 attack at goal_share 0.5 and 0.9 per scene; the kept candidate's judge
-scores (selection goals left valid of 1,024, passage free), to compare with the measured PSRs.
+scores (selection goals left valid of 1,024, passage free), to compare with the measured PSRs. The only planner runs are the attack's own witness
+searches (cached on disk from the benches).
 """
 import json
 import sys
