@@ -121,8 +121,8 @@ def selection_goal_samples(robot: RobotModel, objects: tuple[SceneObject, ...],
                            goal: GoalRegion, n: int) -> GoalSamples:
     """Up to ``n`` valid goal configurations drawn the way the planners draw theirs (random-seed
     IK, ``GoalSampler``; not ``goal_set``'s walks, which stay near a few IK branches), from a
-    fixed seed and at most ``SELECTION_ATTEMPTS * n`` attempts; cached per task (~4-16 s for
-    1024 on the Panda scenes)."""
+    fixed seed and at most ``SELECTION_ATTEMPTS * n`` attempts; cached per task (~4-16 s per
+    1,024 on the Panda scenes)."""
     key = task_hash(robot.hash, objects, goal, n, 'selection')
     cached = _GOAL_SAMPLES.get(key)
     if cached is not None:
