@@ -51,11 +51,11 @@ passage around the witness. The goals are a fixed set drawn the way the planners
 ``selection_samples``: with 256 most draws tied at 0-3 valid, and on table_pick the kept attack
 left 18 of 4,096 held-out goal configurations valid against 7 with 1,024; 20 trials, M = 10:
 PSR 25 / 10 / 35 -> 5 / 5 / 0 %, box 5 / 25 / 0 -> 20 / 50 / 5 %. With 1,024, 0 and 3 valid
-still tie, yet a planner's goal sampler, ~230 converged IK solutions per trial, misses a 0.3 %
-sliver about a third of the time and a 0.05 % one nearly always: with 4,096, table_pick's
-seed-0 attack changed and "goal not sampled" went from 1 to 18 of 20 trials, PSR 25 / 5 / 15
--> 10 / 10 / 5 %; the four other scenes and table_pick at two other seeds kept the same boxes;
-docs/results/issue27_hard/select4096).
+still tie, yet the planners' goal sampler (~230 converged IK solutions in 470 attempts) found no
+valid goal in 5 of 20 trials on the 3-valid attack's 0.6 % sliver and in 19 of 20 on the
+0-valid one's 0.02 %: with 4,096, table_pick's seed-0 attack changed and "goal not sampled"
+went from 1 to 18 of 20 trials, PSR 25 / 5 / 15 -> 10 / 10 / 5 %; the four other scenes and
+table_pick at two other seeds kept the same boxes; docs/results/issue27_hard/select4096).
 Measured before it was built (10 trials x 5 s, M = 10, six seeds per scene): on table_pick, box,
 bookshelf and table_under_pick the draw with the fewest valid goals was the best or near-best
 one for RRTConnect and BKPIECE1 (table_pick 0 / 60 / 0 % RRTConnect / PRM* / BKPIECE1, against
