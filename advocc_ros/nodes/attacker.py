@@ -60,8 +60,8 @@ PARAMETERS = (
     Param('goal_policy', '', "goal policy of the requests; '': the server's default",
           constraints=f"one of {list(POLICIES)} or ''"),
     Param('timeout_s', 180.0, 'a request without answer after this is dropped [s] (the first '
-          "solvable attack of a task includes its witness searches and judging goal set, "
-          "up to ~90 s)", low=0.0, high=3600.0),
+          "solvable attack of a task includes its witness searches and judging goal set: "
+          "69 s measured with the witnesses cached)", low=0.0, high=3600.0),
     Param('bag', '', "a .mcap file each attack is recorded to as a ROS 2 bag ('': none)"),
     *CLOUD_PARAMETERS)
 """The attacker's parameters: what ``config/attacker.yaml`` sets, with their descriptors."""
