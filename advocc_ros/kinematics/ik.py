@@ -36,6 +36,16 @@ class IkConfig:
     """DLS damping (lambda^2)."""
 
 
+@dataclasses.dataclass(frozen=True)
+class IkJob:
+    """One goal-sampling attempt after its random draws: where DLS starts and what it aims at."""
+
+    q_start: np.ndarray
+    T_base_link_target: np.ndarray | None
+    """4x4 homogeneous target of the link frame; None when ``q_start`` is already in the region."""
+    iterations: int
+
+
 def dls_ik(robot: RobotModel, data, frame_id: int, q: np.ndarray, T_target: pin.SE3,
            iterations: int, damping: float, reached: Callable[[pin.SE3, np.ndarray], bool],
            gain: float = 1.0, max_step: float | None = None, log_jacobian: bool = False
@@ -124,6 +134,8 @@ class GoalSampler:
 
     walk_rad = 0.3
     walk_iterations = 12
+    max_step_rad = 0.5
+    """Largest DLS step (joint-space norm): full steps from a random seed overshoot."""
 
     def __init__(self, robot: RobotModel, in_collision, goal: GoalRegion,
                  rng: np.random.Generator, config=IkConfig()):
@@ -158,29 +170,39 @@ class GoalSampler:
     def attempt(self) -> np.ndarray | None:
         """One IK attempt (a seed, a walk near one, or random-seed IK); a valid goal
         configuration or None."""
+        return self.accept(self.solve(self.draw()))
+
+    def draw(self) -> IkJob:
+        """The next attempt's random draws (the only part that uses ``self.rng``), so its DLS
+        can run elsewhere while the attempts still follow one seeded stream."""
         self.attempts += 1
         k, n = self.attempts - 1, len(self.seeds)
         if k < n:
             q = self.seeds[k]
-            if self.region_distance(q) > 0.0:
-                q = self.pull(q, self.config.ik_iterations)
-            reached = q is not None
-        elif n and (k - n) % 2 == 0:
-            q = self.pull(self.seeds[int(self.rng.integers(n))]
-                          + self.rng.normal(0.0, self.walk_rad, self.robot.nq),
-                          self.walk_iterations)
-            reached = q is not None
-        else:
-            T_target_tool = self.T_center * pin.SE3(
-                pin.exp3(self.rng.uniform(-self.tol_r, self.tol_r)),
-                self.rng.uniform(-self.tol_p, self.tol_p))
-            T_target = T_target_tool * self.T_tool_link
-            q = self.rng.uniform(self.robot.lower, self.robot.upper)
-            q, reached = dls_ik(self.robot, self.data, self.frame, q, T_target,
-                                self.config.ik_iterations, self.config.ik_damping,
-                                lambda T, err: self.goal.contains(T * self.T_link_tool),
-                                max_step=0.5)
-        if not reached:
+            if self.region_distance(q) == 0.0:
+                return IkJob(q, None, 0)
+            return self._pull_job(q, self.config.ik_iterations)
+        if n and (k - n) % 2 == 0:
+            return self._pull_job(self.seeds[int(self.rng.integers(n))]
+                                  + self.rng.normal(0.0, self.walk_rad, self.robot.nq),
+                                  self.walk_iterations)
+        T_target = self._random_target()
+        q = self.rng.uniform(self.robot.lower, self.robot.upper)
+        return IkJob(q, T_target.homogeneous, self.config.ik_iterations)
+
+    def solve(self, job: IkJob) -> np.ndarray | None:
+        """The job's DLS: a configuration inside the region, or None. No collision check."""
+        if job.T_base_link_target is None:
+            return job.q_start
+        q, reached = dls_ik(self.robot, self.data, self.frame, job.q_start,
+                            pin.SE3(job.T_base_link_target), job.iterations,
+                            self.config.ik_damping, self._tool_in_region,
+                            max_step=self.max_step_rad)
+        return q if reached else None
+
+    def accept(self, q: np.ndarray | None) -> np.ndarray | None:
+        """``q`` if it is a collision-free solution (counted), else None."""
+        if q is None:
             return None
         self.converged += 1
         if self.in_collision(q):
@@ -191,15 +213,21 @@ class GoalSampler:
     def pull(self, q: np.ndarray, iterations: int) -> np.ndarray | None:
         """``q`` (clipped into the limits) pulled into the region by at most ``iterations``
         DLS steps toward a random pose of the region, or None. No collision check."""
-        T_target = self.T_center * pin.SE3(
+        return self.solve(self._pull_job(q, iterations))
+
+    def _pull_job(self, q: np.ndarray, iterations: int) -> IkJob:
+        T_target = self._random_target()
+        return IkJob(np.clip(q, self.robot.lower, self.robot.upper), T_target.homogeneous,
+                     iterations)
+
+    def _random_target(self) -> pin.SE3:
+        """T_base_link of a tool pose drawn uniformly in the region's box."""
+        return self.T_center * pin.SE3(
             pin.exp3(self.rng.uniform(-self.tol_r, self.tol_r)),
             self.rng.uniform(-self.tol_p, self.tol_p)) * self.T_tool_link
-        q, reached = dls_ik(self.robot, self.data, self.frame,
-                            np.clip(q, self.robot.lower, self.robot.upper), T_target,
-                            iterations, self.config.ik_damping,
-                            lambda T, err: self.goal.contains(T * self.T_link_tool),
-                            max_step=0.5)
-        return q if reached else None
+
+    def _tool_in_region(self, T_base_link: pin.SE3, err: np.ndarray) -> bool:
+        return self.goal.contains(T_base_link * self.T_link_tool)
 
     def sample(self, n: int, deadline: float) -> list[np.ndarray]:
         """Up to ``n`` valid goal configurations found before ``deadline`` (monotonic time).
@@ -288,5 +316,5 @@ def start_configuration(scene: Scene, robot: RobotModel) -> np.ndarray:
                               f'{scene.name}.start')
 
 
-__all__ = ['GOAL_SET_CAP_S', 'GoalSampler', 'IkConfig', 'dls_ik', 'goal_configuration', 'goal_set',
-           'seed_configurations', 'start_configuration']
+__all__ = ['GOAL_SET_CAP_S', 'GoalSampler', 'IkConfig', 'IkJob', 'dls_ik', 'goal_configuration',
+           'goal_set', 'seed_configurations', 'start_configuration']
