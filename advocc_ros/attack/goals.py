@@ -19,9 +19,10 @@ chooses among the ``task`` attack's draws; the validation set is kept apart from
 ``goal_valid_fraction`` is not the number the attack optimized. A third set, drawn alike from
 its own seed, names the goal configurations the planners sample least often
 (``rare_goal_configurations``): the ends of the extra witnesses the ``task`` attack may keep.
-These two sets cost seconds of IK per task, so they are also kept on disk beside the witnesses
-(``planning.witness.witness_cache_dir``); a file is used only when every configuration in it is
-still a valid goal configuration of the task.
+These two sets cost seconds of IK per task (the selection set's runs in worker processes,
+``kinematics.goal_workers``, with the same result), so they are also kept on disk beside the
+witnesses (``planning.witness.witness_cache_dir``); a file is used only when every
+configuration in it is still a valid goal configuration of the task.
 """
 
 from __future__ import annotations
@@ -31,11 +32,13 @@ import dataclasses
 import logging
 import pathlib
 import zipfile
+from concurrent.futures.process import BrokenProcessPool
 
 import numpy as np
 
 from advocc_ros.attack.bodies import LinkBoxes
 from advocc_ros.model.collision import CollisionWorld
+from advocc_ros.kinematics.goal_workers import default_workers, sample_goal_configurations
 from advocc_ros.kinematics.ik import GoalSampler, IkConfig, goal_set
 from advocc_ros.model.cache import BoundedCache
 from advocc_ros.model.robot import RobotModel
@@ -55,6 +58,8 @@ not the validation set, so ``goal_valid_fraction`` stays an independent diagnost
 SELECTION_ATTEMPTS = 16
 """IK attempts per wanted sample the selection and end sets may spend (an iteration budget: the
 same set on any machine)."""
+PARALLEL_MIN_SAMPLES = 256
+"""Goal sets this large run their IK in worker processes (~4-16 ms per sample in one)."""
 END_SEED = 7_345_003
 """Seed of the goal samples among which ``rare_goal_configurations`` picks witness ends."""
 END_SAMPLES = 256
@@ -121,8 +126,8 @@ def selection_goal_samples(robot: RobotModel, objects: tuple[SceneObject, ...],
                            goal: GoalRegion, n: int) -> GoalSamples:
     """Up to ``n`` valid goal configurations drawn the way the planners draw theirs (random-seed
     IK, ``GoalSampler``; not ``goal_set``'s walks, which stay near a few IK branches), from a
-    fixed seed and at most ``SELECTION_ATTEMPTS * n`` attempts; cached per task (~4-16 s per
-    1,024 on the Panda scenes)."""
+    fixed seed and at most ``SELECTION_ATTEMPTS * n`` attempts; cached per task (~4-16 s of
+    IK per 1,024 on the Panda scenes, shared by the worker processes)."""
     key = task_hash(robot.hash, objects, goal, n, 'selection')
     cached = _GOAL_SAMPLES.get(key)
     if cached is not None:
@@ -174,13 +179,18 @@ def _planner_like_goals(robot: RobotModel, world: CollisionWorld, objects, goal:
 
 def _sample_goals(robot: RobotModel, world: CollisionWorld, goal: GoalRegion, n: int,
                   seed: int) -> np.ndarray:
-    sampler = GoalSampler(robot, world.in_collision, goal, np.random.default_rng(seed),
-                          IkConfig())
-    found = []
-    while len(found) < n and sampler.attempts < SELECTION_ATTEMPTS * n:
-        q = sampler.attempt()
-        if q is not None:
-            found.append(q)
+    """The IK in worker processes from ``PARALLEL_MIN_SAMPLES`` on (same set either way)."""
+    def sampler() -> GoalSampler:
+        return GoalSampler(robot, world.in_collision, goal, np.random.default_rng(seed),
+                           IkConfig())
+
+    workers = default_workers() if n >= PARALLEL_MIN_SAMPLES else 1
+    try:
+        found = sample_goal_configurations(sampler(), n, SELECTION_ATTEMPTS * n, workers)
+    except (OSError, BrokenProcessPool) as exc:
+        log.warning('goal sampling: worker processes failed (%s): sampling in this process',
+                    exc)
+        found = sample_goal_configurations(sampler(), n, SELECTION_ATTEMPTS * n, 1)
     return np.array(found).reshape(-1, robot.nq)
 
 
