@@ -162,6 +162,7 @@ def test_bench_takes_victims_by_name():
         BenchConfig(planners=('rrtconnect', 'mplib'), methods=('task', 'pfa++'))
 
 
+@pytest.mark.processes
 def test_mplib_sees_our_shapes_where_we_do(mplib, task, panda, table_scene):
     """Rotated boxes, a lying cylinder, a sphere and a mesh arrive in MPlib's world where they
     are in ours: over random configurations, MPlib's verdicts differ from ours only within a

@@ -94,6 +94,7 @@ def test_blank_and_remote_detectors_can_fail(tmp_path):
     assert remote_references('<a href="#top"><img src="data:image/png;base64,AA">') == []
 
 
+@pytest.mark.processes
 def test_remote_request_seen_in_chromium(tmp_path):
     """The request log catches a page that loads from the network (the check can fail)."""
     needs_chromium()
