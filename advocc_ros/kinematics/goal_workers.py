@@ -8,7 +8,8 @@ about 1/N of the time: the 4,096 goal configurations that judge a ``solvable`` a
 
 The workers are forked, as the heatmap build's are: they inherit the sampler (no robot to
 load again) and, unlike spawned ones, never re-run the caller's ``__main__``. A forked child
-runs only pinocchio and numpy here, none of the parent's ROS threads' code.
+runs only pinocchio's kinematics and numpy here: no ROS code, and no OpenMP region (the batched
+collision checks use OpenMP, which is not fork-safe), so the collision check stays in the parent.
 """
 
 from __future__ import annotations
