@@ -64,9 +64,27 @@ def test_workers_that_cannot_start_leave_the_set_to_one_process(task, monkeypatc
 
     monkeypatch.setattr(goals, 'PARALLEL_MIN_SAMPLES', 4)
     monkeypatch.setattr(goal_workers.concurrent.futures, 'ProcessPoolExecutor', broken)
-    monkeypatch.setattr(goals, 'default_workers', lambda: 2)
-    got = goals._sample_goals(robot, world, goal, 6, goals.SELECTION_SEED)
-    monkeypatch.setattr(goals, 'PARALLEL_MIN_SAMPLES', 10_000)
+    got = goals._sample_goals(robot, world, goal, 6, goals.SELECTION_SEED, workers=2)
     np.testing.assert_array_equal(got, goals._sample_goals(robot, world, goal, 6,
                                                            goals.SELECTION_SEED))
     assert 'worker processes failed (no processes here)' in caplog.text
+
+
+def test_the_edges_sample_the_judging_sets_the_core_then_reads(task, table_scene,
+                                                               monkeypatch):
+    """``judge_goal_sets`` (the edges, workers) leaves the sets the core asks for cached:
+    the core samples nothing and starts no process."""
+    from advocc_ros.attack.edges import judge_goal_sets
+    from advocc_ros.model.cache import clear_task_caches
+
+    robot, _, goal = task
+    objects = table_scene.objects
+    monkeypatch.setattr(goals, 'PARALLEL_MIN_SAMPLES', 8)
+    monkeypatch.setattr(goals, 'END_SAMPLES', 16)
+    clear_task_caches()
+    with goals.sampled_afresh():
+        assert judge_goal_sets(robot, objects, goal, 24, ends=2) > 0.0
+        monkeypatch.setattr(goals, '_sample_goals', lambda *a: pytest.fail('sampled again'))
+        assert len(goals.selection_goal_samples(robot, objects, goal, 24).Q) == 24
+        assert len(goals.rare_goal_configurations(robot, objects, goal, 2)) == 2
+    clear_task_caches()

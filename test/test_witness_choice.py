@@ -122,8 +122,9 @@ def test_other_methods_and_policies_use_the_tasks_witness(task):
         assert result.witness is search.witness and 'task_witnesses' not in result.stats
     assert witness_plan('random', 'solvable', None) == {'seeds': 1, 'ends': 0}
     assert witness_plan('task', 'paper', None) == {'seeds': 1, 'ends': 0}
-    assert witness_plan('task', 'solvable', TaskOptions(witness_ends=2, witness_seeds=4)) == \
-        {'seeds': 4, 'ends': 2}
+    assert witness_plan('task', 'solvable', TaskOptions(witness_ends=2, witness_seeds=4,
+                                                        selection_samples=300)) == \
+        {'seeds': 4, 'ends': 2, 'judge_samples': 300}
 
 
 def test_the_task_witness_draws_as_many_as_without_ends(task):

@@ -14,8 +14,9 @@ once per task, by the tool and never by the victim, and reported apart from the 
    on seeds of their own (``planning.witness.find_witnesses``) and witnesses to
    ``TaskOptions.witness_ends`` goal configurations the planners rarely sample
    (``planning.end_witnesses``, one worker, cached alike), one of which the attack may keep
-   (``attack.witness_choice``);
-3. the core attack, with the witnesses as data.
+   (``attack.witness_choice``); and the goal sets that judge the task attack's candidates
+   (``judge_goal_sets``: IK in worker processes, cached, timed as ``judge_goals_ms``);
+3. the core attack, with the witnesses as data (it finds the goal sets cached).
 
 ``attack_task`` is what ``advocc attack``, ``advocc export`` and the heatmap server's
 ``~/attack`` call. ``advocc perf attack`` calls :func:`task_witness` once, before its timings,
@@ -47,6 +48,8 @@ class WitnessSearch:
     """``planning.witness.Witness``, or None when the search found no path (or failed)."""
     search_s: float
     """Wall time of the searches [s] (cached witnesses: the cache lookups)."""
+    goals_s: float = 0.0
+    """Wall time of ``judge_goal_sets`` [s] (cached sets: the lookups)."""
     ends: tuple = ()
     """Witnesses to the goal configurations planners rarely sample (``planning.end_witnesses``):
     the ``task`` attack under ``solvable`` may keep one of them instead."""
@@ -62,11 +65,11 @@ class WitnessSearch:
 
 
 def task_witness(robot: RobotModel, objects, q_init, goal: GoalRegion,
-                 ends: int = 0, seeds: int = 1) -> WitnessSearch:
+                 ends: int = 0, seeds: int = 1, judge_samples: int = 0) -> WitnessSearch:
     """The witness of the task (see the module docstring) and, when it has one, those of
     ``seeds - 1`` more searches and witnesses to its ``ends`` rarest goal configurations
-    (``attack.goals.rare_goal_configurations``); starts planning workers unless they are
-    cached."""
+    (``attack.goals.rare_goal_configurations``), and ``judge_goal_sets``; starts planning
+    and IK workers unless what they find is cached."""
     from advocc_ros.attack.goals import rare_goal_configurations
     from advocc_ros.planning.end_witnesses import find_end_witnesses
     from advocc_ros.planning.witness import find_witnesses
@@ -74,23 +77,45 @@ def task_witness(robot: RobotModel, objects, q_init, goal: GoalRegion,
     t0 = time.perf_counter()
     objects, q_init = tuple(objects), np.asarray(q_init, dtype=float)
     witness, *others = find_witnesses(robot, objects, q_init, goal, max(seeds, 1)) or (None,)
+    if witness is None:
+        return WitnessSearch(None, time.perf_counter() - t0)
+    goals_s = judge_goal_sets(robot, objects, goal, judge_samples, ends)
     found = ()
-    if witness is not None and ends > 0:
+    if ends > 0:
         found = find_end_witnesses(robot, objects, q_init, goal,
                                    rare_goal_configurations(robot, objects, goal, ends))
-    return WitnessSearch(witness, time.perf_counter() - t0, found, tuple(others))
+    return WitnessSearch(witness, time.perf_counter() - t0 - goals_s, goals_s, found,
+                         tuple(others))
+
+
+def judge_goal_sets(robot: RobotModel, objects, goal: GoalRegion, judge_samples: int,
+                    ends: int) -> float:
+    """Sample (or read) the goal sets a ``task`` attack under ``solvable`` judges with (the
+    ``judge_samples`` selection set; the rare-end set when ``ends``) in IK worker processes,
+    so the core finds them cached; the wall time [s]."""
+    from advocc_ros.attack.goals import rare_goal_configurations, selection_goal_samples
+    from advocc_ros.kinematics.goal_workers import default_workers
+
+    t0 = time.perf_counter()
+    objects = tuple(objects)
+    if judge_samples > 0:
+        selection_goal_samples(robot, objects, goal, judge_samples, workers=default_workers())
+    if ends > 0:
+        rare_goal_configurations(robot, objects, goal, ends, workers=default_workers())
+    return time.perf_counter() - t0
 
 
 def witness_plan(method: str, goal_policy: str, method_options: Any) -> dict:
     """The witness searches an attack uses, as ``task_witness``'s keyword arguments:
-    ``TaskOptions.witness_seeds`` and ``witness_ends`` for ``task`` under ``solvable``, else
-    the task's witness alone."""
+    ``TaskOptions.witness_seeds``, ``witness_ends`` and ``selection_samples`` (the judging
+    goal set) for ``task`` under ``solvable``, else the task's witness alone."""
     from advocc_ros.attack.task import TaskOptions
 
     if method != 'task' or goal_policy != 'solvable':
         return {'seeds': 1, 'ends': 0}
     opts = method_options if isinstance(method_options, TaskOptions) else TaskOptions()
-    return {'seeds': opts.witness_seeds, 'ends': opts.witness_ends}
+    return {'seeds': opts.witness_seeds, 'ends': opts.witness_ends,
+            'judge_samples': opts.selection_samples}
 
 
 def needs_witness(cfg: AttackConfig, goal_policy: str | None, certify: bool = True) -> bool:
@@ -117,7 +142,8 @@ def attack_task(heatmap, robot: RobotModel, objects, q_init, goal: GoalRegion, b
                           **witness_plan(method, policy, options.get('method_options')))
     result = attack(heatmap, robot, objects, q_init, goal, budget, method, cfg,
                     certify=certify, witness=search.candidates, **options)
-    stats = dict(result.stats, witness_search_ms=round(search.search_s * 1e3, 3))
+    stats = dict(result.stats, witness_search_ms=round(search.search_s * 1e3, 3),
+                 judge_goals_ms=round(search.goals_s * 1e3, 3))
     if result.status == AttackStatus.NO_WITNESS:
         return dataclasses.replace(result, stats=stats, message=no_witness_message())
     return dataclasses.replace(result, stats=stats)

@@ -19,10 +19,11 @@ chooses among the ``task`` attack's draws; the validation set is kept apart from
 ``goal_valid_fraction`` is not the number the attack optimized. A third set, drawn alike from
 its own seed, names the goal configurations the planners sample least often
 (``rare_goal_configurations``): the ends of the extra witnesses the ``task`` attack may keep.
-These two sets cost seconds of IK per task (the selection set's runs in worker processes,
-``kinematics.goal_workers``, with the same result), so they are also kept on disk beside the
-witnesses (``planning.witness.witness_cache_dir``); a file is used only when every
-configuration in it is still a valid goal configuration of the task.
+These two sets cost seconds of IK per task, so they are also kept on disk beside the witnesses
+(``planning.witness.witness_cache_dir``); a file is used only when every configuration in it is
+still a valid goal configuration of the task. The edges of an attack (``attack.edges``) sample
+them first with ``workers`` > 1 (``kinematics.goal_workers``: the same sets, in worker
+processes); the core finds them cached and starts no process.
 """
 
 from __future__ import annotations
@@ -38,7 +39,7 @@ import numpy as np
 
 from advocc_ros.attack.bodies import LinkBoxes
 from advocc_ros.model.collision import CollisionWorld
-from advocc_ros.kinematics.goal_workers import default_workers, sample_goal_configurations
+from advocc_ros.kinematics.goal_workers import sample_goal_configurations
 from advocc_ros.kinematics.ik import GoalSampler, IkConfig, goal_set
 from advocc_ros.model.cache import BoundedCache
 from advocc_ros.model.robot import RobotModel
@@ -123,22 +124,22 @@ def goal_samples(robot: RobotModel, objects: tuple[SceneObject, ...], goal: Goal
 
 
 def selection_goal_samples(robot: RobotModel, objects: tuple[SceneObject, ...],
-                           goal: GoalRegion, n: int) -> GoalSamples:
+                           goal: GoalRegion, n: int, workers: int = 1) -> GoalSamples:
     """Up to ``n`` valid goal configurations drawn the way the planners draw theirs (random-seed
     IK, ``GoalSampler``; not ``goal_set``'s walks, which stay near a few IK branches), from a
     fixed seed and at most ``SELECTION_ATTEMPTS * n`` attempts; cached per task (~4-16 s of
-    IK per 1,024 on the Panda scenes, shared by the worker processes)."""
+    IK per 1,024 on the Panda scenes in one process; ``workers``: module docstring)."""
     key = task_hash(robot.hash, objects, goal, n, 'selection')
     cached = _GOAL_SAMPLES.get(key)
     if cached is not None:
         return cached
     world = CollisionWorld(robot, [sh for o in objects for sh in o.shapes])
-    Q = _planner_like_goals(robot, world, objects, goal, n, SELECTION_SEED)
+    Q = _planner_like_goals(robot, world, objects, goal, n, SELECTION_SEED, workers)
     return _GOAL_SAMPLES.put(key, GoalSamples(world, Q))
 
 
 def rare_goal_configurations(robot: RobotModel, objects: tuple[SceneObject, ...],
-                             goal: GoalRegion, k: int) -> np.ndarray:
+                             goal: GoalRegion, k: int, workers: int = 1) -> np.ndarray:
     """(<= k, nq): the goal configurations where the planners' goal samplers land least often,
     rarest first: of ``END_SAMPLES`` valid ones drawn like theirs (seed ``END_SEED``, not the
     selection set, which judges the attacks ending there), those farthest from their
@@ -149,7 +150,7 @@ def rare_goal_configurations(robot: RobotModel, objects: tuple[SceneObject, ...]
     Q = _END_SAMPLES.get(key)
     if Q is None:
         world = CollisionWorld(robot, [sh for o in objects for sh in o.shapes])
-        Q = _planner_like_goals(robot, world, objects, goal, END_SAMPLES, END_SEED)
+        Q = _planner_like_goals(robot, world, objects, goal, END_SAMPLES, END_SEED, workers)
         if len(Q) > RARITY_NEIGHBOUR:
             gaps = np.linalg.norm(Q[:, None] - Q[None], axis=-1)
             np.fill_diagonal(gaps, np.inf)
@@ -160,7 +161,7 @@ def rare_goal_configurations(robot: RobotModel, objects: tuple[SceneObject, ...]
 
 
 def _planner_like_goals(robot: RobotModel, world: CollisionWorld, objects, goal: GoalRegion,
-                        n: int, seed: int) -> np.ndarray:
+                        n: int, seed: int, workers: int) -> np.ndarray:
     """(<= n, nq) valid goal configurations from random-seed IK, at most
     ``SELECTION_ATTEMPTS * n`` attempts (an iteration budget: the same set on any machine),
     read from the disk cache when it holds them."""
@@ -171,20 +172,21 @@ def _planner_like_goals(robot: RobotModel, world: CollisionWorld, objects, goal:
     Q = _read_goals(path, world, goal, n) if path is not None and path.exists() else None
     if Q is not None:
         return Q
-    Q = _sample_goals(robot, world, goal, n, seed)
+    Q = _sample_goals(robot, world, goal, n, seed, workers)
     if path is not None:
         _write_goals(path, Q)
     return Q
 
 
 def _sample_goals(robot: RobotModel, world: CollisionWorld, goal: GoalRegion, n: int,
-                  seed: int) -> np.ndarray:
-    """The IK in worker processes from ``PARALLEL_MIN_SAMPLES`` on (same set either way)."""
+                  seed: int, workers: int = 1) -> np.ndarray:
+    """With ``workers`` > 1, the IK in worker processes from ``PARALLEL_MIN_SAMPLES`` on (the
+    same set either way)."""
     def sampler() -> GoalSampler:
         return GoalSampler(robot, world.in_collision, goal, np.random.default_rng(seed),
                            IkConfig())
 
-    workers = default_workers() if n >= PARALLEL_MIN_SAMPLES else 1
+    workers = workers if n >= PARALLEL_MIN_SAMPLES else 1
     try:
         found = sample_goal_configurations(sampler(), n, SELECTION_ATTEMPTS * n, workers)
     except (OSError, BrokenProcessPool) as exc:
