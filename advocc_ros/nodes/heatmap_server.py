@@ -353,7 +353,9 @@ class HeatmapServer(Node):
         self._last_stats = json.loads(json.dumps(result.stats, default=str))
         if 'witness_search_ms' in result.stats:
             self.get_logger().info(f'witness search: {result.stats["witness_search_ms"]:.0f} '
-                                   'ms (RRTConnect on the unattacked scene, cached per task)')
+                                   'ms (RRTConnect on the unattacked scene, cached per task); '
+                                   f'judging goal sets: {result.stats["judge_goals_ms"]:.0f} '
+                                   'ms (IK workers, cached per task)')
         response.error_code.val = STATUS_CODES.get(result.status, ErrorCodes.FAILURE)
         response.message = result.message
         response.obstacles = [obstacle_to_msg(o, m)
