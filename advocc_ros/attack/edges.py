@@ -108,14 +108,16 @@ def judge_goal_sets(robot: RobotModel, objects, goal: GoalRegion, judge_samples:
 def witness_plan(method: str, goal_policy: str, method_options: Any) -> dict:
     """The witness searches an attack uses, as ``task_witness``'s keyword arguments:
     ``TaskOptions.witness_seeds``, ``witness_ends`` and ``selection_samples`` (the judging
-    goal set) for ``task`` under ``solvable``, else the task's witness alone."""
+    goal set, when there is more than one candidate to judge) for ``task`` under ``solvable``,
+    else the task's witness alone."""
     from advocc_ros.attack.task import TaskOptions
 
     if method != 'task' or goal_policy != 'solvable':
         return {'seeds': 1, 'ends': 0}
     opts = method_options if isinstance(method_options, TaskOptions) else TaskOptions()
+    judged = opts.draws > 1 or opts.witness_seeds > 1 or opts.witness_ends > 0
     return {'seeds': opts.witness_seeds, 'ends': opts.witness_ends,
-            'judge_samples': opts.selection_samples}
+            'judge_samples': opts.selection_samples if judged else 0}
 
 
 def needs_witness(cfg: AttackConfig, goal_policy: str | None, certify: bool = True) -> bool:
