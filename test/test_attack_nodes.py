@@ -254,6 +254,40 @@ def test_server_answers_bad_requests_and_keeps_serving(ros, ros_env, heatmap_fil
     assert _stop(server) == 0
 
 
+def test_server_answers_a_repeat_without_recomputing(ros, ros_env, heatmap_file, table_scene):
+    """A request already answered under the same settings gets the same answer from the
+    server's memo (clients resend unanswered requests); another seed or another setting is
+    computed."""
+    from advocc_msgs.srv import Attack
+    from rcl_interfaces.msg import Parameter, ParameterType, ParameterValue
+    from rcl_interfaces.srv import SetParameters
+
+    node, executor, children = ros
+    server = _start('heatmap_server', ros_env, f'heatmap_file:={heatmap_file}')
+    children.append(server)
+    client = node.create_client(Attack, '/heatmap_server/attack')
+    _wait_service(executor, client, server)
+    request = _request(table_scene, budget=3, method='random')
+    first = _call(executor, client, request)
+    again = _call(executor, client, request)
+    assert [o.id for o in again.obstacles] == [o.id for o in first.obstacles]
+    assert again.compute_time_s == first.compute_time_s  # the first answer, not a new one
+    request.seed = 7
+    other_seed = _call(executor, client, request)
+    set_params = node.create_client(SetParameters, '/heatmap_server/set_parameters')
+    _wait_service(executor, set_params, server)
+    (result,) = _call(executor, set_params, SetParameters.Request(parameters=[Parameter(
+        name='d_min_m', value=ParameterValue(type=ParameterType.PARAMETER_DOUBLE,
+                                             double_value=0.12))])).results
+    assert result.successful, result.reason
+    other_setting = _call(executor, client, request)
+    assert other_seed.error_code.val == other_setting.error_code.val == first.error_code.val
+    assert _stop(server) == 0
+    log = server.stdout.read()
+    assert 'attack #2: the request and settings of attack #1; its answer again' in log, log
+    assert 'attack #3: the request' not in log and 'attack #4: the request' not in log, log
+
+
 def test_server_task_options_are_node_parameters(ros, ros_env, heatmap_file, table_scene):
     """``task_<option>`` parameters set the task method's options; a bad set is refused with
     the reason and the server keeps serving with the options it had."""

@@ -118,10 +118,13 @@ def _service(heatmap_path, scene, budgets, method, calls, domain, server_params=
             startup_s = time.perf_counter() - t0
             out = {'server_startup_s': round(startup_s, 3)}
             for budget in budgets:
-                req = attack_request(scene, budget, method)
+                # Seeds 0, 1, ... as the core runs, the warm-up after them: each call its own
+                # request, since the server answers a repeat from its memo without computing.
+                req = attack_request(scene, budget, method, seed=max(calls, 1))
                 client.call(Attack, service, req, 30.0)  # warm-up
                 rtt, compute = [], []
-                for _ in range(max(calls, 1)):
+                for seed in range(max(calls, 1)):
+                    req.seed = seed
                     t0 = time.perf_counter()
                     res = client.call(Attack, service, req, 30.0)
                     rtt.append(time.perf_counter() - t0)

@@ -20,6 +20,12 @@ Services:
   task's witness (``solvable`` requests, and every request with ``search_witness``) is found
   first by one RRTConnect run in a planning worker, cached per task (``attack.edges``), and its
   time is logged, not counted in ``compute_time_s``.
+  A repeat of a request already answered under the same settings (the attack parameters and
+  task options) gets that answer again at once, without recomputing it: an attack is
+  deterministic for its request, and clients resend a request that has no answer yet
+  (``ServiceClient.call_client``), so a long first attack would otherwise queue identical
+  ones behind it. The last ``ANSWER_MEMO`` answers of the core are kept (a malformed request is
+  answered at once anyway; an internal error is not kept).
 - ``~/get_info`` (advocc_msgs/srv/GetInfo): robot, grid, heatmap summary, parameters as JSON.
 
 Topics: ``~/heatmap`` (sensor_msgs/PointCloud2, latched, published once at start-up): x, y, z,
@@ -52,11 +58,13 @@ from advocc_ros.heatmap import HeatmapError, hottest_voxels, link_tables, load_h
 from advocc_ros.heatmap.store import check_robot, locked_joints
 from advocc_ros.nodes import run
 from advocc_ros.paths import allowed_dirs, confine
+from advocc_ros.model.cache import BoundedCache
 from advocc_ros.model.robot import RobotError, RobotSpec, load_robot, resolve_path
 from advocc_ros.model.cloud import DEFAULT_RESOLUTION_M
 from advocc_ros.model.pose import SceneError
 from advocc_ros.model.scene import SceneObject
 from advocc_ros.ros.clouds import cloud_msg, cloud_shape_from_msg
+from advocc_ros.ros.digest import message_digest
 from advocc_ros.ros.params import INT_MAX, Param, declare
 from advocc_ros.ros.qos import LATCHED_QOS
 
@@ -158,6 +166,10 @@ STATUS_CODES = {
 }
 
 
+ANSWER_MEMO = 16
+"""Attack answers the server keeps for repeated requests (module docstring)."""
+
+
 def non_finite_field(msg, path: str = '') -> str | None:
     """Path of the first NaN/inf number anywhere in a message (nested, arrays), or None."""
     for name in msg.get_fields_and_field_types():
@@ -215,6 +227,8 @@ class HeatmapServer(Node):
             for name in (f.name for f in dataclasses.fields(TaskOptions))})
         self._last_stats: dict | None = None
         """The stats of the last attack (``~/get_info``): the Attack response carries none."""
+        self._answers: BoundedCache = BoundedCache('attack answers', ANSWER_MEMO)
+        """request and settings digest -> (attack number, response, stats) (module docstring)."""
 
         path = self.get_parameter('heatmap_file').value
         if not path:
@@ -285,18 +299,34 @@ class HeatmapServer(Node):
                    ) -> Attack.Response:
         self._served += 1
         try:
+            key = self._answer_key(request)
+            known = self._answers.get(key)
+            if known is not None:
+                first, answer, self._last_stats = known
+                self.get_logger().info(f'attack #{self._served}: the request and settings of '
+                                       f'attack #{first}; its answer again, not recomputed')
+                return answer
+            stats_before = self._last_stats
             response = self._attack(request, response)
             line = f'attack #{self._served}: {response.error_code.val} {response.message}'
             if response.error_code.val in (ErrorCodes.SUCCESS, ErrorCodes.PARTIAL):
                 self.get_logger().info(line)
             else:
                 self.get_logger().warning(line)
+            if self._last_stats is not stats_before:  # the core answered (not a bad request)
+                self._answers.put(key, (self._served, response, self._last_stats))
         except Exception as exc:  # never let a callback take the executor down
             response.error_code.val = ErrorCodes.FAILURE
             response.message = f'internal error: {exc}'
             response.obstacles = []
             self.get_logger().error(f'attack #{self._served} failed: {exc!r}')
         return response
+
+    def _answer_key(self, request: Attack.Request) -> str:
+        """Digest of the request and of the settings its answer depends on."""
+        settings = json.dumps([dataclasses.asdict(self.cfg),
+                               dataclasses.asdict(self.task_options)], sort_keys=True)
+        return f'{message_digest(request)}:{settings}'
 
     def _attack(self, request: Attack.Request, response: Attack.Response) -> Attack.Response:
         def fail(code: int, message: str) -> Attack.Response:
