@@ -22,8 +22,8 @@ def test_any_changed_field_changes_the_digest(table_scene):
         lambda r: setattr(r, 'seed', 1),
         lambda r: setattr(r, 'budget', 4),
         lambda r: setattr(r, 'goal_policy', 'solvable'),
-        lambda r: r.start_state.position.__setitem__(1, np.nextafter(r.start_state.position[1],
-                                                                      np.inf)),
+        lambda r: r.start_state.position.__setitem__(
+            1, np.nextafter(r.start_state.position[1], np.inf)),
         lambda r: r.goal_region.position_tolerance.__setitem__(0, 0.021),
         lambda r: setattr(r.scene[0], 'id', 'other'),
         lambda r: setattr(r.cloud, 'data', bytes(12)),
