@@ -145,3 +145,13 @@ def test_a_collision_world_is_freed_when_dropped(panda, table_scene):
         assert alive() is None
     finally:
         gc.enable()
+
+
+def test_call_attack_waits_long_enough_for_a_first_solvable_attack():
+    from advocc_ros.cli import build_parser
+    from advocc_ros.commands.call import SOLVABLE_TIMEOUT_S, TIMEOUT_S, attack_timeout_s
+    args = build_parser().parse_args(['call', 'attack', '--scene', 'table_pick', '--budget', '3',
+                                      '--policy', 'solvable'])
+    assert attack_timeout_s(args.timeout, args.policy) == SOLVABLE_TIMEOUT_S >= 120
+    assert attack_timeout_s(None, 'paper') == TIMEOUT_S
+    assert attack_timeout_s(30.0, 'solvable') == 30.0  # a given --timeout wins
