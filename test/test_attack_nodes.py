@@ -257,7 +257,8 @@ def test_server_answers_bad_requests_and_keeps_serving(ros, ros_env, heatmap_fil
 def test_server_answers_a_repeat_without_recomputing(ros, ros_env, heatmap_file, table_scene):
     """A request already answered under the same settings gets the same answer from the
     server's memo (clients resend unanswered requests); another seed or another setting is
-    computed."""
+    computed; an error is not kept."""
+    from advocc_msgs.msg import ErrorCodes
     from advocc_msgs.srv import Attack
     from rcl_interfaces.msg import Parameter, ParameterType, ParameterValue
     from rcl_interfaces.srv import SetParameters
@@ -282,10 +283,13 @@ def test_server_answers_a_repeat_without_recomputing(ros, ros_env, heatmap_file,
     assert result.successful, result.reason
     other_setting = _call(executor, client, request)
     assert other_seed.error_code.val == other_setting.error_code.val == first.error_code.val
+    request.budget = 0  # an error is answered again, not from the memo
+    assert _call(executor, client, request).error_code.val == \
+        _call(executor, client, request).error_code.val == ErrorCodes.INVALID_REQUEST
     assert _stop(server) == 0
     log = server.stdout.read()
     assert 'attack #2: the request and settings of attack #1; its answer again' in log, log
-    assert 'attack #3: the request' not in log and 'attack #4: the request' not in log, log
+    assert [n for n in range(3, 7) if f'attack #{n}: the request' in log] == [], log
 
 
 def test_server_task_options_are_node_parameters(ros, ros_env, heatmap_file, table_scene):

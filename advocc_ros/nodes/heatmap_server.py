@@ -24,8 +24,9 @@ Services:
   task options) gets that answer again at once, without recomputing it: an attack is
   deterministic for its request, and clients resend a request that has no answer yet
   (``ServiceClient.call_client``), so a long first attack would otherwise queue identical
-  ones behind it. The last ``ANSWER_MEMO`` answers of the core are kept (a malformed request is
-  answered at once anyway; an internal error is not kept).
+  ones behind it. The last ``ANSWER_MEMO`` answers with boxes (success, partial) are kept; an
+  error is answered again (a bad request at once; a failed witness search is searched again,
+  ``planning.witness``).
 - ``~/get_info`` (advocc_msgs/srv/GetInfo): robot, grid, heatmap summary, parameters as JSON.
 
 Topics: ``~/heatmap`` (sensor_msgs/PointCloud2, latched, published once at start-up): x, y, z,
@@ -228,7 +229,8 @@ class HeatmapServer(Node):
         self._last_stats: dict | None = None
         """The stats of the last attack (``~/get_info``): the Attack response carries none."""
         self._answers: BoundedCache = BoundedCache('attack answers', ANSWER_MEMO)
-        """request and settings digest -> (attack number, response, stats) (module docstring)."""
+        """request and settings digest -> (attack number, response, stats): answers with boxes
+        (module docstring)."""
 
         path = self.get_parameter('heatmap_file').value
         if not path:
@@ -306,15 +308,13 @@ class HeatmapServer(Node):
                 self.get_logger().info(f'attack #{self._served}: the request and settings of '
                                        f'attack #{first}; its answer again, not recomputed')
                 return answer
-            stats_before = self._last_stats
             response = self._attack(request, response)
             line = f'attack #{self._served}: {response.error_code.val} {response.message}'
             if response.error_code.val in (ErrorCodes.SUCCESS, ErrorCodes.PARTIAL):
                 self.get_logger().info(line)
+                self._answers.put(key, (self._served, response, self._last_stats))
             else:
                 self.get_logger().warning(line)
-            if self._last_stats is not stats_before:  # the core answered (not a bad request)
-                self._answers.put(key, (self._served, response, self._last_stats))
         except Exception as exc:  # never let a callback take the executor down
             response.error_code.val = ErrorCodes.FAILURE
             response.message = f'internal error: {exc}'
