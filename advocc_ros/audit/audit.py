@@ -12,8 +12,7 @@ paper's Table II for one task). A ``task`` attack under ``solvable`` is not nest
 candidate (draw, witness) judged best on all its boxes (``attack.judge``), so there prefix m is
 the attack asked for m boxes, what ``advocc attack --budget m`` places, with its own boxes and
 witness in its entry (judged at 20 boxes instead, the 10-box prefixes of bookshelf_tall's
-attack left PRM* at 50 % where the 10-box attack took it to <= 20 %:
-docs/results/issue27_hard/mbm_families_judge).
+attack left PRM* at 50 % where the 10-box attack took it to <= 20 %).
 
 By default every planner is evaluated at every prefix and the sweep stops after the first m at
 which every planner is at PSR 0, or at the last box the attack placed. With a target PSR, a planner

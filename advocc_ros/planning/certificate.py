@@ -53,7 +53,7 @@ class CertificateConfig:
     [m]. The guard states are ``guard_step_rad`` apart, so between them a body point moves at most
     ``margin - 2 floor`` and the continuous path keeps ``2 floor`` from every box: the
     certificate, which needs ``floor`` at the states it measures, proves it. ~1 mm is what makes
-    attacks bite (docs/results/issue27_hard: PSR 100 % at 10 mm, 50 % at 1 mm on table_pick)."""
+    attacks bite (measured on table_pick: PSR 100 % at 10 mm, 50 % at 1 mm)."""
 
     def __post_init__(self):
         for name in ('floor_m', 'lookahead_rad', 'guard_margin_m'):
