@@ -111,9 +111,9 @@ def test_figure_checker_catches_a_figure_its_file_lacks():
               '  ([s](docs/results/s/README.md)).\n\n| a | 25 / 0 / 20 |\n')
     assert unbacked_figures(readme, files.get) == []
     wrong = readme.replace('25 / 0 / 20 (x43)', '25 / 5 / 20 (x44)')
-    assert unbacked_figures(wrong, files.get) == ["'25 / 5 / 20' not in "
-                                                 "['docs/results/s/README.md']",
-                                                 "'x44' not in ['docs/results/s/README.md']"]
+    assert unbacked_figures(wrong, files.get) == [
+        "'25 / 5 / 20' not in ['docs/results/s/README.md']",
+        "'x44' not in ['docs/results/s/README.md']"]
     unlinked = '## Does it transfer?\n\nMPlib falls to 10 % on 4 of 5 scenes.\n'
     assert unbacked_figures(unlinked, files.get) == [
         "no docs/results/ file cited for: ['10 %', '4 of 5']"]
