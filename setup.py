@@ -25,6 +25,7 @@ RUNTIME = [
     'meshcat==0.3.2',  # its bundled browser viewer makes the offline 3D pages
     'mcap==1.6.0',  # ROS 2 bags in rosbag2's MCAP storage
     'pypcd4==1.5.1',  # PCD point-cloud files (cloud scene objects)
+    'ray==2.60.0',  # advocc dataset build: one task per problem, local or on a cluster
 ]
 # Wheels needed to build the interface package msg_defs/ (advocc_msgs) with cmake.
 BUILD = [

@@ -13,7 +13,7 @@ import logging
 import sys
 
 COMMANDS = ['heatmap', 'perf', 'demo', 'audit', 'evaluate', 'attack', 'export', 'call', 'scenes',
-            'bench', 'robot', 'view']
+            'bench', 'robot', 'view', 'dataset']
 
 
 class UserError(Exception):

@@ -1,0 +1,154 @@
+"""``advocc dataset build``: a certified hard-problem data set from MotionBenchMaker problems,
+one Ray task per problem (a local Ray by default, a cluster with ``--ray-address``).
+
+Per problem: the task check, the witness, the ``task`` attack under the ``solvable`` policy at
+each budget, the continuous certificate, the victims on the unattacked and the attacked
+problem, and the attacked problem exported in MotionBenchMaker's format with its
+``hardness.json``; per data set ``summary.json``, ``summary.md``, ``summary.png`` and
+``build.json`` (settings, versions). Running it again on the same ``--out`` resumes: finished
+problems are not redone. docs/dataset.md has the details.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import sys
+
+from advocc_ros.cli import UserError
+from advocc_ros.commands.common import add_task_option_arg, describe, task_options_from_args
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    from advocc_ros.dataset.driver import RunConfig
+    from advocc_ros.dataset.job import BuildConfig
+    from advocc_ros.dataset.problems import SPLITS, TRAIN_LAST
+
+    group = sub.add_parser('dataset', help='certified hard-problem data sets (MotionBenchMaker '
+                           'problems, attacked and measured, on Ray)', description=describe(
+                               __doc__))
+    verbs = group.add_subparsers(dest='verb', required=True)
+    p = verbs.add_parser('build', help='build or resume a data set', description=describe(
+        __doc__))
+    build, run = BuildConfig(), RunConfig()
+    p.add_argument('--problems', required=True, metavar='DIR',
+                   help='folder of family folders (box_panda/sceneNNNN.yaml + requestNNNN.yaml)')
+    p.add_argument('--out', required=True, metavar='DIR', help='output folder (resumed when it '
+                   'holds a build with the same settings)')
+    p.add_argument('--families', metavar='A,B', help='families to build (folder names, the '
+                   '_panda suffix optional; default: every family folder)')
+    p.add_argument('--split', choices=SPLITS, default='all',
+                   help=f'train: problems 1-{TRAIN_LAST} of each family, test: the rest '
+                   '(default %(default)s)')
+    p.add_argument('--limit', type=int, metavar='N', help='at most N problems per family, a '
+                   'seeded random sample of the split (--seed)')
+    p.add_argument('--budgets', default=','.join(map(str, build.budgets)), metavar='M,M',
+                   help='boxes per attack, each attacked on its own (default %(default)s)')
+    p.add_argument('--victims', default=','.join(build.victims), metavar='A,B',
+                   help='planners measured: OMPL ids, mplib, trajopt (default %(default)s)')
+    p.add_argument('--trials', type=int, default=build.trials,
+                   help='plan requests per victim and budget (default %(default)s)')
+    p.add_argument('--time', type=float, default=build.time_s,
+                   help='budget per plan request [s] (default %(default)s)')
+    p.add_argument('--seed', type=int, default=0, help='selection, attack and trial seed '
+                   '(trial k uses SEED + k) (default %(default)s)')
+    p.add_argument('--goal-tol', metavar='TOL', help='goal region around a joint goal: '
+                   '"pos=X;rot=R" (default pos=0.02;rot=0.1)')
+    add_task_option_arg(p)
+    p.add_argument('--heatmap', metavar='FILE', help='robot-only heatmap to attack with '
+                   '(default: built once per robot into OUT/heatmaps/)')
+    p.add_argument('--heatmap-samples', type=int, default=run.heatmap_samples,
+                   help='samples of the robot-only heatmap built (default %(default)s)')
+    p.add_argument('--ray-address', metavar='HOST:PORT', help='a running Ray cluster (ray '
+                   'start --head); default: a local Ray started here, on the loopback address')
+    p.add_argument('--max-retries', type=int, default=run.max_retries,
+                   help='runs of a problem again after its worker died (default %(default)s)')
+    p.add_argument('--cpus-per-problem', type=float, default=run.cpus_per_problem,
+                   help='Ray CPUs each problem holds (default %(default)s)')
+    p.add_argument('--json', action='store_true', help='print the build record as JSON')
+    p.set_defaults(func=_build)
+
+
+def _ints(text: str, what: str) -> tuple[int, ...]:
+    try:
+        values = tuple(int(v) for v in text.split(',') if v.strip())
+    except ValueError:
+        raise UserError(f'--{what} {text!r}: expected comma-separated integers') from None
+    if not values:
+        raise UserError(f'--{what}: give at least one value')
+    return values
+
+
+def _names(text: str | None) -> tuple[str, ...]:
+    return tuple(dict.fromkeys(v.strip() for v in (text or '').split(',') if v.strip()))
+
+
+def _config(args: argparse.Namespace):
+    """The ``BuildConfig`` and ``RunConfig`` of the arguments, checked."""
+    from advocc_ros.attack import AttackConfig
+    from advocc_ros.attack.task import TaskOptions
+    from advocc_ros.dataset.driver import RunConfig
+    from advocc_ros.dataset.job import BuildConfig
+    from advocc_ros.limits import MAX_TRIALS
+    from advocc_ros.formats.mbm_request import parse_goal_tolerance
+    from advocc_ros.planning.types import PlanningConfig
+    from advocc_ros.planning.victims import is_victim, victim_names
+
+    budgets = _ints(args.budgets, 'budgets')
+    top = AttackConfig().max_budget
+    if any(not 1 <= b <= top for b in budgets):
+        raise UserError(f'--budgets {args.budgets}: each must be in 1..{top}')
+    victims = _names(args.victims)
+    unknown = [v for v in victims if not is_victim(v)]
+    if not victims or unknown:
+        raise UserError(f'--victims: unknown {unknown or "(none given)"}; OMPL planner ids '
+                        f'(rrtconnect, prmstar, bkpiece1, ...) or {victim_names()}')
+    if not 1 <= args.trials <= MAX_TRIALS:
+        raise UserError(f'--trials must be in 1..{MAX_TRIALS}')
+    if not 0 < args.time <= PlanningConfig().max_time_budget_s:
+        raise UserError(f'--time must be in (0, {PlanningConfig().max_time_budget_s:g}]')
+    if args.goal_tol:
+        parse_goal_tolerance(args.goal_tol)  # ValueError naming the field
+    options = task_options_from_args(args, 'task')
+    given = () if options is None else tuple(
+        (k, v) for k, v in dataclasses.asdict(options).items()
+        if v != getattr(TaskOptions(), k))
+    if args.max_retries < 0 or args.cpus_per_problem <= 0 or args.heatmap_samples < 1:
+        raise UserError('--max-retries must be >= 0, --cpus-per-problem > 0 and '
+                        '--heatmap-samples >= 1')
+    build = BuildConfig(budgets=tuple(sorted(set(budgets))), victims=victims,
+                        trials=args.trials, time_s=args.time, seed=args.seed,
+                        task_options=given, goal_tol=args.goal_tol)
+    run = RunConfig(ray_address=args.ray_address, max_retries=args.max_retries,
+                    cpus_per_problem=args.cpus_per_problem,
+                    heatmap_samples=args.heatmap_samples, heatmap_file=args.heatmap)
+    return build, run
+
+
+def _build(args: argparse.Namespace) -> int:
+    from advocc_ros.dataset.driver import Selection, build
+
+    config, run = _config(args)
+    selection = Selection(args.problems, _names(args.families) or None, args.split, args.limit,
+                          args.seed)
+    record = build(selection, args.out, config, run)
+    if args.json:
+        print(json.dumps(record, indent=1))
+        return 0
+    summary = record['summary']
+    print(f'{args.out}: {summary["problems"]} problems in the data set; this run: '
+          + (', '.join(f'{v} {k}' for k, v in record['counts'].items()) or 'nothing to do')
+          + f' in {record["wall_s"]:.0f} s')
+    for g in summary['groups']:
+        if g['family'] != 'all':
+            continue
+        beaten = ', '.join(
+            f'M={b}: {cell["all_victims_psr_le_20"] * 100:.0f} % of {cell["evaluated"]}'
+            for b, cell in g['budgets'].items() if cell['all_victims_psr_le_20'] is not None)
+        print(f'  {g["split"]}: {g["outcomes"]["built"]} of {g["problems"]} built; every '
+              f'victim at PSR <= 20 %: {beaten or "none evaluated"}')
+    for line in summary['errors']:
+        print(f'  error: {line}', file=sys.stderr)
+    print(f'  see {args.out}/summary.md')
+    return 0

@@ -1,0 +1,287 @@
+"""One problem of the data set, start to end: what a Ray task runs, with no ROS and no files
+of the driver's machine.
+
+The job gets the problem's two files as bytes (a worker on another machine has no access to the
+driver's folder) and the robot-only heatmap, and returns everything as data; the driver writes
+it (``dataset.store``). Steps: load the problem; the task check (``model.task_check``: a task no
+planner can solve is refused, with its reason); then per budget the ``task`` attack under the
+``solvable`` goal policy (``attack.edges.attack_task``, which finds the task's witness first:
+no witness, no certified attack, outcome ``no_witness``); the continuous certificate's verdict
+(``AttackResult.solvable``), checked again on the exported problem as ``advocc export`` does;
+the victims on the unattacked problem and on every certified attacked one
+(``evaluation.runner.evaluate_planner``, as ``advocc evaluate`` runs them); and the attacked
+problems in MotionBenchMaker's format (``formats.mbm_export``).
+
+Every problem ends with an outcome (``OUTCOMES``), never an exception: a malformed file is
+``refused`` with the parser's reason, an unexpected exception is ``error`` with its message.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+import os
+import pathlib
+import socket
+import tempfile
+import time
+import traceback
+from typing import Any
+
+log = logging.getLogger(__name__)
+
+OUTCOMES = ('built', 'uncertified', 'no_witness', 'refused', 'error')
+"""How a problem ended: ``built`` (at least one budget's attack certified, exported and
+evaluated), ``uncertified`` (the witness was found but no budget's attack was certified),
+``no_witness`` (no path on the unattacked problem: nothing can be certified), ``refused`` (a
+malformed problem or one the task check refuses, with the reason) and ``error`` (an exception or
+a worker that kept dying: the one outcome a resumed build redoes)."""
+FINAL_OUTCOMES = OUTCOMES[:-1]
+KILL_ONCE_ENV = 'ADVOCC_DATASET_KILL_ONCE'
+"""Tests only: a path; the first job that finds no file there creates it and kills its own
+worker process with SIGKILL (a real worker death, retried by Ray), so it happens exactly once."""
+HARDNESS_FORMAT = 'advocc_dataset_hardness'
+PSR_HARD = 0.2
+"""A victim counts as beaten on a problem when its PSR is at most this (the audit's line)."""
+
+
+@dataclasses.dataclass(frozen=True)
+class BuildConfig:
+    """What every problem of a build is run with (the settings a resumed build must share)."""
+
+    budgets: tuple[int, ...] = (5, 10)
+    """Boxes M of the attacks: each budget is attacked on its own."""
+    victims: tuple[str, ...] = ('rrtconnect', 'prmstar', 'bkpiece1', 'mplib')
+    """Planners measured (OMPL ids, outside victims such as ``mplib``, ``trajopt``)."""
+    trials: int = 20
+    """Plan requests per victim and budget (and on the unattacked problem)."""
+    time_s: float = 5.0
+    """Budget per plan request [s]; also the ``allowed_planning_time`` of the exported
+    requests."""
+    seed: int = 0
+    """Attack seed; trial k of every victim uses seed ``seed + k``."""
+    task_options: tuple[tuple[str, Any], ...] = ()
+    """``TaskOptions`` of the attack that differ from their defaults (key, value)."""
+    goal_tol: str | None = None
+    """Goal tolerance around a joint goal (``--goal-tol``; None: the default region)."""
+
+    def to_json(self) -> dict:
+        return {'budgets': list(self.budgets), 'victims': list(self.victims),
+                'trials': self.trials, 'time_s': self.time_s, 'seed': self.seed,
+                'task_options': dict(self.task_options), 'goal_tol': self.goal_tol,
+                'method': 'task', 'goal_policy': 'solvable'}
+
+
+def problem_input(problem) -> dict:
+    """What a job needs of ``problem`` (``dataset.problems.Problem``): names and file bytes
+    (None for a file that cannot be read: the job refuses the problem and says why)."""
+    def read(path: pathlib.Path) -> bytes | str:
+        try:
+            return path.read_bytes()
+        except OSError as exc:
+            return f'{path}: cannot read ({exc.strerror or exc})'
+    return {'family': problem.family, 'index': problem.index, 'split': problem.split,
+            'scene_name': problem.scene.name, 'scene': read(problem.scene),
+            'request_name': problem.request.name, 'request': read(problem.request)}
+
+
+def _kill_once() -> None:
+    marker = os.environ.get(KILL_ONCE_ENV)
+    if not marker:
+        return
+    try:
+        fd = os.open(marker, os.O_CREAT | os.O_EXCL | os.O_WRONLY)
+    except FileExistsError:
+        return
+    os.write(fd, f'{os.getpid()}\n'.encode())
+    os.close(fd)
+    os.kill(os.getpid(), 9)
+
+
+def run_problem(problem: dict, heatmap, config: BuildConfig) -> dict:
+    """The result of one problem (``problem_input``): ``record`` (outcome, reason, times),
+    ``hardness`` (None unless evaluated) and ``files`` (relative path -> YAML data). Never
+    raises."""
+    _kill_once()
+    t0 = time.perf_counter()
+    record = {'family': problem['family'], 'problem': f'{problem["index"]:04d}',
+              'split': problem['split'], 'host': socket.gethostname(), 'pid': os.getpid()}
+    files: dict[str, Any] = {}
+    try:
+        outcome, reason, hardness = _run(problem, heatmap, config, files, record)
+    except Exception as exc:  # any bug or backend failure becomes this problem's record
+        log.exception('problem %s/%04d failed', problem['family'], problem['index'])
+        outcome, reason, hardness, files = 'error', f'{type(exc).__name__}: {exc}', None, {}
+        record['traceback'] = traceback.format_exc(limit=8)
+    record.update(outcome=outcome, reason=reason, total_s=round(time.perf_counter() - t0, 3))
+    return {'record': record, 'hardness': hardness, 'files': files}
+
+
+def _load(problem: dict, goal_tol):
+    """The problem's scene, or the reason it is refused."""
+    from advocc_ros.formats.mbm_scene import load_any_scene
+    from advocc_ros.model.pose import SceneError
+    from advocc_ros.model.robot import RobotError
+
+    for key in ('scene', 'request'):
+        if isinstance(problem[key], str):
+            return None, problem[key]
+    with tempfile.TemporaryDirectory(prefix='advocc_problem_') as tmp:
+        scene_path = pathlib.Path(tmp) / problem['scene_name']
+        request_path = pathlib.Path(tmp) / problem['request_name']
+        scene_path.write_bytes(problem['scene'])
+        request_path.write_bytes(problem['request'])
+        try:
+            scene = load_any_scene(scene_path, request_path, goal_tol)
+        except (SceneError, RobotError, ValueError) as exc:
+            return None, f'malformed problem: {str(exc).replace(tmp + "/", "")}'
+    if scene.start is None or scene.goal is None:
+        return None, 'malformed problem: no start state or no goal'
+    return scene, None
+
+
+def _run(problem: dict, heatmap, config: BuildConfig, files: dict, record: dict):
+    from advocc_ros.attack import AttackConfig, AttackStatus
+    from advocc_ros.attack.edges import attack_task
+    from advocc_ros.attack.task import task_options
+    from advocc_ros.kinematics.ik import start_configuration
+    from advocc_ros.model.robot import load_robot
+    from advocc_ros.model.task_check import check_task
+
+    t = time.perf_counter()
+    scene, why = _load(problem, config.goal_tol)
+    if scene is None:
+        return 'refused', why, None
+    robot = load_robot(scene.robot)
+    q_init = start_configuration(scene, robot)
+    fault = check_task(robot, scene.objects, q_init, scene.goal)
+    if fault is not None:
+        return 'refused', f'the task is refused: {fault.message}', None
+    if heatmap is None or heatmap.meta.get('robot_hash') != robot.hash:
+        return 'error', f'no robot-only heatmap for this problem\'s robot ({robot.hash})', None
+    record['load_s'] = round(time.perf_counter() - t, 3)
+    options = task_options(dict(config.task_options)) if config.task_options else None
+    cfg = AttackConfig(goal_policy='solvable')
+    attacks, scenes = {}, {}
+    for budget in config.budgets:
+        t = time.perf_counter()
+        result = attack_task(heatmap, robot, scene.objects, q_init, scene.goal, budget, 'task',
+                             cfg, seed=config.seed, method_options=options)
+        wall_s = time.perf_counter() - t
+        if result.status == AttackStatus.NO_WITNESS:
+            record['attack_s'] = round(wall_s, 3)
+            return 'no_witness', result.message, None
+        entry, attacked = _attack_entry(result, scene, robot, q_init, wall_s)
+        if attacked is not None:
+            folder = f'm{budget}'
+            entry['exported'] = folder
+            files.update(_export(folder, problem['index'], attacked, robot, result.witness,
+                                 config.time_s))
+            scenes[budget] = attacked
+        attacks[str(budget)] = entry
+    record['attack_s'] = round(sum(a['wall_s'] for a in attacks.values()), 3)
+    if not scenes:
+        reasons = '; '.join(f'M={b}: {a["certificate"]} ({a["message"]})'
+                            for b, a in attacks.items())
+        return 'uncertified', f'no attack was certified: {reasons}', _hardness(
+            problem, config, attacks, {})
+    t = time.perf_counter()
+    unattacked = _evaluate(scene, config, attacks, scenes)
+    record['evaluate_s'] = round(time.perf_counter() - t, 3)
+    return 'built', '', _hardness(problem, config, attacks, unattacked)
+
+
+def _attack_entry(result, scene, robot, q_init, wall_s: float):
+    """The hardness file's record of one attack, and the attacked scene when its witness is
+    certified with the boxes (else None)."""
+    from advocc_ros.model.collision import CollisionWorld
+    from advocc_ros.planning.witness import certify
+
+    verdict = result.solvable
+    entry = {'status': result.status.value, 'message': result.message,
+             'boxes': len(result.obstacles), 'wall_s': round(wall_s, 3),
+             'compute_ms': round(result.compute_s * 1e3, 3),
+             'witness_search_ms': result.stats.get('witness_search_ms'),
+             'certificate': verdict.verdict.value if verdict is not None else 'not assessed',
+             'certificate_message': verdict.message if verdict is not None else '',
+             'goal_valid_fraction': result.goal_valid_fraction, 'exported': None,
+             'boxes_m': [[float(v) for v in o.shapes[0].pose.position_m]
+                         for o in result.obstacles], 'victims': {}}
+    if not result.status.ok or verdict is None or not verdict.certified:
+        return entry, None
+    attacked = scene.with_objects(result.obstacles)
+    # As `advocc export`: the witness is certified with the boxes before anything is written.
+    why = certify(robot, CollisionWorld(robot, attacked.shapes), attacked.goal, result.witness,
+                  q_init=q_init)[0]
+    if why is not None:
+        entry.update(certificate='not certified on export', certificate_message=why)
+        return entry, None
+    entry['witness_waypoints'] = int(len(result.witness.waypoints))
+    return entry, attacked
+
+
+def _export(folder: str, index: int, attacked, robot, witness, time_s: float) -> dict:
+    """The attacked problem as MotionBenchMaker files (relative path -> YAML data)."""
+    from advocc_ros.formats.mbm_export import (check_exportable, planning_scene_data,
+                                               request_data, trajectory_data)
+
+    check_exportable(attacked)
+    return {f'{folder}/scene{index:04d}.yaml': planning_scene_data(attacked, robot),
+            f'{folder}/request{index:04d}.yaml': request_data(attacked, robot, time_s),
+            f'{folder}/trajectory{index:04d}.yaml': trajectory_data(
+                robot.joint_names, witness.configurations(robot), robot.model.velocityLimit)}
+
+
+def _cell(scene, victim: str, config: BuildConfig) -> dict:
+    """One victim's row on one scene, as ``advocc evaluate --json`` computes it, without the
+    per-trial records; an exception becomes ``error`` (the other cells still run)."""
+    from advocc_ros.evaluation.runner import evaluate_planner
+    from advocc_ros.planning.victims import VictimConfig
+
+    t = time.perf_counter()
+    try:
+        row = evaluate_planner(scene, victim, config.trials, config.time_s, config.seed,
+                               workers=1, victim_config=VictimConfig())
+    except Exception as exc:
+        log.exception('victim %s failed', victim)
+        return {'error': f'{type(exc).__name__}: {exc}'}
+    keep = ('psr', 'successes', 'trials', 'internal_errors', 'failures', 'pt',
+            'first_solution_median_s', 'first_solution_p90_s', 'first_solution_measured',
+            'psr_at')
+    return dict({k: row.get(k) for k in keep}, wall_s=round(time.perf_counter() - t, 3))
+
+
+def _evaluate(scene, config: BuildConfig, attacks: dict, scenes: dict) -> dict:
+    """Every victim on the unattacked scene and on each certified attacked one; fills the
+    attack entries' ``victims`` (with the PT ratio) and returns the unattacked cells."""
+    from advocc_ros.evaluation.hardness import pt_ratio
+
+    unattacked = {}
+    for victim in config.victims:
+        base = unattacked[victim] = _cell(scene, victim, config)
+        for budget, attacked in scenes.items():
+            cell = _cell(attacked, victim, config)
+            if 'error' not in cell and 'error' not in base:
+                cell['pt_ratio'] = pt_ratio(cell, base)
+            attacks[str(budget)]['victims'][victim] = cell
+    return unattacked
+
+
+def _hardness(problem: dict, config: BuildConfig, attacks: dict, unattacked: dict) -> dict:
+    """``hardness.json``: per victim and budget PSR, failure modes, time to first solution,
+    PT ratio and the certificate's verdict, and whether every victim is beaten."""
+    for entry in attacks.values():
+        cells = [entry['victims'].get(v) for v in config.victims]
+        entry['all_victims_psr_le_20'] = (
+            None if entry['exported'] is None or any(c is None or c.get('psr') is None
+                                                     for c in cells)
+            else all(c['psr'] <= PSR_HARD for c in cells))
+    return {'format': HARDNESS_FORMAT, 'version': 1, 'family': problem['family'],
+            'problem': f'{problem["index"]:04d}', 'split': problem['split'],
+            'source': {'scene': f'{problem["family"]}/{problem["scene_name"]}',
+                       'request': f'{problem["family"]}/{problem["request_name"]}'},
+            'settings': config.to_json(), 'unattacked': unattacked, 'attacks': attacks}
+
+
+__all__ = ['BuildConfig', 'FINAL_OUTCOMES', 'HARDNESS_FORMAT', 'KILL_ONCE_ENV', 'OUTCOMES',
+           'PSR_HARD', 'problem_input', 'run_problem']

@@ -1,0 +1,124 @@
+"""The problems of a MotionBenchMaker data set: discovery, the train/test split and the seeded
+choice of ``--limit`` problems per family.
+
+A data set folder holds one folder per family (``box_panda/``, ...), each with
+``sceneNNNN.yaml`` + ``requestNNNN.yaml`` pairs, as MotionBenchMaker publishes them
+(KavrakiLab/ompl-workshop ``problems/``: 7 Panda families x 100). The split is fixed by the
+problem number, never by a draw: problems 0001-0040 of each family are ``train`` (they choose
+every setting), 0041-0100 are ``test`` (they only report).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import pathlib
+import random
+import re
+
+FAMILIES = ('bookshelf_small_panda', 'bookshelf_tall_panda', 'bookshelf_thin_panda',
+            'box_panda', 'cage_panda', 'table_pick_panda', 'table_under_pick_panda')
+"""MotionBenchMaker's seven Panda families, as its folders are named."""
+FAMILY_SUFFIX = '_panda'
+"""A family may be named without it on the command line (``box`` for ``box_panda``)."""
+TRAIN_LAST = 40
+"""Problems 1..TRAIN_LAST of every family are the train split, the rest the test split."""
+SPLITS = ('train', 'test', 'all')
+SCENE_FILE = re.compile(r'scene(\d{4})\.yaml')
+
+
+class DatasetError(ValueError):
+    """Input the user can fix: a missing folder, an unknown family or split, a bad setting."""
+
+
+@dataclasses.dataclass(frozen=True)
+class Problem:
+    """One problem: its family folder's name, its number and its two files (the request may be
+    missing; the job then refuses the problem and says so)."""
+
+    family: str
+    index: int
+    scene: pathlib.Path
+    request: pathlib.Path
+
+    @property
+    def name(self) -> str:
+        """``NNNN``, the problem's folder name in the output."""
+        return f'{self.index:04d}'
+
+    @property
+    def key(self) -> str:
+        """``family/NNNN``: unique within a data set."""
+        return f'{self.family}/{self.name}'
+
+    @property
+    def split(self) -> str:
+        return split_of(self.index)
+
+
+def split_of(index: int) -> str:
+    """``train`` for problems 1..TRAIN_LAST, else ``test``."""
+    return 'train' if 1 <= index <= TRAIN_LAST else 'test'
+
+
+def family_folders(root: pathlib.Path) -> dict[str, pathlib.Path]:
+    """The folders under ``root`` that hold at least one ``sceneNNNN.yaml``, by name."""
+    return {d.name: d for d in sorted(root.iterdir())
+            if d.is_dir() and any(SCENE_FILE.fullmatch(f.name) for f in d.iterdir())}
+
+
+def resolve_families(available: dict[str, pathlib.Path], names: list[str] | None) -> list[str]:
+    """The folder names ``names`` mean (``box`` or ``box_panda``), in the given order; every
+    available family when ``names`` is empty. ``DatasetError`` for an unknown one."""
+    if not names:
+        return list(available)
+    out = []
+    for name in names:
+        match = next((f for f in (name, name + FAMILY_SUFFIX) if f in available), None)
+        if match is None:
+            raise DatasetError(f'unknown family {name!r}; the problems folder has: '
+                               f'{", ".join(available) or "none"}')
+        if match not in out:
+            out.append(match)
+    return out
+
+
+def discover(root: str | pathlib.Path, families: list[str] | None = None) -> list[Problem]:
+    """Every problem of ``families`` (default: all) under ``root``, by family then number."""
+    root = pathlib.Path(root)
+    if not root.is_dir():
+        raise DatasetError(f'{root}: no such problems folder')
+    available = family_folders(root)
+    if not available:
+        raise DatasetError(f'{root}: no family folders with sceneNNNN.yaml files (expected '
+                           f'e.g. {root}/box_panda/scene0001.yaml)')
+    problems = []
+    for family in resolve_families(available, families):
+        folder = available[family]
+        for path in sorted(folder.iterdir()):
+            m = SCENE_FILE.fullmatch(path.name)
+            if m:
+                problems.append(Problem(family, int(m.group(1)), path,
+                                        folder / f'request{m.group(1)}.yaml'))
+    return problems
+
+
+def select(problems: list[Problem], split: str = 'all', limit: int | None = None,
+           seed: int = 0) -> list[Problem]:
+    """The problems of ``split``; with ``limit``, a seeded random sample of at most ``limit``
+    per family (the same ``seed`` always picks the same problems, whatever else the folder
+    holds of other families or splits)."""
+    if split not in SPLITS:
+        raise DatasetError(f'--split {split!r}: expected one of {", ".join(SPLITS)}')
+    if limit is not None and limit < 1:
+        raise DatasetError(f'--limit must be >= 1, got {limit}')
+    chosen = []
+    for family in dict.fromkeys(p.family for p in problems):
+        pool = [p for p in problems if p.family == family and split in ('all', p.split)]
+        if limit is not None and len(pool) > limit:
+            pool = random.Random(f'{seed}/{family}/{split}').sample(pool, limit)
+        chosen += sorted(pool, key=lambda p: p.index)
+    return chosen
+
+
+__all__ = ['DatasetError', 'FAMILIES', 'Problem', 'SPLITS', 'TRAIN_LAST', 'discover',
+           'resolve_families', 'select', 'split_of']

@@ -1,0 +1,190 @@
+"""The data set's summary: per family and split, how problems ended and how hard the built ones
+are; written as ``summary.json``, ``summary.md`` and ``summary.png``.
+
+Read from the problems' records in the output folder (every problem there, whichever build
+wrote it). Per group (a family and a split; ``all`` pools the families):
+
+- the share of each outcome (``job.OUTCOMES``);
+- per budget M, over the problems whose budget-M attack was certified and evaluated: the share
+  where *every* victim is at PSR <= 20 %, each victim's mean PSR, and the median PT ratio
+  (attacked / unattacked median time to first solution, ``evaluation.hardness.pt_ratio``) over
+  victims and problems;
+- the victims' mean PSR on the unattacked problems (MotionBenchMaker kept only problems its
+  planner solves, so this is the line the attack starts from).
+"""
+
+from __future__ import annotations
+
+import pathlib
+import statistics
+
+from advocc_ros.dataset import store
+from advocc_ros.dataset.job import OUTCOMES
+
+SUMMARY_FORMAT = 'advocc_dataset_summary'
+FIGURE = 'summary.png'
+
+
+def _mean(values: list) -> float | None:
+    values = [v for v in values if v is not None]
+    return float(statistics.fmean(values)) if values else None
+
+
+def _median(values: list) -> float | None:
+    values = [v for v in values if v is not None]
+    return float(statistics.median(values)) if values else None
+
+
+def _group(family: str, split: str, items: list[tuple[dict, dict | None]], budgets: list[str],
+           victims: list[str]) -> dict:
+    n = len(items)
+    outcomes = {k: sum(r['outcome'] == k for r, _ in items) for k in OUTCOMES}
+    hard = [h for r, h in items if r['outcome'] == 'built' and h]
+    per_budget = {}
+    for b in budgets:
+        attacks = [h['attacks'][b] for h in hard if h.get('attacks', {}).get(b, {}).get(
+            'all_victims_psr_le_20') is not None]
+        cells = {v: [a['victims'].get(v, {}) for a in attacks] for v in victims}
+        per_budget[b] = {
+            'evaluated': len(attacks),
+            'all_victims_psr_le_20': (sum(a['all_victims_psr_le_20'] for a in attacks)
+                                      / len(attacks) if attacks else None),
+            'median_pt_ratio': _median([c.get('pt_ratio') for v in victims for c in cells[v]]),
+            'victims': {v: {'mean_psr': _mean([c.get('psr') for c in cells[v]]),
+                            'median_pt_ratio': _median([c.get('pt_ratio') for c in cells[v]])}
+                        for v in victims}}
+    return {'family': family, 'split': split, 'problems': n, 'outcomes': outcomes,
+            'shares': {k: v / n if n else None for k, v in outcomes.items()},
+            'unattacked': {v: {'mean_psr': _mean([h['unattacked'].get(v, {}).get('psr')
+                                                  for h in hard])} for v in victims},
+            'budgets': per_budget}
+
+
+def summarise(out: pathlib.Path) -> dict:
+    """The summary of every problem recorded under ``out`` (see the module docstring)."""
+    found = store.records(out)
+    build = store.read_json(out / store.BUILD_FILE) or {}
+    settings = build.get('settings', {}).get('build', {})
+    budgets = [str(b) for b in settings.get('budgets', [])]
+    victims = list(settings.get('victims', []))
+    groups = []
+    for split in ('train', 'test'):
+        items = [(r, h) for r, h in found if r.get('split') == split]
+        if not items:
+            continue
+        for family in sorted({r['family'] for r, _ in items}):
+            groups.append(_group(family, split, [(r, h) for r, h in items
+                                                 if r['family'] == family], budgets, victims))
+        groups.append(_group('all', split, items, budgets, victims))
+    return {'format': SUMMARY_FORMAT, 'version': 1, 'problems': len(found),
+            'settings': settings, 'budgets': budgets, 'victims': victims, 'groups': groups,
+            'errors': [f'{r["family"]}/{r["problem"]}: {r.get("reason")}' for r, _ in found
+                       if r['outcome'] == 'error']}
+
+
+def _pct(value) -> str:
+    return '–' if value is None else f'{100 * value:.0f} %'
+
+
+def _num(value) -> str:
+    return '–' if value is None else f'{value:.2f}'
+
+
+def markdown(summary: dict) -> str:
+    """``summary.md``: one table per split, then the refusals' and errors' count."""
+    budgets, victims = summary['budgets'], summary['victims']
+    s = summary['settings']
+    lines = ['# Certified hard problems: summary', '',
+             f'{summary["problems"]} problems; `task` attack under `solvable` at M = '
+             f'{", ".join(budgets)}; victims {", ".join(victims)}; {s.get("trials")} trials x '
+             f'{s.get("time_s")} s each. "All <= 20 %": share of the problems with a certified '
+             'attack at M where every victim is at PSR <= 20 %. PT ratio: median over victims '
+             'and problems of attacked / unattacked median time to first solution. Problems '
+             '0001-0040 of each family are the train split, 0041-0100 the test split.', '']
+    head = ['family', 'problems'] + list(OUTCOMES)
+    for b in budgets:
+        head += [f'M={b}: all <= 20 %', f'M={b}: PT ratio']
+    for split in ('train', 'test'):
+        rows = [g for g in summary['groups'] if g['split'] == split]
+        if not rows:
+            continue
+        lines += [f'## {split} split', '', '| ' + ' | '.join(head) + ' |',
+                  '|' + '---|' * len(head)]
+        for g in rows:
+            cells = [f'**{g["family"]}**' if g['family'] == 'all' else g['family'],
+                     str(g['problems'])]
+            cells += [f'{g["outcomes"][k]} ({_pct(g["shares"][k])})' for k in OUTCOMES]
+            for b in budgets:
+                cell = g['budgets'][b]
+                cells += [f'{_pct(cell["all_victims_psr_le_20"])} of {cell["evaluated"]}',
+                          _num(cell['median_pt_ratio'])]
+            lines.append('| ' + ' | '.join(cells) + ' |')
+        lines.append('')
+    if summary['errors']:
+        lines += ['## Errors (redone by the next build over this folder)', '']
+        lines += [f'- {e}' for e in summary['errors']] + ['']
+    lines += [f'![mean PSR per budget and share of problems beaten per family]({FIGURE})', '']
+    return '\n'.join(lines)
+
+
+def figure(summary: dict, path: pathlib.Path) -> None:
+    """``summary.png``: each victim's mean PSR against the budget (0 = unattacked) per split,
+    and per family the share of problems where every victim is at PSR <= 20 %."""
+    import matplotlib
+    matplotlib.use('Agg')
+    import matplotlib.pyplot as plt
+
+    from advocc_ros.fileio import atomic_open
+
+    budgets, victims = summary['budgets'], summary['victims']
+    fig, (left, right) = plt.subplots(1, 2, figsize=(12, 4.5),
+                                      gridspec_kw={'width_ratios': [1, 1.4]})
+    styles = {'train': '-', 'test': '--'}
+    xs = [0] + [int(b) for b in budgets]
+    for split, style in styles.items():
+        pooled = next((g for g in summary['groups']
+                       if g['family'] == 'all' and g['split'] == split), None)
+        if pooled is None:
+            continue
+        for k, v in enumerate(victims):
+            ys = [pooled['unattacked'][v]['mean_psr']] + [
+                pooled['budgets'][b]['victims'][v]['mean_psr'] for b in budgets]
+            left.plot(xs, [float('nan') if y is None else 100 * y for y in ys], style,
+                      marker='o', color=f'C{k}', label=f'{v} ({split})')
+    left.axhline(20, color='grey', lw=0.8, ls=':')
+    left.set(xlabel='boxes M (0: unattacked)', ylabel='mean PSR [%]', ylim=(-3, 103),
+             xticks=xs, title='Victims on certified attacks')
+    left.legend(fontsize=7)
+    groups = [g for g in summary['groups'] if g['family'] != 'all']
+    labels = [f'{g["family"].removesuffix("_panda")}\n{g["split"]}' for g in groups]
+    width = 0.8 / max(len(budgets), 1)
+    for k, b in enumerate(budgets):
+        cells = [g['budgets'][b] for g in groups]
+        shares = [c['all_victims_psr_le_20'] for c in cells]
+        bars = right.bar([i + (k - (len(budgets) - 1) / 2) * width for i in range(len(groups))],
+                         [0 if s is None else 100 * s for s in shares], width,
+                         label=f'M = {b}')
+        right.bar_label(bars, [f'{round((s or 0) * c["evaluated"])}/{c["evaluated"]}'
+                               for s, c in zip(shares, cells)], fontsize=6)
+    right.set_xticks(range(len(groups)), labels, fontsize=7)
+    right.set(ylabel='problems with every victim at PSR <= 20 % [%]', ylim=(0, 103),
+              title='Beaten problems per family')
+    right.legend(fontsize=8)
+    fig.tight_layout()
+    with atomic_open(path, 'wb') as handle:
+        fig.savefig(handle, format='png', dpi=110)
+    plt.close(fig)
+
+
+def write_summary(out: pathlib.Path) -> dict:
+    """Write ``summary.json``, ``summary.md`` and ``summary.png`` into ``out``; the summary."""
+    from advocc_ros.fileio import atomic_write_text
+
+    summary = summarise(out)
+    store.write_json(out / 'summary.json', summary)
+    atomic_write_text(out / 'summary.md', markdown(summary))
+    figure(summary, out / FIGURE)
+    return summary
+
+
+__all__ = ['FIGURE', 'SUMMARY_FORMAT', 'markdown', 'summarise', 'write_summary']
