@@ -10,10 +10,14 @@ FUZZ_INPUTS ?= 10000
 # MPlib (an outside victim, issue 28) needs numpy < 2: its own venv, used by one worker process.
 MPLIB_VENV  ?= .venv-mplib
 MPLIB_STAMP := $(MPLIB_VENV)/.advocc-mplib-installed
+# OMPL 2.0.1 (AORRTC) shares the module name `ompl` with our 1.7.0 and its PRM* deadlocks with
+# Python checkers: the aorrtc/rrtconnect2 victims run our planning worker in their own venv.
+OMPL2_VENV  ?= .venv-ompl2
+OMPL2_STAMP := $(OMPL2_VENV)/.advocc-ompl2-installed
 
 .PHONY: install demo test test-fast fuzz perf clean
 
-install: $(STAMP) $(MPLIB_STAMP)
+install: $(STAMP) $(MPLIB_STAMP) $(OMPL2_STAMP)
 
 $(PY):
 	@$(PYTHON) -c 'import sys; assert sys.version_info[:2] == (3, 11), \
@@ -40,10 +44,21 @@ $(MPLIB_STAMP): Makefile
 	@echo "MPlib victim installed in $(MPLIB_VENV)"
 	touch $@
 
+# The OMPL 2 victims' interpreter: OMPL 2.0.1 and what our planning worker imports (the same
+# pins as setup.py's RUNTIME), never our package or ROS (the worker gets the source on PYTHONPATH).
+$(OMPL2_STAMP): Makefile
+	$(PYTHON) -m venv $(OMPL2_VENV)
+	$(OMPL2_VENV)/bin/python -m pip install --quiet --disable-pip-version-check ompl==2.0.1 \
+	  numpy==2.4.6 pin==4.1.0 coal==3.0.3 scipy==1.17.1 trimesh==5.2.0 pyyaml==6.0.3 \
+	  example-robot-data==6.0.0
+	$(OMPL2_VENV)/bin/python -c 'import ompl.geometric as og, pinocchio, coal; og.AORRTC'
+	@echo "OMPL 2 victims installed in $(OMPL2_VENV)"
+	touch $@
+
 demo: $(STAMP)
 	$(VENV)/bin/advocc demo --out $(OUT)
 
-test: $(STAMP) $(MPLIB_STAMP)
+test: $(STAMP) $(MPLIB_STAMP) $(OMPL2_STAMP)
 	$(PY) -m pytest $(PYTEST_ARGS)
 
 # The core tests without processes (no nodes, planning workers or CLI runs) and without the
@@ -61,4 +76,4 @@ perf: $(STAMP)
 	$(VENV)/bin/advocc perf attack --json
 
 clean:
-	rm -rf $(VENV) $(MPLIB_VENV) build out .pytest_cache
+	rm -rf $(VENV) $(MPLIB_VENV) $(OMPL2_VENV) build out .pytest_cache

@@ -1,6 +1,9 @@
 """One OMPL solve to a goal region, in-process (it runs inside the planning worker).
 
-OMPL is imported lazily, so the parent process never needs it.
+OMPL is imported lazily, so the parent process never needs it. The same code runs on OMPL 1.7
+(Boost.Python, our venv: RRTConnect, PRM*, BKPIECE1) and on OMPL 2.0 (nanobind, ``.venv-ompl2``:
+the ``aorrtc`` and ``rrtconnect2`` victims); the three places where their Python APIs differ
+(the validity checker, a new state, the projection's vectors) are :func:`_legacy_api`'s.
 """
 
 from __future__ import annotations
@@ -31,6 +34,19 @@ _OMPL_SEEDED = False
 def _ompl():
     from ompl import base as ob, geometric as og, util as ou
     return ob, og, ou
+
+
+def _ompl_version() -> str:
+    """The installed OMPL's version (``ompl`` 1.7.0 in our venv, 2.0.1 in ``.venv-ompl2``)."""
+    from importlib.metadata import version
+    return f'ompl {version("ompl")}'
+
+
+def _legacy_api(ob) -> bool:
+    """Whether ``ob`` is OMPL 1.x's Boost.Python ``ompl.base`` (a checker is wrapped in
+    ``StateValidityCheckerFn``, states are ``ob.State(space)``, vectors are ``ou.vector*``);
+    OMPL 2.0's nanobind bindings take a callable, ``space.allocState()`` and lists."""
+    return hasattr(ob, 'StateValidityCheckerFn')
 
 
 def _make_goal_class(ob):
@@ -120,6 +136,10 @@ def solve(robot: RobotModel, world: CollisionWorld, q_start: np.ndarray, goal: G
         return _fail(PlanStatus.START_STATE_IN_COLLISION, 'start state is in collision', nq,
                      time.monotonic() - t0)
     ob, og, ou = _ompl()
+    if not hasattr(og, planner_class_name(planner_id)):
+        return _fail(PlanStatus.UNKNOWN_METHOD, f'{planner_class_name(planner_id)} is not in '
+                     f'this OMPL ({_ompl_version()}): it is an OMPL 2 planner, planned by the '
+                     'victim of that name (advocc_ros.planning.victims.ompl2)', nq)
     _seed_ompl(ou, seed)
     rng = np.random.default_rng(int(seed) % 2 ** 64)  # int64 message seeds may be < 0
     sampler = GoalSampler(robot, world.in_collision, goal, rng, config)
@@ -180,9 +200,32 @@ def _solve_to(robot, world, q_start, planner_id, time_budget_s, config, t0, samp
                  planner=planner_class_name(planner_id), ompl_status=status.asString())
     if not ss.haveExactSolutionPath():
         return _no_solution(status.asString(), time_budget_s, nq, time.monotonic() - t0, stats)
+    broken = _not_a_solution(ss, q_start, goal_obj, nq)
+    if broken:
+        # OMPL 2.0.1's AORRTC: when its first connection reaches the start tree's root, its own
+        # simplification leaves a zero-length path at a goal and it answers INVALID_GOAL.
+        return _fail(PlanStatus.PLANNING_FAILED, f'{stats["planner"]}: {broken} (OMPL status: '
+                     f'{status.asString()})', nq, time.monotonic() - t0, **stats)
     first = goal_obj.first_pair_t
     stats['first_solution_s'] = (first if first is not None else time.monotonic()) - t0
     return _solution(ss, world, t0, t0 + time_budget_s, config, stats)
+
+
+def _not_a_solution(ss, q_start: np.ndarray, goal_obj, nq: int) -> str:
+    """Why the exact solution OMPL holds is not a path of the task ('' if it is one): it must
+    run from the start state to a state the goal accepts."""
+    path = ss.getSolutionPath()
+    n = path.getStateCount()
+    if n < 1:
+        return 'its solution has no state'
+    first = np.array([path.getState(0)[i] for i in range(nq)])
+    if not np.allclose(first, q_start, atol=1e-9):
+        return (f'its solution does not start at the start state (off by '
+                f'{np.abs(first - q_start).max():.3g} rad; {n} states, length '
+                f'{path.length():.3g} rad)')
+    if not goal_obj.isSatisfied(path.getState(n - 1)):
+        return 'its solution does not end in the goal'
+    return ''
 
 
 def _seed_ompl(ou, seed: int) -> None:
@@ -213,7 +256,8 @@ def _simple_setup(ob, og, ou, robot: RobotModel, world: CollisionWorld, q_start:
     nq = robot.nq
     space = joint_space(ob, robot)
     proj = [j for j in config.projection_joints if 0 <= j < nq] or [0]
-    cells, components = ou.vectorDouble(), ou.vectorUint()
+    legacy = _legacy_api(ob)
+    cells, components = (ou.vectorDouble(), ou.vectorUint()) if legacy else ([], [])
     for j in proj:
         cells.append(float(robot.upper[j] - robot.lower[j]) / 20.0)
         components.append(j)
@@ -225,11 +269,11 @@ def _simple_setup(ob, og, ou, robot: RobotModel, world: CollisionWorld, q_start:
         checks[0] += 1
         return not world.in_collision(np.array([state[i] for i in range(nq)]))
 
-    ss.setStateValidityChecker(ob.StateValidityCheckerFn(is_valid))
+    ss.setStateValidityChecker(ob.StateValidityCheckerFn(is_valid) if legacy else is_valid)
     si = ss.getSpaceInformation()
     si.setStateValidityCheckingResolution(config.motion_step_rad / space.getMaximumExtent())
     si.setMotionValidator(make_motion_validator(ob, si, space, world, nq, checks))
-    start = ob.State(space)
+    start = ob.State(space) if legacy else space.allocState()
     for i in range(nq):
         start[i] = float(q_start[i])
     ss.setStartState(start)

@@ -50,11 +50,12 @@ planner-in-the-loop attack stop on them instead of counting them as attack wins.
 
 # OMPL geometric planners selectable by name (lower-case id -> class name in ompl.geometric).
 # All of them solve the problem as set up here (goal region, default projection for KPIECE/SBL).
+# AORRTC exists only in OMPL 2: the ``aorrtc`` victim plans with it in its own venv.
 _PLANNER_CLASSES = (
     'RRTConnect', 'PRMstar', 'BKPIECE1', 'RRT', 'RRTstar', 'TRRT', 'LazyRRT', 'InformedRRTstar',
     'SORRTstar', 'RRTsharp', 'RRTXstatic', 'LBTRRT', 'PRM', 'LazyPRM', 'LazyPRMstar', 'KPIECE1',
     'LBKPIECE1', 'EST', 'BiEST', 'ProjEST', 'SBL', 'STRIDE', 'PDST', 'FMT', 'BFMT', 'BITstar',
-    'ABITstar', 'AITstar', 'EITstar', 'SST', 'SPARS', 'SPARStwo')
+    'ABITstar', 'AITstar', 'EITstar', 'SST', 'SPARS', 'SPARStwo', 'AORRTC')
 PLANNERS: dict[str, str] = {name.lower(): name for name in _PLANNER_CLASSES}
 
 

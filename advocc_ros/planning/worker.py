@@ -267,8 +267,11 @@ class Planner:
     objects). Use one ``Planner`` per parallel stream of requests (each owns a process).
     """
 
-    def __init__(self, scene: Scene, config: PlanningConfig = PlanningConfig()):
+    def __init__(self, scene: Scene, config: PlanningConfig = PlanningConfig(), command=None):
+        """``command() -> (argv, env)``: run the worker in another interpreter (the OMPL 2
+        victims' ``.venv-ompl2``); None: this interpreter, our OMPL 1.7."""
         self.config = config
+        self.command = command
         self.robot = load_robot(scene.robot)
         self._lock = threading.Lock()
         self._slot = WorkerSlot()
@@ -304,7 +307,8 @@ class Planner:
         return self
 
     def _ensure_worker(self) -> _Worker:
-        worker, fresh = self._slot.ensure(lambda: _Worker(self.config.worker_start_timeout_s))
+        worker, fresh = self._slot.ensure(lambda: _Worker(
+            self.config.worker_start_timeout_s, *(self.command() if self.command else ())))
         if fresh:
             log.debug('planning worker %d started', worker.pid)
         return worker

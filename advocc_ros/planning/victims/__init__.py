@@ -8,6 +8,8 @@ and ``stats['first_solution_s']`` plus victim-specific detail. Names:
 - our OMPL 1.7 planners (``rrtconnect``, ``prmstar``, ``bkpiece1``, any OMPL geometric planner
   id): :class:`advocc_ros.planning.victims.ompl.OmplVictim`; they sample the goal region
   themselves, or take the goal list (``VictimConfig.ompl_goal_list``);
+- ``aorrtc``, ``rrtconnect2``: OMPL 2.0.1's AORRTC and RRTConnect, our planning worker in the
+  OMPL 2 venv (:mod:`advocc_ros.planning.victims.ompl2`);
 - ``mplib``: MPlib 0.2.1's RRTConnect on FCL and the robot's meshes, in its own interpreter;
 - ``trajopt``: Tesseract 0.5.1's TrajOpt (sequential convex optimization), in a worker;
 - outside victims registered by module (imported lazily by name, so a missing optional
@@ -29,11 +31,14 @@ from advocc_ros.planning.victims.base import (Task, Victim, VictimConfig, densif
                                               path_length_rad)
 
 _OUTSIDE: dict[str, str] = {
+    'aorrtc': 'advocc_ros.planning.victims.ompl2',
+    'rrtconnect2': 'advocc_ros.planning.victims.ompl2',
     'mplib': 'advocc_ros.planning.victims.mplib',
     'trajopt': 'advocc_ros.planning.victims.trajopt_victim',
 }
 """Outside victims: name -> module defining ``make_victim(name, config) -> Victim``."""
-OUTSIDE_LABELS = {'mplib': 'MPlib', 'trajopt': 'TrajOpt'}
+OUTSIDE_LABELS = {'aorrtc': 'AORRTC', 'rrtconnect2': 'RRT (OMPL 2)', 'mplib': 'MPlib',
+                  'trajopt': 'TrajOpt'}
 """How tables and reports name the outside victims."""
 
 
@@ -53,16 +58,17 @@ def is_victim(name: str) -> bool:
 
 
 def is_outside(name: str) -> bool:
-    """Whether ``name`` is an outside victim (not one of our OMPL planners)."""
-    return planner_class_name(name) is None and name.strip().lower() in _OUTSIDE
+    """Whether ``name`` is a registered victim that is not one of our OMPL 1.7 planners (a
+    registered name wins over an OMPL id: ``aorrtc`` is OMPL 2's, in its own venv)."""
+    return name.strip().lower() in _OUTSIDE
 
 
 def make_victim(name: str, config: VictimConfig = VictimConfig()) -> Victim:
     """The victim called ``name``; ``ValueError`` naming the known ones if there is none."""
-    if planner_class_name(name) is not None:
+    key = name.strip().lower()
+    if key not in _OUTSIDE and planner_class_name(name) is not None:
         from advocc_ros.planning.victims.ompl import OmplVictim
         return OmplVictim(name, config)
-    key = name.strip().lower()
     if key not in _OUTSIDE:
         raise ValueError(f'unknown planner {name!r}; known: OMPL planner ids (rrtconnect, '
                          f'prmstar, bkpiece1, ...) and {victim_names()}')

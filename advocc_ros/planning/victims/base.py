@@ -55,6 +55,9 @@ class VictimConfig:
     mplib_python: str = ''
     """Interpreter of the MPlib venv; empty: ``$ADVOCC_MPLIB_PYTHON``, else the checkout's
     ``.venv-mplib/bin/python`` (``make install`` creates it)."""
+    ompl2_python: str = ''
+    """Interpreter of the OMPL 2 venv (``aorrtc``, ``rrtconnect2``); empty:
+    ``$ADVOCC_OMPL2_PYTHON``, else the checkout's ``.venv-ompl2/bin/python``."""
     hidden_object_ids: tuple[str, ...] = ()
     """Diagnostics only: objects left out of an outside victim's world (the tests of the
     re-validation hide a box from MPlib that our checker still sees)."""

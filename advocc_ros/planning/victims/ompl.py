@@ -21,14 +21,20 @@ class OmplVictim:
         if planner_class_name(name) is None:
             raise ValueError(f'{name!r} is not an OMPL planner id')
         self.name, self.config = name, config
+        self.planner_id = name
+        """The OMPL planner id sent to the worker."""
         self._planner: Planner | None = None
         self._world: tuple[str, CollisionWorld] | None = None
+
+    def _new_planner(self, scene) -> Planner:
+        """A ``Planner`` over our OMPL 1.7 worker (the OMPL 2 victims run theirs elsewhere)."""
+        return Planner(scene, self.config.planning)
 
     def _planner_for(self, task: Task) -> Planner:
         if self._planner is None or self._planner.robot.spec != task.scene.robot:
             if self._planner is not None:
                 self._planner.close()
-            self._planner = Planner(task.scene, self.config.planning)
+            self._planner = self._new_planner(task.scene)
         else:
             self._planner.set_scene(task.scene)
         return self._planner
@@ -36,7 +42,7 @@ class OmplVictim:
     def start(self, scene) -> 'OmplVictim':
         if self._planner is None or self._planner.robot.spec != scene.robot:
             self.close()
-            self._planner = Planner(scene, self.config.planning)
+            self._planner = self._new_planner(scene)
         self._planner.start()
         return self
 
@@ -49,7 +55,8 @@ class OmplVictim:
         if goals is not None and not len(goals):
             return _fail(PlanStatus.GOAL_IN_COLLISION, 'our goal sampler found no collision-free '
                          'goal configuration for the goal list', planner.robot.nq)
-        result = planner.plan(task.q_start, task.goal, self.name, time_budget_s, seed, goals)
+        result = planner.plan(task.q_start, task.goal, self.planner_id, time_budget_s, seed,
+                              goals)
         result.stats['victim'] = self.name
         return result
 
