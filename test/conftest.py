@@ -9,9 +9,6 @@ import numpy as np
 import pytest
 
 REPO = pathlib.Path(__file__).resolve().parents[1]
-JUDGE = 256
-"""Selection goal samples of the task attack in the tests that set it: the coarse set, for
-speed (the default is ``TaskOptions.selection_samples``)."""
 FAST_LANE_ENV = 'ADVOCC_FAST_LANE'
 """Set by ``make test-fast``: tests marked ``processes`` are deselected, and any other test that
 starts a process fails, naming itself, so the marks stay true."""

@@ -178,7 +178,7 @@ def test_server_answers_bad_requests_and_keeps_serving(ros, ros_env, heatmap_fil
     assert good.solvable in ('certified', 'goal blocked', 'unknown') and good.solvable_message
     solvable = _request(table_scene, budget=5, method='task')
     solvable.goal_policy = 'solvable'
-    kept = _call(executor, client, solvable, timeout_s=60)  # witness search + 8 task draws
+    kept = _call(executor, client, solvable, timeout_s=60)  # witness search + attack
     assert kept.error_code.val == ErrorCodes.SUCCESS, kept.message
     assert kept.solvable == 'certified', kept.solvable_message  # the witness is kept by design
 
@@ -263,6 +263,8 @@ def test_server_answers_a_repeat_without_recomputing(ros, ros_env, heatmap_file,
     from rcl_interfaces.msg import Parameter, ParameterType, ParameterValue
     from rcl_interfaces.srv import SetParameters
 
+    from advocc_ros.attack.task import TaskOptions
+
     node, executor, children = ros
     server = _start('heatmap_server', ros_env, f'heatmap_file:={heatmap_file}')
     children.append(server)
@@ -301,8 +303,8 @@ def test_server_task_options_are_node_parameters(ros, ros_env, heatmap_file, tab
     from rcl_interfaces.srv import SetParameters
 
     node, executor, children = ros
-    server = _start('heatmap_server', ros_env, f'heatmap_file:={heatmap_file}', 'task_draws:=1',
-                    'task_goal_share:=0.3')
+    server = _start('heatmap_server', ros_env, f'heatmap_file:={heatmap_file}', 'task_detours:=1',
+                    'task_tube_rad:=0.3')
     children.append(server)
     client = node.create_client(Attack, '/heatmap_server/attack')
     info_client = node.create_client(GetInfo, '/heatmap_server/get_info')
@@ -327,18 +329,20 @@ def test_server_task_options_are_node_parameters(ros, ros_env, heatmap_file, tab
         return result
 
     stats, options = attack_stats()
-    assert stats['task_draws'] == 1 and stats['task_goal_share'] == 0.3
-    assert options['draws'] == 1 and options['goal_share'] == 0.3 and options['detours'] == 2
-    zero = set_one('task_draws', 0)
-    assert not zero.successful and 'draws must be an integer >= 1, got 0' in zero.reason
-    share = set_one('task_goal_share', 1.0)
-    assert not share.successful and 'goal_share must be a number in [0, 1)' in share.reason
-    typed = set_one('task_draws', 2.5)
+    assert options['detours'] == 1 and options['tube_rad'] == 0.3
+    assert options['approach_points'] == TaskOptions.approach_points
+    approaches = stats['task_approach_samples']
+    negative = set_one('task_detours', -1)
+    assert not negative.successful and 'detours must be an integer >= 0, got -1' in \
+        negative.reason
+    rad = set_one('task_tube_rad', float('nan'))
+    assert not rad.successful and 'tube_rad must be a finite number >= 0' in rad.reason
+    typed = set_one('task_detours', 2.5)
     assert not typed.successful and 'type' in typed.reason.lower()
     stats, options = attack_stats()  # still serving, with the options it had
-    assert stats['task_draws'] == 1 and options['goal_share'] == 0.3
-    assert set_one('task_draws', 2).successful
-    assert attack_stats()[0]['task_draws'] == 2
+    assert options['detours'] == 1 and stats['task_approach_samples'] == approaches
+    assert set_one('task_tube_samples', 0).successful
+    assert attack_stats()[1]['tube_samples'] == 0
     assert _stop(server) == 0
 
 

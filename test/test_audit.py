@@ -151,18 +151,16 @@ def test_audit_policy_solvable_gives_both_answers(tmp_path, table_scene, small_h
     from advocc_ros.audit.report import audit_answer, audit_markdown
 
     cfg = AuditConfig(planners=('rrtconnect',), max_budget=2, trials=2, time_budget_s=1.0,
-                      policy='solvable', workers=1, task_options=TaskOptions(draws=2))
+                      policy='solvable', workers=1, task_options=TaskOptions(tube_samples=128))
     audit = run_audit(table_scene, small_heatmap, cfg)
     assert audit['policy'] == 'solvable'
-    assert audit['attack']['stats']['task_draws'] == 2  # --task-option reaches the attack
-    assert audit['settings']['task_options']['draws'] == 2
-    assert "task options (--task-option): {'goal_samples': 64" in audit_markdown(audit)
+    assert audit['settings']['task_options']['tube_samples'] == 128  # reaches the attack
+    assert "task options (--task-option): {'approach_goals': 64" in audit_markdown(audit)
     assert [b['solvable'] for b in audit['budgets']] == ['certified'] * len(audit['budgets'])
     imp = audit['impossible']
     assert not imp['same_attack'] and imp['goal_blocked_m'] == 1 and len(imp['boxes']) >= 1
     assert audit['min_budget_solvable'] == audit['min_budget']  # every prefix certified
     _prefix_one_is_the_one_box_attack(audit, table_scene, small_heatmap, cfg)
-    assert '- m = 1 (witness ' in audit_markdown(audit)
     row = audit['budgets'][0]['planners']['rrtconnect']
     assert row['first_solution_median_s'] > 0 and set(row['psr_at']) == {'1'}
     text = audit_answer(audit)
@@ -172,25 +170,19 @@ def test_audit_policy_solvable_gives_both_answers(tmp_path, table_scene, small_h
 
 
 def _prefix_one_is_the_one_box_attack(audit, scene, heatmap, cfg):
-    """The kept draw is judged on all its boxes, so prefix 1 is an attack of its own: the one
-    a one-box request places, not the first box of the two-box attack."""
+    """Budgets nest: prefix 1 of the audit's attack is the one-box attack's box."""
     from advocc_ros.attack import attack
-    from advocc_ros.attack.edges import task_witness, witness_plan
+    from advocc_ros.attack.edges import task_witness
     from advocc_ros.kinematics.ik import start_configuration
     from advocc_ros.model.robot import load_robot
 
-    own = [b for b in audit['budgets'] if 'boxes' in b]
-    assert [b['m'] for b in own] == [1]  # m = 0 has no box, m = 2 is the audit's attack
+    assert not [b for b in audit['budgets'] if 'boxes' in b]  # no prefix is an attack of its own
     robot = load_robot(scene.robot)
     q_init = start_configuration(scene, robot)
-    candidates = task_witness(robot, scene.objects, q_init, scene.goal,
-                              **witness_plan('task', 'solvable', cfg.task_options)).candidates
+    witness = task_witness(robot, scene.objects, q_init, scene.goal).witness
     one = attack(heatmap, robot, scene.objects, q_init, scene.goal, 1, 'task', seed=cfg.seed,
-                 goal_policy='solvable', witness=candidates, method_options=cfg.task_options)
-    assert own[0]['boxes'][0]['center_m'] == [round(float(v), 4) for v in one.centers_m[0]]
-    assert own[0]['attack']['stats']['task_draws'] == 2
-    assert own[0]['witness'] == one.witness.to_data()
-    assert own[0]['solvable'] == 'certified'
+                 goal_policy='solvable', witness=witness, method_options=cfg.task_options)
+    assert audit['boxes'][0]['center_m'] == [round(float(v), 4) for v in one.centers_m[0]]
 
 
 def _hand_audit(psr, verdicts, goal_blocked_m):

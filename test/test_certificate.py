@@ -170,7 +170,20 @@ def test_a_failed_search_is_not_kept(task, monkeypatch, tmp_path):
     assert len(calls) == 2 and len(list(tmp_path.iterdir())) == 1
 
 
-def test_an_unproven_search_result_is_dropped_for_the_next_seed(task, monkeypatch, tmp_path):
+def _scripted_runs(monkeypatch, robot, answers):
+    """The search with no rare ends and its RRTConnect runs answered from ``answers`` (a
+    planning worker still starts); returns the (seed, simplified) of each run."""
+    runs = []
+    monkeypatch.setattr(witness_mod, 'rare_clear_ends',
+                        lambda *a, **k: np.zeros((0, robot.nq)))
+    monkeypatch.setattr(witness_mod, '_plan',
+                        lambda planner, robot, q, goal, q_end, time_s, seed, simplify:
+                        runs.append((seed, simplify)) or answers.pop(0))
+    return runs
+
+
+@pytest.mark.processes  # the search's planning worker starts (its runs are scripted)
+def test_an_unproven_path_is_dropped_for_the_next_seed(task, monkeypatch):
     """A path the continuous certificate cannot prove (here: through the table) is not a
     witness; the next seed's is."""
     scene, robot, q0, witness = task
@@ -178,12 +191,24 @@ def test_an_unproven_search_result_is_dropped_for_the_next_seed(task, monkeypatc
     witness_mod.WITNESSES.clear()
     down = np.insert(witness.waypoints, 1, q0 + np.array([0, 1.2, 0, 0, 0, 1.5, 0]), 0)
     bad = Witness(witness.joint_names, down, witness.locked)
-    seeds, answers = [], [bad, witness]
-    monkeypatch.setattr(witness_mod, '_search',
-                        lambda robot, objects, q, goal, seed, time_s:
-                        seeds.append(seed) or answers.pop(0))
-    assert find_witness(robot, scene.objects, q0, scene.goal, seed=5) is witness
-    assert seeds == [5, 6]
+    runs = _scripted_runs(monkeypatch, robot, [bad, witness])
+    assert find_witness(robot, scene.objects, q0, scene.goal) is witness
+    assert runs == [(witness_mod.WITNESS_SEED, True), (witness_mod.WITNESS_SEED + 1, True)]
+
+
+@pytest.mark.processes  # the search's planning workers start (their runs are scripted)
+def test_unproven_simplified_paths_are_searched_again_unsimplified(task, monkeypatch):
+    """When every simplified path grazes an object (a grasp in a pocket), the targets are
+    searched again without simplification."""
+    scene, robot, q0, witness = task
+    monkeypatch.setenv(witness_mod.CACHE_ENV, 'off')
+    witness_mod.WITNESSES.clear()
+    down = np.insert(witness.waypoints, 1, q0 + np.array([0, 1.2, 0, 0, 0, 1.5, 0]), 0)
+    bad = Witness(witness.joint_names, down, witness.locked)
+    tries = witness_mod.WITNESS_TRIES
+    runs = _scripted_runs(monkeypatch, robot, [bad] * tries + [witness])
+    assert find_witness(robot, scene.objects, q0, scene.goal) is witness
+    assert [simplified for _, simplified in runs] == [True] * tries + [False]
 
 
 def test_the_verdict_is_an_enum_with_the_old_words(task):

@@ -303,13 +303,13 @@ def test_variations_are_attacked_again_and_certified(solvable_attack, tmp_path):
     out = tmp_path / 'dataset'
     assert main(['export', '--scene', 'table_pick', '--obstacles', str(solvable_attack),
                  '--out', str(out), '--variations', '2', '--seed', '3',
-                 '--task-option', 'draws=1']) == 0
+                 '--task-option', 'detours=1']) == 0
     manifest = yaml.safe_load((out / 'export.yaml').read_text())
     assert [p['scene'] for p in manifest['problems']] == ['scene0001.yaml', 'scene0002.yaml']
     assert manifest['goal_policy'] == 'solvable'
-    # --task-option replaces the obstacles file's options (those of its own attack: 8 draws)
-    assert yaml.safe_load(solvable_attack.read_text())['task_options']['draws'] == 8
-    assert manifest['task_options']['draws'] == 1
+    # --task-option replaces the obstacles file's options (those of its own attack: 2 detours)
+    assert yaml.safe_load(solvable_attack.read_text())['task_options']['detours'] == 2
+    assert manifest['task_options']['detours'] == 1
     centres = []
     for k, entry in enumerate(manifest['problems'], 1):
         files = problem_files(out, k)

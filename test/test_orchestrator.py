@@ -39,7 +39,7 @@ def _start(out, heatmap_file, env, trials=3):
             '--methods', 'ours,random', '--budgets', '1', '--trials', str(trials),
             '--time-budget', '1', '--variants', 'random=1', '--shims', '2',
             '--heatmap', f'table_pick={heatmap_file}', '--set', 'start_timeout_s=90',
-            '--set', 'plan_timeout_margin_s=15', '--set', 'task={draws: 1}']
+            '--set', 'plan_timeout_margin_s=15', '--set', 'task={detours: 1}']
     return subprocess.Popen(args, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
                             text=True)
 
@@ -145,8 +145,8 @@ def test_tiny_benchmark_end_to_end(tmp_path, heatmap_file, ros_env):
     # The server may read the run folder's heatmap wherever --out is (not only under cwd/tmp).
     server_log = (out / 'logs' / 'advocc_heatmap_table_pick.log').read_text()
     assert f'"{out.resolve()}"' in server_log.split('allowed_dirs:=', 1)[1].splitlines()[0]
-    assert 'task_draws:=1' in server_log.split('allowed_dirs:=', 1)[1].splitlines()[0]
-    assert json.loads((out / 'config.json').read_text())['config']['task'] == {'draws': 1}
+    assert 'task_detours:=1' in server_log.split('allowed_dirs:=', 1)[1].splitlines()[0]
+    assert json.loads((out / 'config.json').read_text())['config']['task'] == {'detours': 1}
     # Throughput: the trials this run planned over the time its trial loops took.
     assert summary['trials_run'] == summary['done']
     assert 0 < summary['trial_phase_s'] < summary['wall_s']

@@ -9,7 +9,7 @@ import sys
 import numpy as np
 import pytest
 
-from conftest import JUDGE, REPO
+from conftest import REPO
 
 SPAWN_EVENTS = ('subprocess.Popen', 'os.fork', 'os.forkpty', 'os.posix_spawn', 'os.spawn',
                 'os.exec', 'os.system')
@@ -92,43 +92,15 @@ def test_solvable_takes_the_witness_as_data(table, witness, no_process):
 
 
 @pytest.mark.processes  # the witness fixture's search (a planning worker)
-def test_task_draws_are_chosen_without_a_planner(table, witness, no_process):
-    """Under ``solvable`` the task attack judges its draws on IK goal samples, in this process."""
+def test_the_task_attack_runs_without_a_planner(table, witness, no_process):
+    """Under ``solvable`` the task attack samples its goals and covers them in this process."""
     from advocc_ros.attack import attack
-    from advocc_ros.attack.task import TaskOptions
 
     heatmap, robot, scene, q = table
     result = attack(heatmap, robot, scene.objects, q, scene.goal, 2, 'task', seed=1,
-                    goal_policy='solvable', witness=witness,
-                    method_options=TaskOptions(draws=3, selection_samples=JUDGE))
-    assert result.status.ok and result.stats['task_draws'] == 3 and no_process == []
+                    goal_policy='solvable', witness=witness)
+    assert result.status.ok and result.stats['task_goal_samples'] > 0 and no_process == []
     assert result.solvable.certified, result.solvable.message
-
-
-@pytest.fixture(scope='module')
-def candidates(table, witness):
-    """The task's witness and its rare-end witnesses, found as the edges find them (a planning
-    worker), before any test forbids processes."""
-    from advocc_ros.attack.edges import task_witness
-
-    heatmap, robot, scene, q = table
-    search = task_witness(robot, scene.objects, q, scene.goal, ends=2)
-    assert search.witness.content_hash() == witness.content_hash() and search.ends
-    return search.candidates
-
-
-@pytest.mark.processes  # the fixtures' searches (a planning worker)
-def test_the_witness_is_chosen_without_a_planner(table, candidates, no_process):
-    """Choosing among the task's and the rare-end witnesses runs in this process."""
-    from advocc_ros.attack import attack
-    from advocc_ros.attack.task import TaskOptions
-
-    heatmap, robot, scene, q = table
-    result = attack(heatmap, robot, scene.objects, q, scene.goal, 2, 'task', seed=1,
-                    goal_policy='solvable', witness=candidates,
-                    method_options=TaskOptions(draws=2, end_draws=1, selection_samples=JUDGE))
-    assert result.status.ok and result.stats['task_witnesses'] == len(candidates)
-    assert no_process == [] and result.solvable.certified, result.solvable.message
 
 
 @pytest.mark.processes  # a fresh interpreter

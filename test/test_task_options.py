@@ -13,26 +13,22 @@ from advocc_ros.cli import main
 
 
 def test_a_valid_mapping_gives_the_options_the_rest_default():
-    opts = task_options({'draws': 1, 'tube_rad': 1, 'goal_share': 0.3})
-    assert opts == TaskOptions(draws=1, tube_rad=1.0, goal_share=0.3)
+    opts = task_options({'detours': 1, 'tube_rad': 1, 'detour_rad': 0.3})
+    assert opts == TaskOptions(detours=1, tube_rad=1.0, detour_rad=0.3)
     assert isinstance(opts.tube_rad, float)  # an integer for a real option becomes a float
     assert task_options({}) == TaskOptions()
     assert set(_OPTION_VALUES) == {f.name for f in dataclasses.fields(TaskOptions)}
 
 
 @pytest.mark.parametrize('mapping, words', [
-    ({'drawz': 1}, "unknown option 'drawz'; known: goal_samples,"),
-    ({'draws': 'many'}, "draws must be an integer >= 1, got 'many'"),
-    ({'draws': 2.5}, 'draws must be an integer >= 1, got 2.5'),
-    ({'goal_samples': True}, 'goal_samples must be an integer >= 1, got True'),
+    ({'detourz': 1}, "unknown option 'detourz'; known: approach_goals,"),
+    ({'detours': 'many'}, "detours must be an integer >= 0, got 'many'"),
+    ({'detours': 2.5}, 'detours must be an integer >= 0, got 2.5'),
+    ({'approach_goals': True}, 'approach_goals must be an integer >= 0, got True'),
     ({'tube_rad': [0.1]}, 'tube_rad must be a finite number >= 0'),
-    ({'draws': 0}, 'draws must be an integer >= 1, got 0'),
-    ({'goal_share': 1.0}, 'goal_share must be a number in [0, 1), got 1.0'),
+    ({'tube_samples': -1}, 'tube_samples must be an integer >= 0, got -1'),
     ({'detour_rad': float('nan')}, 'detour_rad must be a finite number >= 0, got nan'),
-    ({'sampling_cap_s': 0.0}, 'sampling_cap_s must be a finite number > 0'),
-    ({'selection_samples': 0}, 'selection_samples must be an integer in [1, 16384], got 0'),
-    ({'selection_samples': 10**9}, 'selection_samples must be an integer in [1, 16384]'),
-    ('draws=1', 'expected a mapping of option: value'),
+    ('detours=1', 'expected a mapping of option: value'),
 ])
 def test_unknown_options_wrong_types_and_bad_values_are_refused_by_name(mapping, words):
     with pytest.raises(ValueError) as err:
@@ -46,29 +42,27 @@ def _attack_args(heatmap_file, tmp_path, *more):
 
 
 @pytest.mark.processes  # the solvable policy's witness search runs in a planning worker
-def test_cli_runs_one_draw_when_told(heatmap_file, tmp_path, capsys):
+def test_cli_passes_the_options_to_the_attack(heatmap_file, tmp_path, capsys):
     from advocc_ros.attack import load_obstacles
 
     args = _attack_args(heatmap_file, tmp_path, '--method', 'task', '--policy', 'solvable',
-                        '--task-option', 'draws=1', '--task-option', 'witness_ends=0',
-                        '--task-option', 'witness_seeds=1', '--task-option', 'goal_share=0.3',
+                        '--task-option', 'tube_samples=0', '--task-option', 'detours=0',
                         '--json')
     assert main(args) == 0
     stats = json.loads(capsys.readouterr().out)['stats']
-    assert stats['task_draws'] == 1 and stats['task_draw_kept'] == 0
-    assert 'task_witnesses' not in stats  # the task's witness only: no choice made
-    assert stats['task_goal_share'] == 0.3
+    # no tube, straight approaches only: approach_points per approach goal at most
+    opts = TaskOptions(tube_samples=0, detours=0)
+    assert 0 < stats['task_approach_samples'] <= opts.approach_goals * opts.approach_points
     _, meta = load_obstacles(tmp_path / 'boxes.yaml')
-    assert meta['task_options'] == dataclasses.asdict(
-        TaskOptions(draws=1, witness_ends=0, witness_seeds=1, goal_share=0.3))
+    assert meta['task_options'] == dataclasses.asdict(opts)
 
 
 @pytest.mark.parametrize('more, words', [
-    (['--method', 'task', '--task-option', 'draws=0'],
-     '--task-option: draws must be an integer >= 1, got 0'),
-    (['--method', 'task', '--task-option', 'drawz=1'], "unknown option 'drawz'"),
-    (['--method', 'task', '--task-option', 'draws'], 'expected KEY=VALUE'),
-    (['--method', 'random', '--task-option', 'draws=1'],
+    (['--method', 'task', '--task-option', 'detours=-1'],
+     '--task-option: detours must be an integer >= 0, got -1'),
+    (['--method', 'task', '--task-option', 'detourz=1'], "unknown option 'detourz'"),
+    (['--method', 'task', '--task-option', 'detours'], 'expected KEY=VALUE'),
+    (['--method', 'random', '--task-option', 'detours=1'],
      "--task-option applies to the task method only, not 'random'"),
 ])
 def test_cli_refuses_bad_task_options_before_any_work(heatmap_file, tmp_path, capsys, more,
@@ -84,26 +78,27 @@ def test_cli_refuses_bad_task_options_before_any_work(heatmap_file, tmp_path, ca
     ['export', '--scene', 'table_pick', '--obstacles', 'unused.yaml', '--out', 'unused'],
 ])
 def test_every_command_that_attacks_takes_the_option(args, capsys):
-    assert main([*args, '--task-option', 'draws=1']) == 2
+    assert main([*args, '--task-option', 'detours=1']) == 2
     err = capsys.readouterr().err
     assert '--task-option applies to' in err, err
 
 
 def test_bench_task_setting_is_checked_at_load():
-    cfg = BenchConfig.from_data({'task': {'draws': 1}})
-    assert cfg.task == {'draws': 1}
-    for bad, words in (({'drawz': 1}, "unknown option 'drawz'"),
-                       ({'draws': 0}, 'draws must be an integer >= 1'), ('draws', 'mapping')):
+    cfg = BenchConfig.from_data({'task': {'detours': 1}})
+    assert cfg.task == {'detours': 1}
+    for bad, words in (({'detourz': 1}, "unknown option 'detourz'"),
+                       ({'detours': -1}, 'detours must be an integer >= 0'),
+                       ('detours', 'mapping')):
         with pytest.raises(BenchError, match='bench setting task: ') as err:
             BenchConfig.from_data({'task': bad})
         assert words in str(err.value)
 
 
 def test_a_run_folder_refuses_other_task_options(tmp_path):
-    cfg = BenchConfig(task={'draws': 1})
+    cfg = BenchConfig(task={'detours': 1})
     (tmp_path / 'config.json').write_text(json.dumps({'config': cfg.to_data()}))
-    check_run_config(tmp_path, BenchConfig(task={'draws': 1}))
-    with pytest.raises(BenchError, match=r"task: \{'draws': 1\} -> \{\}"):
+    check_run_config(tmp_path, BenchConfig(task={'detours': 1}))
+    with pytest.raises(BenchError, match=r"task: \{'detours': 1\} -> \{\}"):
         check_run_config(tmp_path, BenchConfig())
     # A folder written before the setting existed ran the defaults: it resumes with them.
     old = {k: v for k, v in BenchConfig().to_data().items() if k != 'task'}
@@ -116,8 +111,8 @@ def test_a_run_folder_refuses_other_task_options(tmp_path):
 def test_server_parameters_of_the_bench_setting():
     from advocc_ros.nodes.heatmap_server import PARAMETERS, task_parameters
 
-    params = task_parameters({'draws': 1, 'tube_rad': 1})
-    assert params == {'task_draws': 1, 'task_tube_rad': 1.0}
+    params = task_parameters({'detours': 1, 'tube_rad': 1})
+    assert params == {'task_detours': 1, 'task_tube_rad': 1.0}
     assert isinstance(params['task_tube_rad'], float)  # a ROS double parameter
     declared = {p.name: p.default for p in PARAMETERS}
     for f in dataclasses.fields(TaskOptions):

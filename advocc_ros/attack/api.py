@@ -42,7 +42,6 @@ locally. Random baseline: candidates in a seeded random order under the same con
 
 from __future__ import annotations
 
-import dataclasses
 import logging
 import time
 from typing import Any
@@ -146,16 +145,8 @@ def attack(heatmap: Heatmap, robot: RobotModel, objects: tuple[SceneObject, ...]
     ``advocc_ros.attack.task.TaskOptions``); ``goal_policy``: ``paper``, ``reachable`` or
     ``solvable`` (None or '': ``cfg.goal_policy``); ``witness``: the task's witness
     (``planning.witness.Witness``, found on the unattacked scene; ``advocc_ros.attack.edges``
-    finds it), required by ``solvable``, or a tuple of witnesses, the task's first: ``task``
-    under ``solvable`` keeps the best of them (``attack.witness_choice``), every other attack
-    uses the first; ``certify``: also say whether the task keeps a solution
-    (``result.solvable``), judged with the witness kept (``certified`` needs one)."""
-    if isinstance(witness, (tuple, list)):
-        policy = goal_policy or cfg.goal_policy
-        if len(witness) > 1 and method == 'task' and policy == 'solvable':
-            return _over_witnesses(heatmap, robot, objects, q_init, goal, budget, cfg,
-                                   box_size_m, seed, method_options, certify, tuple(witness))
-        witness = witness[0] if witness else None
+    finds it), required by ``solvable``; ``certify``: also say whether the task keeps a
+    solution (``result.solvable``), judged with the witness (``certified`` needs one)."""
     link_tables(robot, heatmap.lut_pitch_m)  # model loading (~1 s once), not attack time
     t0 = time.perf_counter()
     s = box_size(cfg, box_size_m)
@@ -217,37 +208,6 @@ def attack(heatmap: Heatmap, robot: RobotModel, objects: tuple[SceneObject, ...]
              status.value, result.total_mass, result.compute_s * 1e3, fraction,
              solvable.verdict if solvable else 'solvability not assessed')
     return result
-
-
-def _over_witnesses(heatmap, robot, objects, q_init, goal, budget, cfg, box_size_m, seed,
-                    method_options, certify, witnesses) -> AttackResult:
-    """``task`` under ``solvable`` with several witnesses (``attack_over_witnesses``); only the
-    kept attack is certified."""
-    from advocc_ros.attack.goals import selection_goal_samples
-    from advocc_ros.attack.judge import judge
-    from advocc_ros.attack.task import TaskOptions, passage_samples
-    from advocc_ros.attack.witness_choice import attack_over_witnesses
-
-    objects = tuple(objects)
-
-    def run(witness, options):
-        return attack(heatmap, robot, objects, q_init, goal, budget, 'task', cfg, box_size_m,
-                      seed, options, 'solvable', False, witness)
-
-    def judge_boxes(witness, centers_m, size_m):
-        goals = selection_goal_samples(robot, objects, goal, options.selection_samples)
-        states = witness_bodies(robot, shared_world(robot), witness).states
-        passage = passage_samples(robot, objects, goal, states, options.passage_samples)
-        return judge(goals, passage, centers_m, size_m)
-
-    options = method_options if isinstance(method_options, TaskOptions) else TaskOptions()
-    result = attack_over_witnesses(run, witnesses, options, judge_boxes)
-    if not certify or not result.status.ok:
-        return result
-    t0 = time.perf_counter()
-    solvable = assess(robot, objects, result.obstacles, goal, result.witness, q_init)
-    stats = dict(result.stats, solvable_ms=round((time.perf_counter() - t0) * 1e3, 3))
-    return dataclasses.replace(result, solvable=solvable, stats=stats)
 
 
 def _required(witness):

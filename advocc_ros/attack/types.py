@@ -125,13 +125,6 @@ class AttackResult:
     (None: none was given)."""
 
     @property
-    def judged_at_budget(self) -> bool:
-        """True when the attack kept one of several candidates judged on all its boxes (``task``
-        under ``solvable``: draws, witnesses): then its first m boxes need not be what a budget-m
-        request keeps, as they are for a greedy attack."""
-        return self.stats.get('task_draws', 1) > 1 or self.stats.get('task_witnesses', 1) > 1
-
-    @property
     def centers_m(self) -> np.ndarray:
         return np.array([o.shapes[0].pose.position_m for o in self.obstacles]).reshape(-1, 3)
 

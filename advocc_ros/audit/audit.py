@@ -141,7 +141,7 @@ def run_audit(scene, heatmap, cfg: AuditConfig = AuditConfig(),
     themselves query none.
     """
     from advocc_ros.attack import AttackConfig
-    from advocc_ros.attack.edges import task_witness, witness_plan
+    from advocc_ros.attack.edges import task_witness
     from advocc_ros.attack.methods import REGISTRY
     from advocc_ros.model.task_check import require_valid_task
     from advocc_ros.evaluation.perf import machine
@@ -157,16 +157,12 @@ def run_audit(scene, heatmap, cfg: AuditConfig = AuditConfig(),
     robot = load_robot(scene.robot)
     q_init = start_configuration(scene, robot)
     require_valid_task(robot, scene.objects, q_init, scene.goal)
-    search = task_witness(robot, scene.objects, q_init, scene.goal,
-                          **witness_plan(cfg.method, cfg.policy, cfg.task_options))
-    candidates = _Task(scene, robot, q_init, search.candidates)
-    result = _attack(candidates, heatmap, cfg, cfg.policy, attack_cfg)
-    task = dataclasses.replace(candidates, witness=result.witness)  # the one the attack kept
+    search = task_witness(robot, scene.objects, q_init, scene.goal)
+    task = _Task(scene, robot, q_init, search.witness)
+    result = _attack(task, heatmap, cfg, cfg.policy, attack_cfg)
     log.info('audit %s: %d boxes (%s), evaluating prefixes', scene.name,
              len(result.obstacles), result.status.value)
-    prefixes = _PrefixAttacks(result, lambda m: _attack(candidates, heatmap, cfg, cfg.policy,
-                                                        attack_cfg, budget=m))
-    budgets, psr, stop_reason = _sweep(task, prefixes, cfg, progress, planning_config)
+    budgets, psr, stop_reason = _sweep(task, result, cfg, progress, planning_config)
     paper = result
     if cfg.policy != 'paper':
         paper = _attack(task, heatmap, cfg, 'paper', attack_cfg)
@@ -201,7 +197,7 @@ def run_audit(scene, heatmap, cfg: AuditConfig = AuditConfig(),
 @dataclasses.dataclass(frozen=True)
 class _Task:
     """The task under audit: its scene, robot, start and witness (None: the search found
-    none; before the attack, the tuple of witnesses it may keep)."""
+    none)."""
 
     scene: Any
     robot: Any
@@ -210,27 +206,11 @@ class _Task:
 
     def solvability(self, attack, m: int) -> dict:
         """The verdict on the task with ``attack``'s first m boxes added, judged with the
-        witness that attack kept, as JSON."""
+        task's witness, as JSON."""
         from advocc_ros.attack.solvable import assess
 
         return assess(self.robot, self.scene.objects, attack.obstacles[:m], self.scene.goal,
                       attack.witness, self.q_init).to_json()
-
-
-@dataclasses.dataclass(frozen=True)
-class _PrefixAttacks:
-    """The attack whose first m boxes are prefix m (module docstring): the budget-K one, or the
-    attack asked for m boxes when the budget-K one is not nested."""
-
-    largest: Any
-    attack_at: Callable[[int], Any]
-
-    def own(self, m: int) -> bool:
-        """Whether prefix m is an attack of its own, not the first m boxes of the largest."""
-        return self.largest.judged_at_budget and 0 < m < self.largest.budget
-
-    def at(self, m: int):
-        return self.attack_at(m) if self.own(m) else self.largest
 
 
 def _attack(task: _Task, heatmap, cfg: AuditConfig, policy: str, attack_cfg,
@@ -251,7 +231,7 @@ def _attack(task: _Task, heatmap, cfg: AuditConfig, policy: str, attack_cfg,
     return result
 
 
-def _sweep(task: _Task, prefixes: _PrefixAttacks, cfg: AuditConfig, progress, planning_config
+def _sweep(task: _Task, attack, cfg: AuditConfig, progress, planning_config
            ) -> tuple[list[dict], dict[str, list[float | None]], str]:
     """The prefixes (every m up to the boxes placed, or ``cfg.prefixes``): each one's verdict
     and the rows of the planners still due (see the module docstring), until the stop rule
@@ -262,10 +242,9 @@ def _sweep(task: _Task, prefixes: _PrefixAttacks, cfg: AuditConfig, progress, pl
 
     samples = goal_samples(task.robot, task.scene.objects, task.scene.goal)
     budgets, reached = [], {}
-    placed = len(prefixes.largest.obstacles)
+    placed = len(attack.obstacles)
     for m in _evaluated_prefixes(cfg, placed):
-        attack = prefixes.at(m)
-        entry = _prefix_entry(task, attack, samples, m, own=prefixes.own(m))
+        entry = _prefix_entry(task, attack, samples, m)
         attacked = task.scene.with_objects(attack.obstacles[:m])
         for planner in cfg.planners:
             if planner in reached:
@@ -299,17 +278,13 @@ def _evaluated_prefixes(cfg: AuditConfig, placed: int) -> list[int]:
     return [m for m in cfg.prefixes if m <= placed]
 
 
-def _prefix_entry(task: _Task, attack, samples, m: int, own: bool) -> dict:
+def _prefix_entry(task: _Task, attack, samples, m: int) -> dict:
     """Prefix m (``attack``'s first m boxes) without planner rows: its verdict and the goal
-    poses left valid; its attack, boxes and witness when it is an attack of its own."""
+    poses left valid."""
     solvability = task.solvability(attack, m)
-    entry = {'m': m, 'goal_valid_fraction':
-             samples.valid_fraction(attack.centers_m[:m], attack.box_size_m),
-             'solvable': solvability['verdict'], 'solvability': solvability, 'planners': {}}
-    if own:
-        entry.update(attack=_attack_json(attack), boxes=_boxes_json(attack),
-                     witness=None if attack.witness is None else attack.witness.to_data())
-    return entry
+    return {'m': m, 'goal_valid_fraction':
+            samples.valid_fraction(attack.centers_m[:m], attack.box_size_m),
+            'solvable': solvability['verdict'], 'solvability': solvability, 'planners': {}}
 
 
 def _at_most(psr: float | None, threshold: float) -> bool:

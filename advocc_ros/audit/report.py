@@ -220,9 +220,7 @@ def audit_markdown(audit: dict) -> str:
         out.append(f'| {b["pick"]} | {b["id"]} | {b["center_m"]} | {b["mass"]:.4g} | '
                    f'{"yes" if b["pick"] <= evaluated else "no (stopped earlier)"} |')
     out += ['', 'Box #m is the last box of prefix m (edge '
-            f'{s["box_size_m"]} m, robot base frame)'
-            + (', except for the prefixes below.' if _own_attacks(audit) else '.'),
-            *_own_attack_lines(audit), '',
+            f'{s["box_size_m"]} m, robot base frame).', '',
             '![slices](audit_slices.png)', '', '![PSR vs budget](audit_psr.png)', '',
             '## Settings', '',
             f'- attack: {audit["method"]}, goal policy {audit["policy"]}, max budget '
@@ -240,26 +238,6 @@ def audit_markdown(audit: dict) -> str:
             f'{audit["machine"]["cpu"]} ({audit["machine"]["cores"]} cores), Python '
             f'{audit["machine"]["python"]}', '']
     return '\n'.join(out)
-
-
-def _own_attacks(audit: dict) -> list[dict]:
-    return [b for b in audit['budgets'] if 'boxes' in b]
-
-
-def _own_attack_lines(audit: dict) -> list[str]:
-    """Markdown lines: the prefixes that are attacks of their own (``task`` under ``solvable``
-    keeps the candidate judged best at its budget), with their boxes."""
-    own = _own_attacks(audit)
-    if not own:
-        return []
-    lines = ['', 'Prefixes that are attacks of their own (the candidate kept at that budget, '
-             'what `advocc attack --budget m` places; witness and draw kept):', '']
-    for b in own:
-        stats = b['attack']['stats']
-        lines.append(f'- m = {b["m"]} (witness {stats.get("task_witness_kept", 0)}, draw '
-                     f'{stats.get("task_draw_kept", 0)}): '
-                     + ', '.join(f'#{x["pick"]} at {x["center_m"]}' for x in b['boxes']))
-    return lines
 
 
 def _impossible_attack(audit: dict) -> str:

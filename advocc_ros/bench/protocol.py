@@ -88,9 +88,8 @@ class BenchConfig:
     goal_policy: str = 'paper'
     """Goal policy of the coverage attacks: ``paper`` or ``reachable`` (``attack.goals``)."""
     attack_timeout_s: float = 300.0
-    """Longest wait for one attack [s]: planner-in-the-loop methods need long ones, and so does
-    a task's first ``solvable`` task attack, which samples the 4,096 goal configurations that
-    judge its candidates (69 s on table_under_pick, idle machine)."""
+    """Longest wait for one attack [s]: the planner-in-the-loop methods (PFA, PFA++) need long
+    ones."""
     start_timeout_s: float = 120.0
     """Longest wait for a started node's services [s]."""
     plan_timeout_margin_s: float = 30.0
@@ -102,7 +101,7 @@ class BenchConfig:
     queries, queries_per_placement, query_time_s, ...); their queries run on the shims."""
     task: dict = dataclasses.field(default_factory=dict)
     """Options of the ``task`` attacks (``advocc_ros.attack.task.TaskOptions`` fields, e.g.
-    ``{draws: 1}``), given to the heatmap server as its ``task_<option>`` parameters; the
+    ``{tube_samples: 512}``), given to the heatmap server as its ``task_<option>`` parameters; the
     others keep their defaults."""
 
     def __post_init__(self):

@@ -66,10 +66,7 @@ def add_task_option_arg(parser: argparse.ArgumentParser) -> None:
     """Add the repeatable ``--task-option KEY=VALUE`` (``TaskOptions`` of method ``task``)."""
     parser.add_argument('--task-option', action='append', default=[], metavar='KEY=VALUE',
                         help='a setting of --method task (advocc_ros.attack.task.TaskOptions; '
-                             'YAML value, repeatable), e.g. draws=1 with witness_seeds=1 and '
-                             'witness_ends=0 (one draw of the task\'s witness under --policy '
-                             'solvable instead of 8 draws and up to 7 more witnesses) or '
-                             'goal_share=0.3')
+                             'YAML value, repeatable), e.g. tube_samples=512 or detours=0')
 
 
 def task_options_from_args(args: argparse.Namespace, method: str):
@@ -87,7 +84,7 @@ def task_options_from_args(args: argparse.Namespace, method: str):
     for item in args.task_option:
         key, sep, text = item.partition('=')
         if not sep or not key.strip():
-            raise UserError(f'--task-option {item!r}: expected KEY=VALUE, e.g. draws=1')
+            raise UserError(f'--task-option {item!r}: expected KEY=VALUE, e.g. detours=0')
         try:
             mapping[key.strip()] = yaml.safe_load(text)
         except yaml.YAMLError:

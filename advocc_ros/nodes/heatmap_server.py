@@ -3,7 +3,7 @@
 Parameters: :data:`PARAMETERS` (defaults = ``advocc_ros.attack.AttackConfig`` and
 ``RobotSpec``, the same in ``config/heatmap_server.yaml``; ``ros2 param describe``):
 ``heatmap_file`` (required), the attack parameters, the ``task`` method's options
-(``task_<option>``: ``advocc_ros.attack.task.TaskOptions``, e.g. ``task_draws:=1``), the robot
+(``task_<option>``: ``advocc_ros.attack.task.TaskOptions``, e.g. ``task_tube_samples:=512``), the robot
 description and ``base_frame``.
 The values of joints outside the planning group (locked at the task's robot state, see
 ``docs/design.md``) come from ``robot_locked`` (``['joint=value', ...]``) or else from the
@@ -99,23 +99,12 @@ _CONFIG_DOC = {  # description, then (low, high) or constraints AttackConfig che
 TASK_PREFIX = 'task_'
 """Parameter ``task_<option>`` is ``TaskOptions.<option>`` of the ``task`` requests."""
 _TASK_DOC = {
-    'goal_samples': 'goal-region IK solutions covered',
+    'approach_goals': 'goal configurations the approaches run to',
     'approach_points': 'configurations on the final half of each approach path',
     'detours': 'approach paths per goal through a perturbed midpoint',
     'detour_rad': 'standard deviation of the midpoint perturbation per joint [rad]',
-    'sampling_cap_s': 'safety cap on goal IK sampling time [s]',
     'tube_samples': 'solvable: configurations drawn around the witness path',
     'tube_rad': 'solvable: perturbation of the witness states per joint [rad]',
-    'goal_share': "solvable: the goal configurations' share of the weight (0: tiers)",
-    'draws': 'solvable: draws of the samples, the one attack.judge ranks first kept '
-             '(1: fast, one draw)',
-    'witness_ends': 'solvable: witnesses to rarely sampled goal configurations the attack may '
-                    'keep instead of the task\'s (0: the task\'s only)',
-    'witness_seeds': 'solvable: independent searches for the task\'s witness, each witness '
-                     'a candidate (1: the first search only)',
-    'end_draws': 'solvable: draws of each witness besides the task\'s own',
-    'selection_samples': 'solvable: goal configurations that judge the draws and witnesses',
-    'passage_samples': 'solvable: tube configurations that score the passage (0: goals only)',
 }
 
 
@@ -383,9 +372,7 @@ class HeatmapServer(Node):
         self._last_stats = json.loads(json.dumps(result.stats, default=str))
         if 'witness_search_ms' in result.stats:
             self.get_logger().info(f'witness search: {result.stats["witness_search_ms"]:.0f} '
-                                   'ms (RRTConnect on the unattacked scene, cached per task); '
-                                   f'judging goal sets: {result.stats["judge_goals_ms"]:.0f} '
-                                   'ms (IK workers, cached per task)')
+                                   'ms (RRTConnect on the unattacked scene, cached per task)')
         response.error_code.val = STATUS_CODES.get(result.status, ErrorCodes.FAILURE)
         response.message = result.message
         response.obstacles = [obstacle_to_msg(o, m)

@@ -7,13 +7,15 @@ certified against every set of boxes (``certify``): the path as a continuous mot
 of states (``advocc_ros.planning.certificate``: conservative advancement with the robot's
 motion bound, exact distances on the planners' hulls, a clearance floor).
 
-Why a fresh worker process per search: OMPL's RNG can be seeded only once per process, so a
-search is deterministic for its seed only in a process of its own (``Planner`` gives one, with
-its watchdog). The search checks motions at ``WITNESS_STEP_RAD`` (discrete); a path it returns
-that the continuous certificate cannot prove on the unattacked scene (it grazes an object closer
-than the floor between two checked states: measured on bookshelf, 0.085 mm) is dropped and the
-next seed searched, up to ``WITNESS_TRIES`` seeds; a search that finds no path ends the task's
-search (None).
+The search is one loop in one planning worker (a fresh process: OMPL's RNG is seeded once per
+process, so the sequence is deterministic). The ``solvable`` attack leaves the witness's last
+configuration free, and with it the goal configurations near it; so the search aims first at
+goal configurations the planners' goal samplers rarely land on (``rare_clear_ends``), then at
+the region itself. Each run checks motions at ``WITNESS_STEP_RAD`` (discrete); a path the
+continuous certificate cannot prove on the unattacked scene (it grazes an object closer than the
+floor between two checked states, e.g. a grasp in a pocket a few mm wide) is dropped and the
+next seed tried, and when every path found was unproven, the targets are tried once more
+without simplification (shortcuts pull a path taut against the objects).
 
 A found witness is kept twice: in this process, and on disk (``witness_cache_dir``) so that
 the next process (another ``advocc attack``, a restarted node) skips the search; a witness read
@@ -57,22 +59,22 @@ WITNESS_STEP_RAD = 0.005
 """Joint-space step of the witness search's motion checks [rad] (half the planners' default
 0.01). The certificate does not use it: it proves the continuous path."""
 WITNESS_TRIES = 4
-"""Seeds searched (``seed``, ``seed + 1``, ...) until one gives a path the continuous
-certificate proves on the unattacked scene (a search that finds no path stops the sequence)."""
+"""Seeds tried per target until one gives a path the continuous certificate proves on the
+unattacked scene (a run that finds no path leaves the target)."""
+END_CANDIDATES = 3
+"""Rare goal configurations the search aims at before the region (``rare_clear_ends``)."""
+END_CLEARANCE_M = 2e-3
+"""Least scene clearance of an aimed-at end [m]: well above the certificate's floor."""
+END_TIME_S = 2.0
+"""Budget of one run to an end [s] (the shipped scenes' reachable ends solve in < 0.1 s)."""
 START_TOLERANCE_RAD = 1e-9
 """Largest difference [rad] between a witness's first waypoint and the task's start (and
 between its locked values and the robot's)."""
 WITNESS_PLANNER = 'rrtconnect'
 WITNESS_SEED = 9_200_001
-"""Seed of the witness search: the witness belongs to the task, not to one attack's seed, and
-its random stream is not a victim's: trial k plans with seed ``seed + k`` (small integers), and
-with the witness at seed 0 trial 0 of every seed-0 run sampled the witness's own goal
-configuration first, the one the boxes must leave free (in the seed-0 task runs of
-docs/results/issue27_hard/scenes5_judge_t20, trial 0 was solved in 2 of the 12 non-bookshelf
-cells, PRM* on box and cage; the other 228 trials 5 times)."""
-WITNESS_SEED_STRIDE = 1000
-"""Seeds between two independent searches of one task (``find_witnesses``): search k starts at
-``WITNESS_SEED + k * WITNESS_SEED_STRIDE``, so its retries never meet another search's seeds."""
+"""First seed of the witness search: the witness belongs to the task, not to one attack's seed,
+and its random stream is not a victim's (trial k plans with seed ``seed + k``, small integers;
+a victim's trial on the witness's own stream would sample the witness's end first)."""
 WITNESS_TIME_S = 30.0
 """Budget of one witness search [s] (RRTConnect solves the shipped scenes in < 1 s)."""
 WAYPOINT_DECIMALS = 12
@@ -257,15 +259,15 @@ def witness_cache_dir() -> pathlib.Path | None:
 
 
 def find_witness(robot: RobotModel, objects: tuple[SceneObject, ...] | list,
-                 q_init: np.ndarray, goal: GoalRegion, seed: int = WITNESS_SEED,
-                 time_s: float = WITNESS_TIME_S) -> Witness | None:
-    """A witness for the task on the scene ``objects``, certified there (None when no search
-    of ``WITNESS_TRIES`` seeds found one), cached per task and seed in this process and on disk.
-    Deterministic for a seed when the searches end before their budget (module docstring)."""
+                 q_init: np.ndarray, goal: GoalRegion, time_s: float = WITNESS_TIME_S
+                 ) -> Witness | None:
+    """A witness for the task on the scene ``objects``, certified there (None when the search
+    found none), cached per task in this process and on disk (module docstring)."""
     objects = tuple(objects)
     q_init = np.asarray(q_init, float)
-    key = task_hash(robot.hash, objects, goal, np.round(q_init, 12).tolist(), seed, time_s,
-                    WITNESS_FORMAT, WITNESS_PLANNER, WITNESS_STEP_RAD, 'continuous', WITNESS_TRIES)
+    key = task_hash(robot.hash, objects, goal, np.round(q_init, 12).tolist(), time_s,
+                    WITNESS_FORMAT, WITNESS_PLANNER, WITNESS_SEED, WITNESS_STEP_RAD,
+                    'continuous', WITNESS_TRIES, END_CANDIDATES, END_CLEARANCE_M)
     cached = WITNESSES.get(key)
     if cached is not None:
         return cached
@@ -274,7 +276,7 @@ def find_witness(robot: RobotModel, objects: tuple[SceneObject, ...] | list,
     world = CollisionWorld(robot, [sh for o in objects for sh in o.shapes])
     witness = _from_disk(disk, robot, world, q_init, goal) if disk is not None else None
     if witness is None:
-        witness = _search_certified(robot, world, objects, q_init, goal, seed, time_s)
+        witness = _search(robot, world, objects, q_init, goal, time_s)
         if witness is None:  # not kept: a later call searches again
             return None
         if disk is not None:
@@ -282,64 +284,75 @@ def find_witness(robot: RobotModel, objects: tuple[SceneObject, ...] | list,
     return WITNESSES.put(key, witness)
 
 
-def find_witnesses(robot: RobotModel, objects: tuple[SceneObject, ...] | list,
-                   q_init: np.ndarray, goal: GoalRegion, searches: int) -> tuple[Witness, ...]:
-    """The distinct witnesses of ``searches`` independent searches of the task (search k:
-    ``find_witness`` at ``WITNESS_SEED + k * WITNESS_SEED_STRIDE``), in search order; search 0
-    is the task's witness. A search that finds nothing is left out, and so is a path an earlier
-    search found (two seeds may end in the same simplified path); when search 0 finds nothing,
-    none is tried after it (the others would spend their whole budgets too)."""
-    found: dict[str, Witness] = {}
-    for k in range(searches):
-        witness = find_witness(robot, objects, q_init, goal,
-                               WITNESS_SEED + k * WITNESS_SEED_STRIDE)
-        if witness is None and k == 0:
-            return ()
-        if witness is not None:
-            found.setdefault(witness.content_hash(), witness)
-    return tuple(found.values())
+def rare_clear_ends(robot: RobotModel, world: CollisionWorld, objects: tuple[SceneObject, ...],
+                    goal: GoalRegion, k: int = END_CANDIDATES) -> np.ndarray:
+    """(<= k, nq) goal configurations of the task's goal sample (``kinematics.goal_batch``)
+    that the planners' goal samplers land on least often, among those at least
+    ``END_CLEARANCE_M`` from the scene (a grasp pressed against its object cannot be proven),
+    rarest first."""
+    from advocc_ros.kinematics.goal_batch import rarest_first, task_goals
+
+    Q = task_goals(robot, objects, goal).Q
+    if not len(Q):
+        return Q
+    clear = Q[world.scene_clearances(Q, END_CLEARANCE_M) >= END_CLEARANCE_M] \
+        if world.shapes else Q
+    return clear[rarest_first(clear)[:k]]
 
 
-def _search_certified(robot: RobotModel, world: CollisionWorld,
-                      objects: tuple[SceneObject, ...], q_init: np.ndarray, goal: GoalRegion,
-                      seed: int, time_s: float) -> Witness | None:
-    """The first search result of seeds ``seed``, ``seed + 1``, ... that ``certify`` proves on
-    the unattacked scene (``world``). A search that finds no path ends it: another seed would
-    spend its whole budget too."""
-    for k in range(WITNESS_TRIES):
-        witness = _search(robot, objects, q_init, goal, seed + k, time_s)
-        if witness is None:
+def _search(robot: RobotModel, world: CollisionWorld, objects: tuple[SceneObject, ...],
+            q_init: np.ndarray, goal: GoalRegion, time_s: float) -> Witness | None:
+    """The one search (module docstring): RRTConnect to each rare clear end
+    (``END_TIME_S`` each), then to the region (``time_s``), each target on seeds
+    ``WITNESS_SEED``, + 1, ... (up to ``WITNESS_TRIES``) until the certificate proves a path;
+    a target without a path is left (another seed would spend its budget too). Simplified
+    paths first; when paths were found but none proven (pulled taut against an object), once
+    more without simplification."""
+    from advocc_ros.planning.worker import Planner
+
+    targets = [(end, END_TIME_S) for end in rare_clear_ends(robot, world, objects, goal)]
+    targets.append((None, time_s))
+    names = object_shape_names(objects)
+    scene = Scene(name='witness', robot=robot.spec, objects=objects)
+    for simplify in (True, False):
+        config = PlanningConfig(time_budget_s=time_s, motion_step_rad=WITNESS_STEP_RAD,
+                                stop_at_first_solution=True, simplify=simplify,
+                                interpolate=False)
+        unproven = False
+        with Planner(scene, config) as planner:
+            for q_end, budget in targets:
+                for seed in range(WITNESS_SEED, WITNESS_SEED + WITNESS_TRIES):
+                    witness = _plan(planner, robot, q_init, goal, q_end, budget, seed, simplify)
+                    if witness is None:
+                        break
+                    why = certify(robot, world, goal, witness, q_init, shape_names=names).why
+                    if why is None:
+                        return witness
+                    unproven = True
+                    log.info('witness search (seed %d, %s): the path is not proven on the '
+                             'unattacked scene: %s', seed, witness.source.get('target'), why)
+        if not unproven:
             return None
-        why = certify(robot, world, goal, witness, q_init,
-                      shape_names=object_shape_names(objects)).why
-        if why is None:
-            return witness
-        log.warning('witness search (seed %d): the path is not proven continuously on the '
-                    'unattacked scene: %s', seed + k, why)
+    log.warning('no witness: every path found grazed an object closer than the certificate\'s '
+                'floor')
     return None
 
 
-def _search(robot: RobotModel, objects: tuple[SceneObject, ...], q_init: np.ndarray,
-            goal: GoalRegion, seed: int, time_s: float) -> Witness | None:
-    """The path of one RRTConnect run in a fresh worker, or None."""
-    from advocc_ros.planning.worker import Planner
-
-    config = PlanningConfig(time_budget_s=time_s, motion_step_rad=WITNESS_STEP_RAD,
-                            stop_at_first_solution=True, simplify=True, interpolate=False)
-    scene = Scene(name='witness', robot=robot.spec, objects=objects)
-    with Planner(scene, config) as planner:
-        result = planner.plan(q_init, goal, WITNESS_PLANNER, time_s, seed)
-    if result.status == PlanStatus.INTERNAL_ERROR:
-        log.error('witness search failed internally: %s', result.message)
-        return None
+def _plan(planner, robot: RobotModel, q_init: np.ndarray, goal: GoalRegion,
+          q_end: np.ndarray | None, time_s: float, seed: int, simplify: bool) -> Witness | None:
+    """One RRTConnect run to ``q_end`` (None: to the region) as a witness, or None."""
+    result = planner.plan(q_init, goal, WITNESS_PLANNER, time_s, seed,
+                          goal_configs=None if q_end is None else q_end[None])
     if not result.success:
-        log.warning('no witness for the task (seed %d): %s', seed, result.message)
+        level = log.error if result.status == PlanStatus.INTERNAL_ERROR else log.info
+        level('witness search (seed %d): no path (%s)', seed, result.message)
         return None
     # Rounded as in its file: the witness certified is the one written and the one read back.
     waypoints = np.round(np.asarray(result.path, float), WAYPOINT_DECIMALS)
     return Witness(robot.joint_names, waypoints, dict(robot.locked_values), {
         'planner': WITNESS_PLANNER, 'seed': int(seed), 'time_budget_s': float(time_s),
-        'planning_time_s': round(result.planning_time_s, 4),
+        'target': 'region' if q_end is None else 'rare goal configuration',
+        'simplified': simplify, 'planning_time_s': round(result.planning_time_s, 4),
         'path_length_rad': round(float(result.stats.get('path_length_rad', 0.0)), 6),
         'step_rad': WITNESS_STEP_RAD})
 
@@ -371,5 +384,5 @@ def _to_disk(path: pathlib.Path, witness: Witness) -> None:
 
 
 __all__ = ['CACHE_ENV', 'WITNESS_STEP_RAD', 'Certified', 'Witness', 'certify', 'find_witness',
-           'find_witnesses', 'load_witness', 'object_shape_names', 'save_witness',
+           'load_witness', 'rare_clear_ends', 'object_shape_names', 'save_witness',
            'witness_cache_dir', 'witness_file', 'witness_states']

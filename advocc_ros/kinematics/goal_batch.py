@@ -1,0 +1,172 @@
+"""Goal configurations drawn the way the planners draw theirs, many at once.
+
+The planners' goal sampler (``kinematics.ik.GoalSampler``) makes one attempt at a time: offer
+the region's seeds, then alternate walks near a seed with random-seed IK towards a random pose
+of the region. :func:`planner_goals` makes the same attempts, with the same distributions and
+DLS settings, in batches through ``kinematics.batch``, and keeps the collision-free ones: a
+sample of the goal set as the victims see it (where their samples land often, and where
+rarely), at a few milliseconds per thousand attempts instead of seconds.
+
+The attempts follow one seeded stream and an attempt budget (``attempts_per_sample * n``),
+never a clock, so a seed gives the same set on any machine.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+from typing import Callable
+
+import numpy as np
+
+from advocc_ros.kinematics.batch import ChainKinematics, dls, exp3, log3
+from advocc_ros.kinematics.ik import GoalSampler, IkConfig, seed_configurations
+from advocc_ros.model.cache import BoundedCache
+from advocc_ros.model.collision import CollisionWorld
+from advocc_ros.model.goal import GoalRegion
+from advocc_ros.model.robot import RobotModel
+from advocc_ros.model.scene import task_hash
+
+THREADS = os.cpu_count() or 1
+"""Threads of the batched collision checks (C++); the result does not depend on it."""
+BATCH = 512
+"""Attempts per batch (the stream is drawn per batch, so this is part of the result)."""
+ATTEMPTS_PER_SAMPLE = 16
+"""Attempt budget per wanted sample (narrow regions in cluttered scenes need many)."""
+TASK_GOALS = 1024
+"""Size of the task's goal sample (:func:`task_goals`): the resolution at which the attack
+sees the goal set; a planner draws a few hundred goals in a 5 s budget, so a set left valid on
+under 1 of 1,024 samples is one it rarely hits."""
+TASK_GOAL_SEED = 7_345_002
+"""Seed of the task's goal sample: part of the task, not of one attack."""
+RARITY_NEIGHBOUR = 5
+"""The k of the k-NN distance that ranks goal configurations by rarity."""
+
+_TASK_GOALS: BoundedCache = BoundedCache('task goals', 16, per_task=True)
+"""Task hash -> GoalDraw (nodes attack from several executor threads)."""
+
+
+@dataclasses.dataclass(frozen=True)
+class GoalDraw:
+    """Valid goal configurations and what it took to find them."""
+
+    Q: np.ndarray
+    """(k <= n, nq) collision-free configurations with the tool inside the region."""
+    attempts: int
+    converged: int
+    """Attempts whose IK reached the region (valid or not)."""
+
+
+class _Region:
+    """The goal region as batched tests and draws (``GoalSampler``'s, on arrays)."""
+
+    def __init__(self, robot: RobotModel, goal: GoalRegion):
+        sampler = GoalSampler(robot, None, goal, np.random.default_rng(0))
+        self.tol_p, self.tol_r = sampler.tol_p, sampler.tol_r
+        self.T_center = goal.center.to_se3().homogeneous
+        self.T_link_tool = sampler.T_link_tool.homogeneous
+        self.T_tool_link = sampler.T_tool_link.homogeneous
+        self.pos_tol = np.asarray(goal.position_tolerance_m) + 1e-6
+        self.rot_tol = np.asarray(goal.orientation_tolerance_rad) + 1e-6
+
+    def contains(self, T_base_link: np.ndarray) -> np.ndarray:
+        """(N,) whether each link pose puts the tool inside the region (``GoalRegion.contains``)."""
+        T_tool = T_base_link @ self.T_link_tool
+        R_c, p_c = self.T_center[:3, :3], self.T_center[:3, 3]
+        p_local = (T_tool[:, :3, 3] - p_c) @ R_c
+        r_err = log3(np.einsum('ji,njk->nik', R_c, T_tool[:, :3, :3]))
+        return (np.all(np.abs(p_local) <= self.pos_tol, axis=1)
+                & np.all(np.abs(r_err) <= self.rot_tol, axis=1))
+
+    def random_targets(self, rng: np.random.Generator, n: int) -> np.ndarray:
+        """(n, 4, 4) T_base_link of tool poses drawn uniformly in the region's box."""
+        T = np.broadcast_to(np.eye(4), (n, 4, 4)).copy()
+        T[:, :3, :3] = exp3(rng.uniform(-self.tol_r, self.tol_r, (n, 3)))
+        T[:, :3, 3] = rng.uniform(-self.tol_p, self.tol_p, (n, 3))
+        return self.T_center @ T @ self.T_tool_link
+
+
+def planner_goals(robot: RobotModel, goal: GoalRegion,
+                  collisions_batch: Callable[[np.ndarray], np.ndarray], n: int, seed: int,
+                  attempts_per_sample: int = ATTEMPTS_PER_SAMPLE, config=IkConfig()) -> GoalDraw:
+    """Up to ``n`` valid goal configurations from ``seed`` (module docstring)."""
+    chain = ChainKinematics(robot.model, robot.model.getFrameId(goal.link))
+    if not chain.supports:
+        return _one_at_a_time(robot, goal, collisions_batch, n, seed, attempts_per_sample,
+                              config)
+    region = _Region(robot, goal)
+    rng = np.random.default_rng(seed)
+    seeds = seed_configurations(robot, goal)
+    found, attempts, converged = [], 0, 0
+    budget = attempts_per_sample * n
+    while sum(len(f) for f in found) < n and attempts < budget:
+        k = min(BATCH, budget - attempts)
+        starts, iterations = _starts(robot, rng, seeds, attempts, k, config.ik_iterations)
+        Q, ok = dls(chain, starts, region.random_targets(rng, k), iterations, config.ik_damping,
+                    GoalSampler.max_step_rad, robot.lower, robot.upper, region.contains)
+        Q = Q[ok]
+        converged += len(Q)
+        if len(Q):
+            found.append(Q[~collisions_batch(Q)])
+        attempts += k
+    Q = np.concatenate(found)[:n] if found else np.zeros((0, robot.nq))
+    return GoalDraw(Q.reshape(-1, robot.nq), attempts, converged)
+
+
+def task_goals(robot: RobotModel, objects, goal: GoalRegion, n: int = TASK_GOALS) -> GoalDraw:
+    """The task's fixed goal sample (``planner_goals`` from ``TASK_GOAL_SEED`` on the scene
+    ``objects``), cached per task: the attack covers it and the witness search picks its end
+    from it."""
+    key = task_hash(robot.hash, tuple(objects), goal, n, TASK_GOAL_SEED, 'planner goals')
+
+    def make() -> GoalDraw:
+        world = CollisionWorld(robot, [sh for o in objects for sh in o.shapes])
+        return planner_goals(robot, goal, lambda Q: world.collisions_batch(Q, THREADS), n,
+                             TASK_GOAL_SEED)
+    return _TASK_GOALS.get_or_make(key, make)
+
+
+def rarest_first(Q: np.ndarray, k: int = RARITY_NEIGHBOUR) -> np.ndarray:
+    """Indices of ``Q`` (n, nq) by decreasing distance to their ``k``-th nearest neighbour in
+    joint space: where a sampler that drew ``Q`` lands least often comes first."""
+    if len(Q) <= k:
+        return np.arange(len(Q))
+    d2 = np.sum((Q[:, None, :] - Q[None, :, :]) ** 2, axis=2)
+    kth = np.partition(d2, k, axis=1)[:, k]  # column 0 is the point itself
+    return np.argsort(-kth, kind='stable')
+
+
+def _starts(robot: RobotModel, rng: np.random.Generator, seeds: np.ndarray, first: int, k: int,
+            ik_iterations: int) -> tuple[np.ndarray, np.ndarray]:
+    """Start configurations and DLS step budgets of attempts ``first .. first + k - 1``: the
+    seeds first, then (with seeds) walks near a seed on every other attempt, else random-seed
+    IK (``GoalSampler.draw``)."""
+    index = first + np.arange(k)
+    starts = rng.uniform(robot.lower, robot.upper, (k, robot.nq))
+    iterations = np.full(k, ik_iterations)
+    ns = len(seeds)
+    if ns:
+        is_seed = index < ns
+        starts[is_seed] = seeds[index[is_seed]]
+        walk = ~is_seed & ((index - ns) % 2 == 0)
+        picks = rng.integers(ns, size=int(walk.sum()))
+        starts[walk] = seeds[picks] + rng.normal(0.0, GoalSampler.walk_rad,
+                                                 (len(picks), robot.nq))
+        iterations[walk] = GoalSampler.walk_iterations
+    return starts, iterations
+
+
+def _one_at_a_time(robot, goal, collisions_batch, n, seed, attempts_per_sample, config):
+    """The same draw through ``GoalSampler`` for chains ``kinematics.batch`` does not model."""
+    sampler = GoalSampler(robot, lambda q: bool(collisions_batch(q[None])[0]), goal,
+                          np.random.default_rng(seed), config)
+    found = []
+    while len(found) < n and sampler.attempts < attempts_per_sample * n:
+        q = sampler.attempt()
+        if q is not None:
+            found.append(q)
+    return GoalDraw(np.array(found).reshape(-1, robot.nq), sampler.attempts, sampler.converged)
+
+
+__all__ = ['ATTEMPTS_PER_SAMPLE', 'GoalDraw', 'TASK_GOALS', 'planner_goals', 'rarest_first',
+           'task_goals']

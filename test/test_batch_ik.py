@@ -1,0 +1,85 @@
+"""Batched kinematics against pinocchio, and the planner-like goal sample drawn with it."""
+
+import numpy as np
+import pinocchio as pin
+import pytest
+
+from advocc_ros.kinematics.batch import ChainKinematics, exp3, inverse, log3, log6
+from advocc_ros.kinematics.goal_batch import (GoalSampler, planner_goals, rarest_first,
+                                              task_goals)
+from advocc_ros.model.collision import CollisionWorld
+
+
+@pytest.fixture(scope='module')
+def chain(panda, table_scene):
+    return ChainKinematics(panda.model, panda.model.getFrameId(table_scene.goal.link))
+
+
+def test_frame_and_local_jacobian_match_pinocchio(panda, table_scene, chain):
+    model, data = panda.model, panda.create_data()
+    fid = model.getFrameId(table_scene.goal.link)
+    Q = np.random.default_rng(0).uniform(panda.lower, panda.upper, (40, panda.nq))
+    T, J = chain.frame_and_jacobian(Q)
+    assert chain.supports
+    for i, q in enumerate(Q):
+        pin.framesForwardKinematics(model, data, q)
+        np.testing.assert_allclose(T[i], data.oMf[fid].homogeneous, atol=1e-12)
+        np.testing.assert_allclose(J[i], pin.computeFrameJacobian(model, data, q, fid,
+                                                                  pin.LOCAL), atol=1e-12)
+
+
+def test_lie_group_maps_match_pinocchio():
+    rng = np.random.default_rng(1)
+    w = rng.normal(0, 1.2, (50, 3))
+    w[0] = 0.0
+    w[1] = [np.pi - 1e-6, 0, 0]  # near a half turn: the guarded branch
+    R = exp3(w)
+    for i in range(len(w)):
+        np.testing.assert_allclose(R[i], pin.exp3(w[i]), atol=1e-12)
+        np.testing.assert_allclose(log3(R[i:i + 1])[0], pin.log3(R[i]), atol=1e-9)
+    T = np.broadcast_to(np.eye(4), (50, 4, 4)).copy()
+    T[:, :3, :3], T[:, :3, 3] = R, rng.normal(0, 1, (50, 3))
+    for i in range(2, len(w)):
+        np.testing.assert_allclose(log6(T[i:i + 1])[0], pin.log6(pin.SE3(T[i])).vector,
+                                   atol=1e-9)
+        np.testing.assert_allclose(inverse(T[i:i + 1])[0], np.linalg.inv(T[i]), atol=1e-12)
+
+
+def test_planner_goals_are_valid_goal_configurations_and_follow_their_seed(panda, table_scene):
+    world = CollisionWorld(panda, [sh for o in table_scene.objects for sh in o.shapes])
+    draw = planner_goals(panda, table_scene.goal, world.collisions_batch, 64, seed=3)
+    assert len(draw.Q) == 64 and draw.converged >= 64 and draw.attempts >= draw.converged
+    region = GoalSampler(panda, world.in_collision, table_scene.goal,
+                         np.random.default_rng(0))
+    assert all(region.region_distance(q) == 0.0 for q in draw.Q)
+    assert not world.collisions_batch(draw.Q).any()
+    assert np.all((draw.Q >= panda.lower) & (draw.Q <= panda.upper))
+    again = planner_goals(panda, table_scene.goal, world.collisions_batch, 64, seed=3)
+    np.testing.assert_array_equal(again.Q, draw.Q)
+    other = planner_goals(panda, table_scene.goal, world.collisions_batch, 64, seed=4)
+    assert not np.array_equal(other.Q, draw.Q)
+
+
+def test_a_region_with_no_solution_spends_its_attempt_budget(panda, table_scene):
+    import dataclasses
+
+    from advocc_ros.model.pose import Pose
+
+    far = dataclasses.replace(table_scene.goal, center=Pose((3.0, 0.0, 0.5)))
+    draw = planner_goals(panda, far, lambda Q: np.zeros(len(Q), bool), 8, seed=0,
+                         attempts_per_sample=4)
+    assert draw.Q.shape == (0, panda.nq) and draw.attempts == 32 and draw.converged == 0
+
+
+def test_task_goals_are_cached_per_task(panda, table_scene):
+    first = task_goals(panda, table_scene.objects, table_scene.goal, 32)
+    assert task_goals(panda, table_scene.objects, table_scene.goal, 32) is first
+    assert len(first.Q) == 32
+
+
+def test_rarest_first_puts_an_isolated_point_first():
+    rng = np.random.default_rng(0)
+    Q = np.concatenate([rng.normal(0, 0.01, (30, 7)), np.full((1, 7), 2.0)])
+    order = rarest_first(Q, k=5)
+    assert order[0] == 30 and sorted(order) == list(range(31))
+    assert list(rarest_first(Q[:3], k=5)) == [0, 1, 2]
