@@ -22,6 +22,14 @@ OLD_STEP_RAD = 0.005
 """The step of the old per-state check."""
 
 
+@pytest.fixture(autouse=True)
+def _no_scripted_witness_kept():
+    """Tests here put scripted witnesses in the process's witness cache: none outlives its
+    test, so later tests search for the real one."""
+    yield
+    witness_mod.WITNESSES.clear()
+
+
 @pytest.fixture(scope='module')
 def task(table_scene):
     """table_pick and a witness found without a planner (no process: the fast lane runs these
