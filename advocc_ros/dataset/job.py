@@ -23,6 +23,7 @@ import logging
 import os
 import pathlib
 import socket
+import sys
 import tempfile
 import time
 import traceback
@@ -38,8 +39,9 @@ malformed problem or one the task check refuses, with the reason) and ``error`` 
 a worker that kept dying: the one outcome a resumed build redoes)."""
 FINAL_OUTCOMES = OUTCOMES[:-1]
 KILL_ONCE_ENV = 'ADVOCC_DATASET_KILL_ONCE'
-"""Tests only: a path; the first job that finds no file there creates it and kills its own
-worker process with SIGKILL (a real worker death, retried by Ray), so it happens exactly once."""
+"""Tests only: a path; the first job that finds no file there, after its first attack, creates
+it and kills its own worker process with SIGKILL (a real worker death mid-problem, retried by
+Ray), so it happens exactly once."""
 HARDNESS_FORMAT = 'advocc_dataset_hardness'
 PSR_HARD = 0.2
 """A victim counts as beaten on a problem when its PSR is at most this (the audit's line)."""
@@ -98,14 +100,22 @@ def _kill_once() -> None:
     os.kill(os.getpid(), 9)
 
 
+def _ray_node() -> str | None:
+    """The Ray node this job runs on (None outside Ray)."""
+    ray = sys.modules.get('ray')
+    if ray is None or not ray.is_initialized():
+        return None
+    return ray.get_runtime_context().get_node_id()
+
+
 def run_problem(problem: dict, heatmap, config: BuildConfig) -> dict:
     """The result of one problem (``problem_input``): ``record`` (outcome, reason, times),
     ``hardness`` (None unless evaluated) and ``files`` (relative path -> YAML data). Never
     raises."""
-    _kill_once()
     t0 = time.perf_counter()
     record = {'family': problem['family'], 'problem': f'{problem["index"]:04d}',
-              'split': problem['split'], 'host': socket.gethostname(), 'pid': os.getpid()}
+              'split': problem['split'], 'host': socket.gethostname(), 'pid': os.getpid(),
+              'node': _ray_node()}
     files: dict[str, Any] = {}
     try:
         outcome, reason, hardness = _run(problem, heatmap, config, files, record)
@@ -168,6 +178,7 @@ def _run(problem: dict, heatmap, config: BuildConfig, files: dict, record: dict)
         result = attack_task(heatmap, robot, scene.objects, q_init, scene.goal, budget, 'task',
                              cfg, seed=config.seed, method_options=options)
         wall_s = time.perf_counter() - t
+        _kill_once()  # tests: a worker death mid-problem, after its witness and first attack
         if result.status == AttackStatus.NO_WITNESS:
             record['attack_s'] = round(wall_s, 3)
             return 'no_witness', result.message, None
