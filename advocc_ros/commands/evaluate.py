@@ -1,7 +1,9 @@
 """``advocc evaluate``: run a planner N times on a scene (optionally attacked) and report metrics.
 
 Prints the paper's row (PSR, SMR x10^-2, CMR x10^-2, JDS, PT), the internal errors (left out of
-PSR, with a warning on stderr) and the time to first solution (median, p90, PSR at 1/2/5/30 s
+PSR, with a warning on stderr), PSR given goals (over the trials whose goal list, searched
+before the clock, has a goal; ``no_goal_found`` counts the others, ``goal_attempts`` per trial)
+and the time to first solution (median, p90, PSR at 1/2/5/30 s
 within the budget) or, with ``--json``, a JSON object with the row and every trial's record
 (each with its ``first_solution_s``). Progress goes to stderr.
 """
@@ -112,6 +114,9 @@ def run(args: argparse.Namespace) -> int:
           f'{format_value(result["smr"]):>8}{format_value(result["cmr"]):>8}'
           f'{format_value(result["jds"]):>8}{format_value(result["pt"]):>8}'
           f'{result["internal_errors"]:>8}')
+    print(f'PSR given goals {format_value(result["psr_given_goals"])} over the trials with a '
+          f'goal found before the clock; no goal found: {result["no_goal_found"]} of '
+          f'{result["trials"]} (IK attempts per trial: {result["goal_attempts"]})')
     psr_at = ', '.join(f'PSR@{t} s {format_value(v, 2)}' for t, v in result['psr_at'].items())
     print(f'time to first solution (failures at {args.time:g} s): median '
           f'{format_value(result["first_solution_median_s"])} s, p90 '

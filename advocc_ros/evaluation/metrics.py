@@ -22,7 +22,10 @@ Per trial (``TrialRecord``), on a successful trajectory ``path`` (N, nq) from ``
 A "successful" path with a waypoint in collision is not scored (``PathInCollision``): the
 planner and the metrics disagree about the scene, which is an internal error, not CMR 0.
 
-Table rows (``aggregate``): PSR = successes / (trials - internal errors), internal errors
+Table rows (``aggregate``): PSR = successes / (trials - internal errors) (the task as its users
+pose it), PSR given goals = the same over the trials whose goal list, found before the clock,
+has a goal (``no_goal_found`` counts the others: the path search is not judged on them),
+internal errors
 (``advocc_ros.evaluation.outcomes``) counted on their own; SMR and CMR are reported x10^-2
 (i.e. the raw value times 100), SMR/CMR/JDS averaged over successful trials, PT over the trials
 that are not internal errors; SMR, CMR and JDS are ``None`` ("N/A") when PSR = 0 or undefined.
@@ -84,6 +87,12 @@ class TrialRecord:
     waypoints: int = 0
     first_solution_s: float | None = None
     """Request to first exact solution [s] of a success (``PlanResult.first_solution_s``)."""
+    goal_found: bool | None = None
+    """Whether the goal list found before the clock (``advocc_ros.planning.goal_list``) has a
+    goal: False makes the trial "no goal found", left out of ``psr_given_goals``; None: not
+    searched (counted as found)."""
+    goal_attempts: int | None = None
+    """IK attempts that search took (how thin the valid goal set is)."""
 
     def to_data(self) -> dict:
         return dataclasses.asdict(self)
@@ -225,6 +234,8 @@ def aggregate(records: Iterable[TrialRecord | dict], time_budget_s: float) -> di
     kinds = [record_outcome(r) for r in rows]
     valid = [r for r, kind in zip(rows, kinds) if kind != INTERNAL_ERROR]
     ok = [r for r, kind in zip(rows, kinds) if kind == SUCCESS]
+    given = [kind for r, kind in zip(rows, kinds)
+             if kind != INTERNAL_ERROR and r.get('goal_found') is not False]
     smr = _mean([r['min_manipulability'] for r in ok])
     cmr = _mean([r['min_clearance_rad'] for r in ok])
     return {
@@ -232,6 +243,8 @@ def aggregate(records: Iterable[TrialRecord | dict], time_budget_s: float) -> di
         'internal_errors': len(rows) - len(valid),
         'successes': len(ok),
         'psr': len(ok) / len(valid) if valid else None,
+        'psr_given_goals': given.count(SUCCESS) / len(given) if given else None,
+        'no_goal_found': sum(1 for r in valid if r.get('goal_found') is False),
         'smr': None if smr is None else 100.0 * smr,
         'cmr': None if cmr is None else 100.0 * cmr,
         'jds': _mean([r['jds_rad'] for r in ok]),

@@ -24,7 +24,9 @@ def evaluate_planner(scene, planner_id: str, trials: int, time_budget_s: float =
     outside victim such as ``mplib``). ``workers`` victims serve the trials in parallel (one
     worker process and one ``CollisionWorld`` per thread); trial ``k`` uses seed ``seed + k``.
     ``progress(record)`` is called after each trial. A success whose path collides is recorded
-    as ``INTERNAL_ERROR``.
+    as ``INTERNAL_ERROR``. Before each trial, outside the victim's clock, the trial's goal list
+    is searched (``planning.goal_list``): its ``goal_found`` and ``goal_attempts`` go into the
+    record and make ``psr_given_goals`` and ``no_goal_found`` of the row.
     """
     import dataclasses
 
@@ -45,7 +47,15 @@ def evaluate_planner(scene, planner_id: str, trials: int, time_budget_s: float =
     local = threading.local()
     started = []
 
+    def world() -> CollisionWorld:
+        if not hasattr(local, 'world'):
+            local.world = CollisionWorld(robot, scene.shapes)
+        return local.world
+
     def run(k: int) -> TrialRecord:
+        # Outside every victim's clock: the goal list of the trial (the outside victims get
+        # this very list from the cache), so a trial with no goal is judged as such for all.
+        found = task.goal_list(robot, world(), victim_config.goal_configs, seed + k)
         planner = planners.get()
         try:
             res = planner.plan(task, time_budget_s, seed + k)
@@ -53,10 +63,10 @@ def evaluate_planner(scene, planner_id: str, trials: int, time_budget_s: float =
             planners.put(planner)
         rec = TrialRecord(k, seed + k, res.success, res.status.name, float(res.planning_time_s),
                           res.message, waypoints=len(res.path),
-                          first_solution_s=res.first_solution_s)
+                          first_solution_s=res.first_solution_s, goal_found=found.found,
+                          goal_attempts=found.attempts)
         if res.success:
-            if not hasattr(local, 'world'):
-                local.world = CollisionWorld(robot, scene.shapes)
+            world()
             try:
                 metrics = trial_metrics(robot, local.world, res.path, q_init, metrics_config,
                                         np.random.default_rng(seed + k))
@@ -83,4 +93,5 @@ def evaluate_planner(scene, planner_id: str, trials: int, time_budget_s: float =
             planner.close()
     row = aggregate(records, time_budget_s)
     return dict(row, scene=scene.name, planner=planner_id, seed=seed,
+                goal_attempts=[r.goal_attempts for r in records],
                 records=[r.to_data() for r in records])

@@ -29,13 +29,21 @@ class Task:
     """Goal region of the end-effector link."""
     goal_configs: np.ndarray | None = None
     """(K, nq) goal configurations to hand to victims that take configurations [rad]; None:
-    :func:`goal_configurations` of the trial's seed (our sampler, with the boxes)."""
+    the trial's goal list found before the clock (``advocc_ros.planning.goal_list``)."""
+
+    def goal_list(self, robot, world, k: int, seed: int):
+        """The ``GoalList`` of a trial: the given configurations, else up to K found before the
+        clock from ``seed`` (our sampler in ``world``, with the boxes; the same for every
+        victim of the trial)."""
+        from advocc_ros.planning.goal_list import GoalList, goal_list
+        if self.goal_configs is not None:
+            given = np.asarray(self.goal_configs, dtype=float).reshape(-1, robot.nq)
+            return GoalList(given, 0, 0, 0.0)
+        return goal_list(robot, world, self.goal, k, seed, self.scene.objects_hash())
 
     def goals(self, robot, world, k: int, seed: int) -> np.ndarray:
-        """The goal list of a trial: the given one, else K sampled from ``seed``."""
-        if self.goal_configs is not None:
-            return np.asarray(self.goal_configs, dtype=float).reshape(-1, robot.nq)
-        return goal_configurations(robot, world, self.goal, k, seed)
+        """(k, nq) configurations of :meth:`goal_list`."""
+        return self.goal_list(robot, world, k, seed).configs
 
 
 @dataclasses.dataclass(frozen=True)

@@ -30,8 +30,7 @@ from advocc_ros.fileio import atomic_write_text
 from advocc_ros.model.collision import CollisionWorld
 from advocc_ros.model.robot import RobotModel, example_robot_data_share, resolve_path
 from advocc_ros.planning.types import PlanResult, PlanStatus, _fail
-from advocc_ros.planning.victims.base import (Task, VictimConfig, first_collision_along,
-                                              path_length_rad)
+from advocc_ros.planning.victims.base import Task, VictimConfig, path_length_rad
 from advocc_ros.planning.victims.outside import OutsideVictim
 from advocc_ros.planning.worker import WorkerDied
 
@@ -139,22 +138,16 @@ class MplibVictim(OutsideVictim):
             return _fail(status, f'MPlib RRTConnect: {ompl} within {budget:g} s', nq, solve_s,
                          **stats)
         path = np.asarray(answer['path'], float).reshape(-1, nq)
-        if len(path) < 2 or not np.allclose(path[0], q_start, atol=1e-6) or not np.any(
-                np.all(np.isclose(goals, path[-1], atol=1e-6), axis=1)):
-            return _fail(PlanStatus.INTERNAL_ERROR, 'MPlib\'s path does not run from the start '
-                         'to a goal configuration', nq, solve_s, **stats)
         stats.update(first_solution_s=solve_s, path_length_rad=path_length_rad(path))
         step = self.config.check_step_rad
-        if answer['first_collision'] >= 0:
+        if answer['first_collision'] >= 0 and len(path) >= 2:
             return _fail(PlanStatus.INVALID_MOTION_PLAN, f'MPlib: its solution collides in its '
                          f'own model at state {answer["first_collision"]} (checked every '
                          f'{step:g} rad): its motion check stepped over an obstacle', nq,
                          solve_s, **stats)
-        ours = first_collision_along(world, path, step)
-        if ours >= 0:
-            return _fail(PlanStatus.MODEL_MISMATCH, f'MPlib: its solution is free on its meshes '
-                         f'but collides in our model (convex hulls) at state {ours} (checked '
-                         f'every {step:g} rad)', nq, solve_s, **stats)
+        failure = self._checked(path, world, q_start, goals, solve_s, stats)
+        if failure is not None:
+            return failure
         return PlanResult(PlanStatus.SUCCESS, f'MPlib RRTConnect: solved in {solve_s:.3f} s',
                           path, solve_s, stats)
 

@@ -48,16 +48,19 @@ class OmplVictim:
 
     def plan(self, task: Task, time_budget_s: float, seed: int) -> PlanResult:
         planner = self._planner_for(task)
-        goals = task.goal_configs
+        goals, stats = task.goal_configs, {}
         if self.config.ompl_goal_list and goals is None:
-            goals = task.goals(planner.robot, self._world_for(task, planner.robot),
-                               self.config.goal_configs, seed)
+            found = task.goal_list(planner.robot, self._world_for(task, planner.robot),
+                                   self.config.goal_configs, seed)
+            goals, stats = found.configs, found.stats()
         if goals is not None and not len(goals):
-            return _fail(PlanStatus.GOAL_IN_COLLISION, 'our goal sampler found no collision-free '
-                         'goal configuration for the goal list', planner.robot.nq)
+            return _fail(PlanStatus.GOAL_IN_COLLISION, 'no goal found: our goal sampler found no '
+                         'collision-free goal configuration for the goal list before the clock '
+                         f'({stats.get("goal_attempts", 0)} IK attempts)', planner.robot.nq,
+                         **stats)
         result = planner.plan(task.q_start, task.goal, self.planner_id, time_budget_s, seed,
                               goals)
-        result.stats['victim'] = self.name
+        result.stats.update(stats, victim=self.name)
         return result
 
     def _world_for(self, task: Task, robot) -> CollisionWorld:

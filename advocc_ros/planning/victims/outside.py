@@ -22,7 +22,7 @@ import numpy as np
 from advocc_ros.model.collision import CollisionWorld
 from advocc_ros.model.robot import RobotModel, load_robot
 from advocc_ros.planning.types import PlanResult, PlanStatus, _fail, validate_request
-from advocc_ros.planning.victims.base import Task, VictimConfig
+from advocc_ros.planning.victims.base import Task, VictimConfig, first_collision_along
 from advocc_ros.planning.worker import WorkerDied, WorkerSlot, _Worker
 
 log = logging.getLogger(__name__)
@@ -74,13 +74,14 @@ class OutsideVictim:
         q_start = np.asarray(task.q_start, float)
         if world.in_collision(q_start):
             return _fail(PlanStatus.START_STATE_IN_COLLISION, 'start state is in collision', nq)
-        t0 = time.monotonic()
-        goals = task.goals(robot, world, self.config.goal_configs, seed)
-        stats = {'victim': self.name, 'goal_sampling_s': time.monotonic() - t0,
-                 'goal_configs': len(goals)}
-        if not len(goals):
-            return _fail(PlanStatus.GOAL_IN_COLLISION, 'our goal sampler found no collision-free '
-                         f'goal configuration to hand to {self.label}', nq, 0.0, **stats)
+        found = task.goal_list(robot, world, self.config.goal_configs, seed)
+        goals = found.configs
+        stats = {'victim': self.name, 'goal_sampling_s': found.time_s, **found.stats()}
+        if not found.found:
+            return _fail(PlanStatus.GOAL_IN_COLLISION, 'no goal found: our goal sampler found no '
+                         f'collision-free goal configuration to hand to {self.label} in '
+                         f'{found.attempts} IK attempts ({found.time_s:.1f} s, before the clock)',
+                         nq, 0.0, **stats)
         request = {'op': 'plan', 'q_start': q_start.tolist(), 'goals': goals.tolist(),
                    'time_s': float(time_budget_s), 'seed': int(seed),
                    'check_step_rad': self.config.check_step_rad}
@@ -88,6 +89,24 @@ class OutsideVictim:
         if isinstance(answer, PlanResult):
             return answer
         return self._answer(answer, robot, world, q_start, goals, time_budget_s, stats)
+
+    def _checked(self, path: np.ndarray, world: CollisionWorld, q_start: np.ndarray,
+                 goals: np.ndarray, elapsed: float, stats: dict) -> PlanResult | None:
+        """None if a solution's ``path`` runs from the start to one of the given goals and is
+        free in our model every ``check_step_rad``; else the failure: not from the start to a
+        goal (an internal error) or colliding in our model (``MODEL_MISMATCH``)."""
+        nq, step = world.robot.nq, self.config.check_step_rad
+        if len(path) < 2 or not np.allclose(path[0], q_start, atol=1e-6) or not np.any(
+                np.all(np.isclose(goals, path[-1], atol=1e-6), axis=1)):
+            return _fail(PlanStatus.INTERNAL_ERROR, f'{self.label}\'s path does not run from '
+                         'the start to a goal configuration', nq, elapsed, **stats)
+        ours = first_collision_along(world, path, step)
+        if ours >= 0:
+            return _fail(PlanStatus.MODEL_MISMATCH, f'{self.label}: its solution is free in its '
+                         f'own model but collides in ours (convex hulls) at state {ours} '
+                         f'(checked every {step:g} rad)', nq, elapsed,
+                         **dict(stats, outcome='model_mismatch'))
+        return None
 
     @property
     def restarts(self) -> int:
@@ -111,6 +130,11 @@ class OutsideVictim:
         return _Worker(self.config.planning.worker_start_timeout_s, argv, env,
                        what=f'{self.label} worker')
 
+    def _scene_key(self, task: Task) -> str:
+        """What the worker must have loaded for ``task``: robot, objects, hidden objects."""
+        return task.scene.objects_hash() + repr(task.scene.robot) + repr(
+            self.config.hidden_object_ids)
+
     def _models(self, task: Task) -> tuple[RobotModel, CollisionWorld]:
         """Our robot and collision model of ``task``'s scene (cached per scene)."""
         key = task.scene.objects_hash() + repr(task.scene.robot)
@@ -119,21 +143,23 @@ class OutsideVictim:
             self._model = (key, robot, CollisionWorld(robot, task.scene.shapes))
         return self._model[1], self._model[2]
 
-    def _call(self, request: dict, task: Task, robot: RobotModel, budget: float, stats: dict):
-        """The worker's answer, or the ``PlanResult`` of a watchdog kill, a dead worker or an
-        error the worker reported."""
+    def _exchange(self, request: dict, task: Task, robot: RobotModel, wait_s: float,
+                  stats: dict) -> dict | PlanResult:
+        """Send ``request`` (with the robot and scene if the worker lacks them) and wait
+        ``wait_s`` for the answer, under the victim's lock. A dead worker is an
+        ``INTERNAL_ERROR``, a silent one is killed (``TIMED_OUT``), an error it reports is an
+        ``INTERNAL_ERROR``; else the answer."""
         nq = robot.nq
-        key = task.scene.objects_hash() + repr(task.scene.robot) + repr(
-            self.config.hidden_object_ids)
+        key = self._scene_key(task)
         with self._lock:
             t_sent = time.monotonic()
             try:
                 worker = self._ensure_worker()
                 if self._sent != key:
-                    request.update(self._setup(task, robot))
+                    request = dict(request, **self._setup(task, robot))
                 t_sent = time.monotonic()
                 worker.send(request)
-                answer = worker.read(t_sent + budget + self.config.planning.watchdog_margin_s)
+                answer = worker.read(t_sent + wait_s)
             except WorkerDied as exc:
                 self._slot.kill()
                 log.error('%s', exc)
@@ -143,11 +169,16 @@ class OutsideVictim:
             if answer is None:
                 self._slot.kill()
                 return _fail(PlanStatus.TIMED_OUT, f'watchdog: {self.label} gave no answer '
-                             f'within {budget:g} s + {self.config.planning.watchdog_margin_s:g}'
-                             ' s; worker killed', nq, stats['round_trip_s'], watchdog=True,
-                             **stats)
+                             f'within {wait_s:g} s; worker killed', nq, stats['round_trip_s'],
+                             watchdog=True, **stats)
             if 'error' in answer:
                 return _fail(PlanStatus.INTERNAL_ERROR, f'{self.label} worker: '
                              f'{answer["error"]}', nq, stats['round_trip_s'], **stats)
             self._sent = key
             return answer
+
+    def _call(self, request: dict, task: Task, robot: RobotModel, budget: float, stats: dict):
+        """The worker's answer to a request with a ``budget`` [s], or the ``PlanResult`` of a
+        watchdog kill (after budget + ``watchdog_margin_s``), a dead worker or an error."""
+        return self._exchange(request, task, robot,
+                              budget + self.config.planning.watchdog_margin_s, stats)

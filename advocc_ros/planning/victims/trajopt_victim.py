@@ -20,14 +20,13 @@ import os
 import pathlib
 import signal
 import sys
-import time
 
 import numpy as np
 
 from advocc_ros.model.collision import CollisionWorld
 from advocc_ros.model.robot import RobotModel, load_robot
 from advocc_ros.planning.types import PlanResult, PlanStatus, _fail
-from advocc_ros.planning.victims.base import Task, VictimConfig, first_collision_along
+from advocc_ros.planning.victims.base import Task, VictimConfig
 from advocc_ros.planning.victims.outside import OutsideVictim
 from advocc_ros.planning.worker import WorkerDied
 
@@ -98,25 +97,22 @@ class TrajOptVictim(OutsideVictim):
         pay it again on the next request and be killed again. None, or the error result.
         """
         robot, _ = self._models(task)
-        key = task.scene.objects_hash() + repr(task.scene.robot) + repr(
-            self.config.hidden_object_ids)
         with self._lock:
             try:
-                worker = self._ensure_worker()
-                if self._sent == key:
-                    return None
-                worker.send(dict(self._setup(task, robot), op='load',
-                                 check_step_rad=self.config.check_step_rad))
-                answer = worker.read(time.monotonic()
-                                     + self.config.planning.worker_start_timeout_s)
+                self._ensure_worker()
             except WorkerDied as exc:
                 self._slot.kill()
                 return _fail(PlanStatus.INTERNAL_ERROR, str(exc), robot.nq, worker_died=True)
-            if answer is None or 'loaded' not in answer:
-                self._slot.kill()
-                return _fail(PlanStatus.INTERNAL_ERROR, f'TrajOpt worker could not load the '
-                             f'scene: {answer}', robot.nq)
-            self._sent = key
+            if self._sent == self._scene_key(task):
+                return None
+        answer = self._exchange({'op': 'load', 'check_step_rad': self.config.check_step_rad},
+                                task, robot, self.config.planning.worker_start_timeout_s, {})
+        if isinstance(answer, PlanResult):
+            return answer
+        if 'loaded' not in answer:
+            self._slot.kill()
+            return _fail(PlanStatus.INTERNAL_ERROR, f'TrajOpt worker could not load the '
+                         f'scene: {answer}', robot.nq)
         return None
 
     def _command(self) -> tuple[list[str], dict]:
@@ -143,18 +139,9 @@ class TrajOptVictim(OutsideVictim):
             result.stats['goal_configs_valid_victim'] = result.stats['goal_configs_valid']
         if not result.success:
             return result
-        path, step = result.path, self.config.check_step_rad
-        if len(path) < 2 or not np.allclose(path[0], q_start, atol=1e-6) or not np.any(
-                np.all(np.isclose(goals, path[-1], atol=1e-6), axis=1)):
-            return _fail(PlanStatus.INTERNAL_ERROR, 'TrajOpt\'s path does not run from the '
-                         'start to a goal configuration', robot.nq, result.planning_time_s,
-                         **result.stats)
-        ours = first_collision_along(world, path, step)
-        if ours >= 0:
-            return _fail(PlanStatus.MODEL_MISMATCH, f'TrajOpt: its solution collides in our '
-                         f'model at state {ours} (checked every {step:g} rad)', robot.nq,
-                         result.planning_time_s, **dict(result.stats, outcome='model_mismatch'))
-        return result
+        failure = self._checked(result.path, world, q_start, goals, result.planning_time_s,
+                                result.stats)
+        return result if failure is None else failure
 
 
 def make_victim(name: str, config: VictimConfig = VictimConfig()) -> TrajOptVictim:
