@@ -71,10 +71,34 @@ def test_a_region_with_no_solution_spends_its_attempt_budget(panda, table_scene)
     assert draw.Q.shape == (0, panda.nq) and draw.attempts == 32 and draw.converged == 0
 
 
-def test_task_goals_are_cached_per_task(panda, table_scene):
+def test_task_goals_are_cached_per_task_and_on_disk(panda, table_scene, tmp_path,
+                                                    monkeypatch, caplog):
+    from advocc_ros.kinematics import goal_batch
+    from advocc_ros.model.cache import CACHE_ENV
+
+    monkeypatch.setenv(CACHE_ENV, str(tmp_path))
+    goal_batch._TASK_GOALS.clear()
     first = task_goals(panda, table_scene.objects, table_scene.goal, 32)
     assert task_goals(panda, table_scene.objects, table_scene.goal, 32) is first
     assert len(first.Q) == 32
+    (path,) = tmp_path.glob('*.goals.npz')
+    goal_batch._TASK_GOALS.clear()  # a new process reads the file, sampling nothing
+    monkeypatch.setattr(goal_batch, 'planner_goals', lambda *a: pytest.fail('sampled again'))
+    again = task_goals(panda, table_scene.objects, table_scene.goal, 32)
+    np.testing.assert_array_equal(again.Q, first.Q)
+    assert again.attempts == first.attempts
+    monkeypatch.undo()
+    monkeypatch.setenv(CACHE_ENV, str(tmp_path))
+    moved = first.Q.copy()
+    moved[0, 0] += 0.5  # no longer a goal configuration: the file is not used
+    np.savez(path, Q=moved, attempts=1, converged=1)
+    goal_batch._TASK_GOALS.clear()
+    fresh = task_goals(panda, table_scene.objects, table_scene.goal, 32)
+    np.testing.assert_array_equal(fresh.Q, first.Q)
+    assert 'goal sample cache' in caplog.text
+    path.write_bytes(b'not a zip')
+    goal_batch._TASK_GOALS.clear()
+    assert len(task_goals(panda, table_scene.objects, table_scene.goal, 32).Q) == 32
 
 
 def test_rarest_first_puts_an_isolated_point_first():

@@ -131,8 +131,8 @@ def test_a_damaged_cache_file_costs_a_search_not_a_wrong_verdict(task, tmp_path,
 
 
 def test_attack_cli_reuses_the_witness_of_an_earlier_run(task, tmp_path):
-    """Two ``advocc attack`` processes: the second reads the first one's witness (one cache
-    file), writes nothing again, and certifies the same path."""
+    """Two ``advocc attack`` processes: the second reads the first one's witness and goal
+    sample (a file each), writes nothing again, and certifies the same path."""
     scene, robot, q0, heatmap = task
     save_heatmap(heatmap, tmp_path / 'h.npz')
     cache = tmp_path / 'cache'
@@ -146,7 +146,7 @@ def test_attack_cli_reuses_the_witness_of_an_earlier_run(task, tmp_path):
                                str(out)], capture_output=True, text=True, timeout=180, env=env)
         assert proc.returncode == 0, proc.stderr[-2000:]
         files = sorted(cache.iterdir())
-        assert len(files) == 1 and files[0].suffix == '.yaml', files
+        assert sorted(f.suffix for f in files) == ['.npz', '.yaml'], files
         runs.append((json.loads(proc.stdout), [f.stat().st_mtime_ns for f in files],
                      load_witness(witness_file(out)).waypoints))
     assert runs[0][1] == runs[1][1], 'the second run searched and wrote the cache again'

@@ -60,8 +60,8 @@ def _core(heatmap, robot, scene, q, budgets, method, repeats, policy='paper',
     again (witness and samples cached); ``compute``, the core's own ``compute_s`` of the warm
     call."""
     from advocc_ros.attack.edges import attack_task
-    from advocc_ros.model.cache import clear_task_caches
-    from advocc_ros.planning.witness import CACHE_ENV, WITNESSES
+    from advocc_ros.model.cache import CACHE_ENV, clear_task_caches
+    from advocc_ros.planning.witness import WITNESSES
 
     def run(seed: int):
         t0 = time.perf_counter()

@@ -8,24 +8,33 @@ sample of the goal set as the victims see it (where their samples land often, an
 rarely), at a few milliseconds per thousand attempts instead of seconds.
 
 The attempts follow one seeded stream and an attempt budget (``attempts_per_sample * n``),
-never a clock, so a seed gives the same set on any machine.
+never a clock, so a seed gives the same set on any machine. The task's sample
+(:func:`task_goals`) is kept in the process and on disk beside the task's witness
+(``model.cache.disk_cache_dir``); a file is used only when every configuration in it is still a
+collision-free goal configuration of the task.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import logging
 import os
+import pathlib
+import zipfile
 from typing import Callable
 
 import numpy as np
 
 from advocc_ros.kinematics.batch import ChainKinematics, dls, exp3, log3
 from advocc_ros.kinematics.ik import GoalSampler, IkConfig, seed_configurations
-from advocc_ros.model.cache import BoundedCache
+from advocc_ros.fileio import atomic_open
+from advocc_ros.model.cache import BoundedCache, disk_cache_dir
 from advocc_ros.model.collision import CollisionWorld
 from advocc_ros.model.goal import GoalRegion
 from advocc_ros.model.robot import RobotModel
 from advocc_ros.model.scene import task_hash
+
+log = logging.getLogger(__name__)
 
 THREADS = os.cpu_count() or 1
 """Threads of the batched collision checks (C++); the result does not depend on it."""
@@ -39,6 +48,8 @@ sees the goal set; a planner draws a few hundred goals in a 5 s budget, so a set
 under 1 of 1,024 samples is one it rarely hits."""
 TASK_GOAL_SEED = 7_345_002
 """Seed of the task's goal sample: part of the task, not of one attack."""
+GOALS_FORMAT = 'advocc_goal_sample_1'
+"""Part of the disk cache's key: a new format or sampler changes it."""
 RARITY_NEIGHBOUR = 5
 """The k of the k-NN distance that ranks goal configurations by rarity."""
 
@@ -117,13 +128,60 @@ def task_goals(robot: RobotModel, objects, goal: GoalRegion, n: int = TASK_GOALS
     """The task's fixed goal sample (``planner_goals`` from ``TASK_GOAL_SEED`` on the scene
     ``objects``), cached per task: the attack covers it and the witness search picks its end
     from it."""
-    key = task_hash(robot.hash, tuple(objects), goal, n, TASK_GOAL_SEED, 'planner goals')
+    key = task_hash(robot.hash, tuple(objects), goal, n, TASK_GOAL_SEED, BATCH,
+                    ATTEMPTS_PER_SAMPLE, dataclasses.astuple(IkConfig()), GOALS_FORMAT)
 
     def make() -> GoalDraw:
         world = CollisionWorld(robot, [sh for o in objects for sh in o.shapes])
-        return planner_goals(robot, goal, lambda Q: world.collisions_batch(Q, THREADS), n,
-                             TASK_GOAL_SEED)
+
+        def collisions(Q: np.ndarray) -> np.ndarray:
+            return world.collisions_batch(Q, THREADS)
+        cache_dir = disk_cache_dir()
+        path = cache_dir / f'{key}.goals.npz' if cache_dir is not None else None
+        draw = _read(path, robot, goal, collisions, n) if path is not None else None
+        if draw is None:
+            draw = planner_goals(robot, goal, collisions, n, TASK_GOAL_SEED)
+            if path is not None:
+                _write(path, draw)
+        return draw
     return _TASK_GOALS.get_or_make(key, make)
+
+
+def _read(path: pathlib.Path, robot: RobotModel, goal: GoalRegion, collisions, n: int
+          ) -> GoalDraw | None:
+    """The sample kept in ``path`` if it still is one of this task (else None, with a warning
+    when the file exists)."""
+    if not path.is_file():
+        return None
+    try:
+        with np.load(path, allow_pickle=False) as data:
+            Q = np.asarray(data['Q'], dtype=float)
+            attempts, converged = int(data['attempts']), int(data['converged'])
+    except (OSError, ValueError, KeyError, zipfile.BadZipFile) as exc:
+        log.warning('goal sample cache: cannot read %s (%s): sampling again', path, exc)
+        return None
+    chain = ChainKinematics(robot.model, robot.model.getFrameId(goal.link))
+    valid = (Q.ndim == 2 and Q.shape[1] == robot.nq and len(Q) <= n
+             and bool(np.isfinite(Q).all())
+             and bool(np.all((Q >= robot.lower) & (Q <= robot.upper))))
+    if valid and len(Q):
+        in_region = (_Region(robot, goal).contains(chain.frame(Q)) if chain.supports
+                     else np.ones(len(Q), bool))
+        valid = bool(in_region.all()) and not collisions(Q).any()
+    if not valid:
+        log.warning('goal sample cache: %s does not hold goal configurations of this task: '
+                    'sampling again', path)
+        return None
+    return GoalDraw(Q, attempts, converged)
+
+
+def _write(path: pathlib.Path, draw: GoalDraw) -> None:
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        with atomic_open(path, 'wb') as handle:
+            np.savez(handle, Q=draw.Q, attempts=draw.attempts, converged=draw.converged)
+    except OSError as exc:  # a read-only home must not fail the attack
+        log.warning('goal sample cache: cannot write %s (%s)', path, exc)
 
 
 def rarest_first(Q: np.ndarray, k: int = RARITY_NEIGHBOUR) -> np.ndarray:

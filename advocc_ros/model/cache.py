@@ -10,10 +10,29 @@ hash, task hash, point hash), never ``id()`` of an object that may be freed and 
 from __future__ import annotations
 
 import collections
+import os
+import pathlib
 import threading
 from typing import Callable, Generic, Hashable, TypeVar
 
 V = TypeVar('V')
+
+CACHE_ENV = 'ADVOCC_WITNESS_CACHE'
+"""Environment variable: the on-disk cache's directory, or ``off``."""
+
+
+def disk_cache_dir() -> pathlib.Path | None:
+    """Where a task's witness and goal sample are kept between processes:
+    ``$ADVOCC_WITNESS_CACHE`` (``off``: nowhere), by default
+    ``$XDG_CACHE_HOME/advocc_ros/witness`` (``~/.cache/advocc_ros/witness``). What is read back
+    is checked again before it is used."""
+    value = os.environ.get(CACHE_ENV, '')
+    if value == 'off':
+        return None
+    if value:
+        return pathlib.Path(value)
+    base = os.environ.get('XDG_CACHE_HOME') or pathlib.Path.home() / '.cache'
+    return pathlib.Path(base) / 'advocc_ros' / 'witness'
 
 
 class BoundedCache(Generic[V]):

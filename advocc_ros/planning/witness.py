@@ -17,7 +17,7 @@ floor between two checked states, e.g. a grasp in a pocket a few mm wide) is dro
 next seed tried, and when every path found was unproven, the targets are tried once more
 without simplification (shortcuts pull a path taut against the objects).
 
-A found witness is kept twice: in this process, and on disk (``witness_cache_dir``) so that
+A found witness is kept twice: in this process, and on disk (``model.cache.disk_cache_dir``) so that
 the next process (another ``advocc attack``, a restarted node) skips the search; a witness read
 from disk is certified again on the unattacked scene, from the task's start, before it is used,
 so a stale or damaged file costs a search, never a wrong verdict. A failed search is not kept:
@@ -43,7 +43,7 @@ import typing
 import numpy as np
 import pinocchio as pin
 
-from advocc_ros.model.cache import BoundedCache
+from advocc_ros.model.cache import CACHE_ENV, BoundedCache, disk_cache_dir
 from advocc_ros.model.collision import CollisionWorld
 from advocc_ros.model.robot import RobotModel
 from advocc_ros.model.goal import GoalRegion
@@ -79,8 +79,6 @@ WITNESS_TIME_S = 30.0
 """Budget of one witness search [s] (RRTConnect solves the shipped scenes in < 1 s)."""
 WAYPOINT_DECIMALS = 12
 """Waypoints are rounded to 1e-12 rad, in memory as in files (YAML keeps them exactly)."""
-CACHE_ENV = 'ADVOCC_WITNESS_CACHE'
-"""Environment variable: the on-disk witness cache's directory, or ``off``."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -245,19 +243,6 @@ WITNESSES: BoundedCache = BoundedCache('witnesses', 32)
 """Task hash -> Witness found in this process (a failed search is not kept)."""
 
 
-def witness_cache_dir() -> pathlib.Path | None:
-    """The on-disk witness cache (also the goal sets that choose among witnesses,
-    ``attack.goals``): ``$ADVOCC_WITNESS_CACHE`` (``off``: none), by default
-    ``$XDG_CACHE_HOME/advocc_ros/witness`` (``~/.cache/advocc_ros/witness``)."""
-    value = os.environ.get(CACHE_ENV, '')
-    if value == 'off':
-        return None
-    if value:
-        return pathlib.Path(value)
-    base = os.environ.get('XDG_CACHE_HOME') or pathlib.Path.home() / '.cache'
-    return pathlib.Path(base) / 'advocc_ros' / 'witness'
-
-
 def find_witness(robot: RobotModel, objects: tuple[SceneObject, ...] | list,
                  q_init: np.ndarray, goal: GoalRegion, time_s: float = WITNESS_TIME_S
                  ) -> Witness | None:
@@ -271,7 +256,7 @@ def find_witness(robot: RobotModel, objects: tuple[SceneObject, ...] | list,
     cached = WITNESSES.get(key)
     if cached is not None:
         return cached
-    cache_dir = witness_cache_dir()
+    cache_dir = disk_cache_dir()
     disk = cache_dir / f'{key}.yaml' if cache_dir is not None else None
     world = CollisionWorld(robot, [sh for o in objects for sh in o.shapes])
     witness = _from_disk(disk, robot, world, q_init, goal) if disk is not None else None
@@ -385,4 +370,4 @@ def _to_disk(path: pathlib.Path, witness: Witness) -> None:
 
 __all__ = ['CACHE_ENV', 'WITNESS_STEP_RAD', 'Certified', 'Witness', 'certify', 'find_witness',
            'load_witness', 'rare_clear_ends', 'object_shape_names', 'save_witness',
-           'witness_cache_dir', 'witness_file', 'witness_states']
+           'witness_file', 'witness_states']
