@@ -42,7 +42,12 @@ def _psr_cell(row: dict | None) -> str:
     if row is None:
         return '--'
     text = 'N/A' if row['psr'] is None else f'{100 * row["psr"]:.2f}'
-    return text + ('' if row['complete'] else '*') + ('!' if row['internal_errors'] else '')
+    text += ('' if row['complete'] else '*') + ('!' if row['internal_errors'] else '')
+    if row.get('no_goal_found'):  # PSR given goals beside it: the path search alone
+        given = row['psr_given_goals']
+        text += f' ({"N/A" if given is None else f"{100 * given:.2f}"} given goals, ' \
+            f'{row["no_goal_found"]} without)'
+    return text
 
 
 # Table I metric: (row key, digits, better is lower)
