@@ -5,14 +5,11 @@ negative numbers, wrong types, empty and oversized containers, unknown or missin
 are the bytes of a valid file truncated and bit-flipped. A parser passes when it returns a
 value or raises its documented error type (``SceneError``, ``HeatmapError``, ``RobotError``,
 ``ValueError`` for configs) quickly; any other exception is a bug. The number of cases run is
-printed by ``test_zz_case_count`` and written to ``$ADVOCC_FUZZ_COUNTS`` when set.
+printed after the module's last test and written to ``$ADVOCC_FUZZ_COUNTS`` when set.
 """
 
 import copy
 import io
-import json
-import os
-import pathlib
 import time
 
 import numpy as np
@@ -20,6 +17,7 @@ import pytest
 import yaml
 from hypothesis import HealthCheck, given, settings, strategies as st
 
+from case_counts import report_cases, whole_module_ran
 from conftest import REPO
 
 CASES: dict[str, int] = {}
@@ -32,6 +30,18 @@ MBM = REPO / 'test' / 'data' / 'mbm'
 
 def _count(name: str) -> None:
     CASES[name] = CASES.get(name, 0) + 1
+
+
+@pytest.fixture(scope='module', autouse=True)
+def _case_count(request):
+    """After the module's last test, in whatever order they ran: how many generated cases ran
+    (hypothesis examples + fixed hostile inputs), and at least 250 when the whole module ran."""
+    failed_before = request.session.testsfailed
+    CASES.clear()
+    yield
+    total = report_cases(request, 'parsers', CASES)
+    if whole_module_ran(request, failed_before):
+        assert total >= 250, CASES
 
 
 NAN, INF = float('nan'), float('inf')
@@ -537,17 +547,3 @@ def test_huge_mesh_message_is_refused_quickly():
     with pytest.raises(SceneError, match='limit'):
         collision_object_from_msg(msg)
     assert time.perf_counter() - t0 < 0.1
-
-
-def test_zz_case_count(capsys):
-    """Report how many generated cases ran (hypothesis examples + fixed hostile inputs)."""
-    total = sum(CASES.values())
-    with capsys.disabled():
-        print(f'\nfuzz parser cases: {total} {json.dumps(CASES, sort_keys=True)}')
-    out = os.environ.get('ADVOCC_FUZZ_COUNTS')
-    if out:
-        counts = json.loads(pathlib.Path(out).read_text()) if pathlib.Path(out).exists() else {}
-        counts['parsers'] = CASES
-        pathlib.Path(out).write_text(json.dumps(counts, indent=1))
-    if len(CASES) > 1:  # the whole module ran, not one selected test
-        assert total >= 250

@@ -20,6 +20,7 @@ import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings, strategies as st
 
+from case_counts import report_cases, whole_module_ran
 from conftest import REPO
 
 pytestmark = pytest.mark.processes  # nodes, workers or CLI runs
@@ -36,6 +37,20 @@ FLOATS = st.one_of(st.sampled_from([NAN, INF, -INF, 0.0, -0.0, -1.0, 1e308, -1e3
                    st.floats(-2.0, 2.0))
 TOLS = st.lists(st.one_of(st.floats(-0.1, 0.2), st.sampled_from([NAN, INF, -INF, 0.0, 1e9])),
                 min_size=3, max_size=3)
+
+
+@pytest.fixture(scope='module', autouse=True)
+def _case_count(request):
+    """After the module's last test, in whatever order they ran: how many requests the live
+    nodes survived, and all of them (>= 80 attacks, >= 40 plans, the bad parameters) when the
+    whole module ran."""
+    failed_before = request.session.testsfailed
+    CASES.clear()
+    yield
+    report_cases(request, 'services', CASES)
+    if whole_module_ran(request, failed_before):
+        assert CASES.get('attack', 0) >= 80 and CASES.get('plan', 0) >= 40, CASES
+        assert CASES.get('parameters', 0) >= 1, CASES
 
 
 @pytest.fixture(scope='module')
@@ -406,19 +421,3 @@ def test_bad_parameters_stop_the_node_cleanly(ros_module):
             if proc.poll() is None:
                 proc.kill()
                 proc.wait(5)
-
-
-def test_zzz_case_count(capsys):
-    """How many requests the live nodes survived; all of them, when the module ran whole."""
-    total = sum(CASES.values())
-    with capsys.disabled():
-        print(f'\nfuzz service requests: {total} {json.dumps(CASES, sort_keys=True)}')
-    out = os.environ.get('ADVOCC_FUZZ_COUNTS')
-    if out:
-        path = pathlib.Path(out)
-        counts = json.loads(path.read_text()) if path.exists() else {}
-        counts['services'] = CASES
-        path.write_text(json.dumps(counts, indent=1))
-    if len(CASES) > 1:  # the whole module ran, not one selected test
-        assert CASES.get('attack', 0) >= 80 and CASES.get('plan', 0) >= 40, CASES
-        assert CASES.get('parameters', 0) >= 1, CASES
