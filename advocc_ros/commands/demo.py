@@ -67,7 +67,20 @@ def run(args) -> int:
     out = pathlib.Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     scene = scene_from_args(args)
+    heatmap, heatmap_file = _heatmap_stage(args, scene, out)
+    planners = tuple(p for p in args.planners.split(',') if p)
+    audit = _audit_stage(args, scene, heatmap, planners, out)
+    _attack_stage(args, scene, heatmap, heatmap_file, out)
+    summary = _bench_stage(args, planners, heatmap_file, out)
+    from advocc_ros.audit.report import audit_answer
+    _stage(f'the answer (stage 2; report in {out / "audit" / "audit.md"})')
+    print(audit_answer(audit))
+    return 0 if summary['missing'] == 0 else 1
 
+
+def _heatmap_stage(args, scene, out: pathlib.Path):
+    """Stage 1: build the heatmap (or reuse the one in ``out``) and plot its slices; the
+    heatmap and its file."""
     _stage(f'1. offline: kinematic occupancy heatmap for {scene.name} ({args.samples} samples)')
     heatmap_file = out / f'heatmap_{scene.name}.npz'
     if heatmap_file.exists() and not args.rebuild:
@@ -85,8 +98,11 @@ def run(args) -> int:
     from advocc_ros.evaluation.figures import plot_heatmap_slices
     plot_heatmap_slices(heatmap, out / f'heatmap_{scene.name}.png', scene=scene)
     print(f'slice figure: {out / f"heatmap_{scene.name}.png"}')
+    return heatmap, heatmap_file
 
-    planners = tuple(p for p in args.planners.split(',') if p)
+
+def _audit_stage(args, scene, heatmap, planners: tuple[str, ...], out: pathlib.Path) -> dict:
+    """Stage 2, the main job: the audit of the task attack's prefixes; the audit."""
     _stage(f'2. MAIN: audit - how few boxes make the pick impossible, and how few make '
            f'{", ".join(planners)} fail while it stays solvable? (task attack, goal policy '
            f'{args.audit_policy}, up to {args.audit_budget} boxes, {args.audit_trials} trials x '
@@ -103,10 +119,16 @@ def run(args) -> int:
     print(audit_answer(audit))
     print()
     print(budget_table(audit))
+    return audit
 
+
+def _attack_stage(args, scene, heatmap, heatmap_file: pathlib.Path, out: pathlib.Path) -> None:
+    """Stage 3: the task attack through heatmap_server and attacker, written as an obstacles
+    file and a ROS 2 bag, and drawn on the heatmap's slices."""
     _stage(f'3. online: task attack with M={args.budget} through heatmap_server + attacker '
            'nodes')
     from advocc_ros.attack import load_obstacles
+    from advocc_ros.evaluation.figures import plot_heatmap_slices
     from advocc_ros.ros.feeder import run_attack_nodes
     obstacles_file = out / f'obstacles_{scene.name}_task_{args.budget}.yaml'
     bag_file = obstacles_file.with_suffix('.mcap')
@@ -122,6 +144,11 @@ def run(args) -> int:
     plot_heatmap_slices(heatmap, out / f'attack_{scene.name}.png', scene=scene,
                         obstacles=obstacles)
 
+
+def _bench_stage(args, planners: tuple[str, ...], heatmap_file: pathlib.Path,
+                 out: pathlib.Path) -> dict:
+    """Stage 4: a short benchmark through the orchestrator and the nodes, Table I printed; the
+    run's summary."""
     _stage(f'4. benchmark through the nodes: orchestrator, {args.shims} planner shims, '
            f'{args.trials} trials per cell, {args.time:g} s budget, goal policy '
            f'{args.bench_policy}')
@@ -148,6 +175,4 @@ def run(args) -> int:
     if args.bench_policy != 'solvable':  # PSR 0 on a goal-blocked task is no planner failure
         print(f'goal policy {args.bench_policy}: the attacks\' verdicts (certified / goal '
               f'blocked / unknown) per cell are in {run_dir / "hardness.md"}')
-    _stage(f'the answer (stage 2; report in {out / "audit" / "audit.md"})')
-    print(audit_answer(audit))
-    return 0 if summary['missing'] == 0 else 1
+    return summary

@@ -28,16 +28,10 @@ def run_attack_nodes(heatmap_file: str | pathlib.Path, scene: Scene, out: str | 
     Raises ``RuntimeError`` (with the nodes' output) if no boxes arrive within ``timeout_s``.
     """
     import rclpy
-    from advocc_msgs.msg import CollisionObject, GoalRegion, Scene as SceneMsg
     from rclpy.executors import SingleThreadedExecutor
 
-    from sensor_msgs.msg import PointCloud2
-
-    from advocc_ros.ros.clouds import CLOUD_TOPIC, cloud_msg, scene_cloud
-    from advocc_ros.ros.conversions import (collision_object_from_msg, goal_region_to_msg,
-                                            scene_to_msg)
-    from advocc_ros.ros.qos import (COLLISION_OBJECT_TOPIC, GOAL_REGION_TOPIC, LATCHED_QOS,
-                                    SCENE_TOPIC)
+    from advocc_ros.ros.clouds import scene_cloud
+    from advocc_ros.ros.conversions import collision_object_from_msg
 
     if scene.start is None or scene.goal is None:
         raise ValueError(f'scene {scene.name!r} needs a start and a goal')
@@ -59,29 +53,8 @@ def run_attack_nodes(heatmap_file: str | pathlib.Path, scene: Scene, out: str | 
     executor.add_node(node)
     added: list = []
     try:
-        node.create_subscription(
-            CollisionObject, COLLISION_OBJECT_TOPIC,
-            lambda m: added.append(m) if m.operation == CollisionObject.ADD else None,
-            LATCHED_QOS)
-        if cloud is not None:
-            node.create_publisher(PointCloud2, CLOUD_TOPIC, LATCHED_QOS).publish(
-                cloud_msg(cloud[0], scene.frame))
-        node.create_publisher(SceneMsg, SCENE_TOPIC, LATCHED_QOS).publish(scene_to_msg(scene))
-        node.create_publisher(GoalRegion, GOAL_REGION_TOPIC, LATCHED_QOS).publish(
-            goal_region_to_msg(scene.goal, scene.frame))
-        t0 = time.monotonic()
-        while len(added) < budget:
-            if any(p.poll() is not None for p in procs) or time.monotonic() - t0 > timeout_s:
-                break
-            executor.spin_once(timeout_sec=0.1)
-        # A PARTIAL attack adds fewer boxes: give late ones a moment.
-        settle = time.monotonic() + (0.5 if len(added) >= budget else 2.0)
-        while time.monotonic() < settle and len(added) < budget:
-            executor.spin_once(timeout_sec=0.1)
-        written = time.monotonic() + 5.0  # the attacker writes its bag after publishing
-        while bag is not None and not pathlib.Path(bag).is_file() and time.monotonic() < written:
-            executor.spin_once(timeout_sec=0.1)
-        elapsed = time.monotonic() - t0
+        _feed_task(node, scene, cloud, added)
+        elapsed = _wait_for_boxes(executor, procs, added, budget, timeout_s, bag)
     finally:
         executor.shutdown()
         node.destroy_node()
@@ -104,3 +77,46 @@ def run_attack_nodes(heatmap_file: str | pathlib.Path, scene: Scene, out: str | 
     return {'obstacles': data['objects'], 'seconds_to_boxes': round(elapsed, 3),
             'exit_codes': {'heatmap_server': codes[0], 'attacker': codes[1]},
             'out': str(out), 'logs': {'heatmap_server': output[0], 'attacker': output[1]}}
+
+
+def _feed_task(node, scene: Scene, cloud, added: list) -> None:
+    """Subscribe ``added`` to the boxes the attacker adds, then publish the task on the latched
+    topics the attacker listens to: the sensed cloud (if the scene has one), the scene and the
+    goal region."""
+    from advocc_msgs.msg import CollisionObject, GoalRegion, Scene as SceneMsg
+    from sensor_msgs.msg import PointCloud2
+
+    from advocc_ros.ros.clouds import CLOUD_TOPIC, cloud_msg
+    from advocc_ros.ros.conversions import goal_region_to_msg, scene_to_msg
+    from advocc_ros.ros.qos import (COLLISION_OBJECT_TOPIC, GOAL_REGION_TOPIC, LATCHED_QOS,
+                                    SCENE_TOPIC)
+
+    node.create_subscription(
+        CollisionObject, COLLISION_OBJECT_TOPIC,
+        lambda m: added.append(m) if m.operation == CollisionObject.ADD else None,
+        LATCHED_QOS)
+    if cloud is not None:
+        node.create_publisher(PointCloud2, CLOUD_TOPIC, LATCHED_QOS).publish(
+            cloud_msg(cloud[0], scene.frame))
+    node.create_publisher(SceneMsg, SCENE_TOPIC, LATCHED_QOS).publish(scene_to_msg(scene))
+    node.create_publisher(GoalRegion, GOAL_REGION_TOPIC, LATCHED_QOS).publish(
+        goal_region_to_msg(scene.goal, scene.frame))
+
+
+def _wait_for_boxes(executor, procs, added: list, budget: int, timeout_s: float,
+                    bag: str | pathlib.Path | None) -> float:
+    """Spin until ``budget`` boxes arrived in ``added``, a node exited or ``timeout_s`` passed,
+    then briefly for late boxes and for the attacker's bag; seconds until the boxes."""
+    t0 = time.monotonic()
+    while len(added) < budget:
+        if any(p.poll() is not None for p in procs) or time.monotonic() - t0 > timeout_s:
+            break
+        executor.spin_once(timeout_sec=0.1)
+    # A PARTIAL attack adds fewer boxes: give late ones a moment.
+    settle = time.monotonic() + (0.5 if len(added) >= budget else 2.0)
+    while time.monotonic() < settle and len(added) < budget:
+        executor.spin_once(timeout_sec=0.1)
+    written = time.monotonic() + 5.0  # the attacker writes its bag after publishing
+    while bag is not None and not pathlib.Path(bag).is_file() and time.monotonic() < written:
+        executor.spin_once(timeout_sec=0.1)
+    return time.monotonic() - t0
