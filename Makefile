@@ -14,6 +14,10 @@ MPLIB_STAMP := $(MPLIB_VENV)/.advocc-mplib-installed
 # Python checkers: the aorrtc/rrtconnect2 victims run our planning worker in their own venv.
 OMPL2_VENV  ?= .venv-ompl2
 OMPL2_STAMP := $(OMPL2_VENV)/.advocc-ompl2-installed
+# Planner Arena (OMPL's benchmark viewer, a Shiny app on pandas/polars/plotnine) reads the bench's
+# benchmark.db in test/test_planner_arena.py only: its own venv, made by `make test`, not install.
+ARENA_VENV  ?= .venv-arena
+ARENA_STAMP := $(ARENA_VENV)/.advocc-arena-installed
 
 .PHONY: install demo test test-fast fuzz perf clean
 
@@ -55,10 +59,17 @@ $(OMPL2_STAMP): Makefile
 	@echo "OMPL 2 victims installed in $(OMPL2_VENV)"
 	touch $@
 
+$(ARENA_STAMP): Makefile
+	$(PYTHON) -m venv $(ARENA_VENV)
+	$(ARENA_VENV)/bin/python -m pip install --quiet --disable-pip-version-check plannerarena==1.0.1
+	$(ARENA_VENV)/bin/python -c 'from plannerarena.database import load_database'
+	@echo "Planner Arena installed in $(ARENA_VENV)"
+	touch $@
+
 demo: $(STAMP)
 	$(VENV)/bin/advocc demo --out $(OUT)
 
-test: $(STAMP) $(MPLIB_STAMP) $(OMPL2_STAMP)
+test: $(STAMP) $(MPLIB_STAMP) $(OMPL2_STAMP) $(ARENA_STAMP)
 	$(PY) -m pytest $(PYTEST_ARGS)
 
 # The core tests without processes (no nodes, planning workers or CLI runs) and without the
@@ -76,4 +87,4 @@ perf: $(STAMP)
 	$(VENV)/bin/advocc perf attack --json
 
 clean:
-	rm -rf $(VENV) $(MPLIB_VENV) $(OMPL2_VENV) build out .pytest_cache
+	rm -rf $(VENV) $(MPLIB_VENV) $(OMPL2_VENV) $(ARENA_VENV) build out .pytest_cache

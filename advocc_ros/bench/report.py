@@ -67,7 +67,8 @@ class _Files:
 
 def write_report(run_dir: str | pathlib.Path, cfg: BenchConfig, summary: dict | None = None
                  ) -> dict[str, pathlib.Path]:
-    """Tables I, II, IV (+ baseline) as Markdown and CSV, figures, summary; all atomic."""
+    """Tables I, II, IV (+ baseline) as Markdown and CSV, figures, OMPL benchmark logs and the
+    Planner Arena database (``bench.arena``), summary; all atomic."""
     run_dir = pathlib.Path(run_dir)
     records = list(RecordStore(run_dir / 'records.jsonl').records.values())
     rows = cell_rows(records, cfg)
@@ -79,6 +80,8 @@ def write_report(run_dir: str | pathlib.Path, cfg: BenchConfig, summary: dict | 
     for i, scene in enumerate(cfg.scenes):
         _write_figures(files, rows, cfg, i, scene, heatmaps.get(scene), metas)
         _write_time_figure(files, records, cfg, i, scene)
+    from advocc_ros.bench.arena import write_ompl_results
+    files.out.update(write_ompl_results(run_dir, records, cfg))  # Planner Arena, OMPL logs
     if summary is not None:
         files.put('summary.json', json.dumps(summary, indent=2) + '\n')
     return files.out
