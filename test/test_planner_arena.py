@@ -28,7 +28,7 @@ ARENA_PYTHON = REPO / '.venv-arena' / 'bin' / 'python'
 OMPL_STATISTICS = REPO / '.venv-ompl2' / 'bin' / 'ompl_benchmark_statistics'
 CHROMIUM = shutil.which('chromium')
 PAGE_DRIVER = pathlib.Path(__file__).with_name('arena_page.py')
-VICTIMS = ('rrtconnect', 'bkpiece1')
+VICTIMS = ('rrtconnect', 'bkpiece1', 'aorrtc')
 TRIALS = 3
 
 
@@ -39,7 +39,7 @@ def _needs(path: pathlib.Path, what: str) -> None:
 
 @pytest.fixture(scope='module')
 def run_dir(tmp_path_factory, table_scene):
-    """A bench-like run folder of real trials: our RRTConnect and BKPIECE1 on table_pick."""
+    """A bench-like run folder of real trials: RRTConnect, BKPIECE1, AORRTC on table_pick."""
     out = tmp_path_factory.mktemp('arena')
     records = []
     for victim in VICTIMS:
@@ -100,7 +100,7 @@ def test_planner_arena_loads_the_database(run_dir):
     assert data['problems'] == ['table_pick_none_M0']
     assert data['parameters'] == ['budget', 'method', 'scene']
     assert data['runs'] == len(records) == TRIALS * len(VICTIMS)
-    assert data['planners'] == ['BKPIECE1', 'RRTConnect']  # geometric_ stripped, as OMPL's
+    assert data['planners'] == ['AORRTC', 'BKPIECE1', 'RRTConnect']  # geometric_ stripped
     assert data['solved'] == sum(r['success'] for r in records)
     assert {'time', 'solved', 'status', 'goal found', 'goal attempts'} <= set(data['attributes'])
     assert data['status'] == list(STATUS)
@@ -146,7 +146,7 @@ def test_planner_arena_page_draws_the_benchmark_in_chromium(run_dir, tmp_path):
         server.terminate()
         server.wait(10)
     assert page['plot_width'] > 0, 'Planner Arena drew no plot of our database'
-    for text in ('table_pick_none_M0', 'RRTConnect', 'BKPIECE1', 'budget', 'method', 'scene'):
+    for text in ('table_pick_none_M0', 'RRTConnect', 'AORRTC', 'budget', 'method', 'scene'):
         assert text in page['text'], text  # our experiment, victims and problem parameters
     assert png.is_file() and png.stat().st_size > 10_000
     if os.environ.get('ADVOCC_ARENA_SCREENSHOT'):
