@@ -13,7 +13,7 @@ import numpy as np
 import pinocchio as pin
 import pytest
 
-from advocc_ros.model.collision import CollisionWorld, _no_warm_start
+from advocc_ros.model.collision import CollisionWorld, no_warm_start
 from advocc_ros.model.robot import load_robot
 from advocc_ros.model.scene import load_scene
 
@@ -25,7 +25,7 @@ def _all_pairs(world: CollisionWorld, Q: np.ndarray) -> np.ndarray:
     """Every SRDF self pair and every (link, shape) pair through GJK, cold, in C++."""
     pool = pin.GeometryPool(world.model, world.geom_model, 2)
     for data in pool.getGeometryDatas():
-        _no_warm_start(data.collisionRequests)
+        no_warm_start(data.collisionRequests)
     return np.asarray(pin.computeCollisionsInParallel(2, pool, np.asfortranarray(Q.T), True,
                                                       False), dtype=bool)
 

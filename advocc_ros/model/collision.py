@@ -11,7 +11,7 @@ Validity checks go through a broad phase (coal's dynamic AABB tree, driven by pi
 geometry, so the verdict is the one the all-pairs loop gives (test/test_collision_exact.py
 compares the two on 100,000 configurations per shipped scene), at ~5x the speed (table_pick:
 60 -> 12 us).
-GJK starts cold on every query (see ``_no_warm_start``), so a verdict never depends on which
+GJK starts cold on every query (see ``no_warm_start``), so a verdict never depends on which
 configuration was checked before; coal's one process-wide setting (how much it inflates boxes) is
 fixed before any query by ``advocc_ros.model.coal_state``, so it never depends on what a process
 checked first.
@@ -100,7 +100,7 @@ class CollisionData:
         self.data = world.robot.create_data()
         self.geom_data = world.geom_model.createData()  # placements (no queries run on it)
         self.broad_data = world.geom_model.createData()
-        _no_warm_start(self.broad_data.collisionRequests)
+        no_warm_start(self.broad_data.collisionRequests)
         self.broad = pin.BroadPhaseManager_DynamicAABBTreeCollisionManager(
             world.model, world.geom_model, self.broad_data)
         self.pool: pin.BroadPhaseManagerPool_DynamicAABBTreeCollisionManager | None = None
@@ -157,7 +157,7 @@ class CollisionWorld:
         scratch = self.scratch
         if scratch.dist_data is None:
             scratch.dist_data = self.dist_model.createData()
-            _no_warm_start(scratch.dist_data.distanceRequests)
+            no_warm_start(scratch.dist_data.distanceRequests)
         return scratch.dist_data
 
     @functools.cached_property
@@ -207,7 +207,7 @@ class CollisionWorld:
             scratch.pool = pin.BroadPhaseManagerPool_DynamicAABBTreeCollisionManager(
                 self.model, self.geom_model, max(threads, 1))
             for data in scratch.pool.getGeometryDatas():
-                _no_warm_start(data.collisionRequests)
+                no_warm_start(data.collisionRequests)
         return scratch.pool
 
     def collisions_batch(self, Q: np.ndarray, threads: int = 1) -> np.ndarray:
@@ -232,7 +232,7 @@ class CollisionWorld:
         if scratch.margin_pool is None or scratch.margin_pool[0] != margin_m:
             pool = pin.GeometryPool(self.model, self.dist_model, max(threads, 1))
             for data in pool.getGeometryDatas():
-                _no_warm_start(data.collisionRequests)
+                no_warm_start(data.collisionRequests)
                 for req in data.collisionRequests:
                     req.security_margin = margin_m
             scratch.margin_pool = (margin_m, pool)
@@ -261,7 +261,7 @@ class CollisionWorld:
             return d if upto_m is None else min(d, float(upto_m))
         if scratch.near_data is None or scratch.near_data[0] != upto_m:
             near_data = self.dist_model.createData()
-            _no_warm_start(near_data.collisionRequests)
+            no_warm_start(near_data.collisionRequests)
             for req in near_data.collisionRequests:
                 req.security_margin = upto_m
             scratch.near_data = (upto_m, near_data)
@@ -377,7 +377,7 @@ def shared_world(robot: RobotModel, shapes: list[Shape] = ()) -> CollisionWorld:
     return _WORLDS.get_or_make(key, lambda: CollisionWorld(robot, shapes))
 
 
-def _no_warm_start(requests) -> None:
+def no_warm_start(requests) -> None:
     """Start every GJK from the default guess: pinocchio enables warm starts from the previous
     query, which makes distances (to ~1e-5 m) depend on the order configurations were checked
     in, and heatmaps built in shards or by several workers differ from a serial build."""

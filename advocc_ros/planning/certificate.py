@@ -33,7 +33,7 @@ import time
 import numpy as np
 import pinocchio as pin
 
-from advocc_ros.model.collision import CollisionWorld, _no_warm_start
+from advocc_ros.model.collision import CollisionWorld, no_warm_start
 
 
 @dataclasses.dataclass(frozen=True)
@@ -116,7 +116,7 @@ class _Pairs:
         self.world = world
         self.model = world.geom_model
         self.data = self.model.createData()
-        _no_warm_start(self.data.distanceRequests)
+        no_warm_start(self.data.distanceRequests)
         pairs = [(p.first, p.second) for p in self.model.collisionPairs]
         self.bound = world.robot.motion_bound.pairs_m_per_rad(pairs, world.n_links)
         self.names = [(names[a], names[b]) for a, b in pairs]

@@ -19,7 +19,7 @@ from advocc_ros.kinematics.ik import GoalSampler
 from advocc_ros.model.robot import RobotModel
 from advocc_ros.model.goal import GoalRegion
 from advocc_ros.planning.motion import make_motion_validator
-from advocc_ros.planning.types import (PlanningConfig, PlanResult, PlanStatus, _fail,
+from advocc_ros.planning.types import (PlanningConfig, PlanResult, PlanStatus, failed,
                                        planner_class_name, validate_request)
 
 log = logging.getLogger(__name__)
@@ -31,7 +31,9 @@ log = logging.getLogger(__name__)
 _OMPL_SEEDED = False
 
 
-def _ompl():
+def ompl_modules():
+    """OMPL's ``base``, ``geometric`` and ``util`` modules, imported on first use (the parent
+    process never needs OMPL)."""
     from ompl import base as ob, geometric as og, util as ou
     return ob, og, ou
 
@@ -133,13 +135,13 @@ def solve(robot: RobotModel, world: CollisionWorld, q_start: np.ndarray, goal: G
         return error
     q_start = np.asarray(q_start, dtype=float)
     if world.in_collision(q_start):
-        return _fail(PlanStatus.START_STATE_IN_COLLISION, 'start state is in collision', nq,
-                     time.monotonic() - t0)
-    ob, og, ou = _ompl()
+        return failed(PlanStatus.START_STATE_IN_COLLISION, 'start state is in collision', nq,
+                      time.monotonic() - t0)
+    ob, og, ou = ompl_modules()
     if not hasattr(og, planner_class_name(planner_id)):
-        return _fail(PlanStatus.UNKNOWN_METHOD, f'{planner_class_name(planner_id)} is not in '
-                     f'this OMPL ({_ompl_version()}): it is an OMPL 2 planner, planned by the '
-                     'victim of that name (advocc_ros.planning.victims.ompl2)', nq)
+        return failed(PlanStatus.UNKNOWN_METHOD, f'{planner_class_name(planner_id)} is not in '
+                      f'this OMPL ({_ompl_version()}): it is an OMPL 2 planner, planned by the '
+                      'victim of that name (advocc_ros.planning.victims.ompl2)', nq)
     _seed_ompl(ou, seed)
     rng = np.random.default_rng(int(seed) % 2 ** 64)  # int64 message seeds may be < 0
     sampler = GoalSampler(robot, world.in_collision, goal, rng, config)
@@ -168,8 +170,8 @@ def _solve_to_list(robot, world, q_start, planner_id, time_budget_s, config, t0,
     goals = list(Q[~world.collisions_batch(Q)]) if len(Q) else []
     stats = {'goal_list': len(Q), 'goal_list_valid': len(goals)}
     if not goals:
-        return _fail(PlanStatus.GOAL_STATE_INVALID, f'none of the {len(Q)} given goal '
-                     'configurations is valid', nq, time.monotonic() - t0, **stats)
+        return failed(PlanStatus.GOAL_STATE_INVALID, f'none of the {len(Q)} given goal '
+                      'configurations is valid', nq, time.monotonic() - t0, **stats)
     return _solve_to(robot, world, q_start, planner_id, time_budget_s, config, t0, sampler,
                      goals, len(goals), stats)
 
@@ -177,7 +179,7 @@ def _solve_to_list(robot, world, q_start, planner_id, time_budget_s, config, t0,
 def _solve_to(robot, world, q_start, planner_id, time_budget_s, config, t0, sampler, goals,
               cap, ik_stats) -> PlanResult:
     """OMPL's solve from ``q_start`` to ``goals`` (topped up by IK up to ``cap``)."""
-    ob, og, ou = _ompl()
+    ob, og, ou = ompl_modules()
     nq = robot.nq
     # Simplification gets what the solve leaves, at least this reserve. OMPL's simplifier checks
     # its deadline between passes, so a success can end ~0.1 s past the budget (measured).
@@ -191,8 +193,8 @@ def _solve_to(robot, world, q_start, planner_id, time_budget_s, config, t0, samp
     ss.setup()
     solve_time = solve_deadline - time.monotonic()
     if solve_time <= 0:
-        return _fail(PlanStatus.TIMED_OUT, 'the budget was spent sampling goal configurations',
-                     nq, time.monotonic() - t0, **ik_stats)
+        return failed(PlanStatus.TIMED_OUT, 'the budget was spent sampling goal configurations',
+                      nq, time.monotonic() - t0, **ik_stats)
     t_solve = time.monotonic()
     status = ss.solve(solve_time)
     stats = dict(ik_stats, goal_configs=len(goals), validity_checks=checks[0],
@@ -204,8 +206,8 @@ def _solve_to(robot, world, q_start, planner_id, time_budget_s, config, t0, samp
     if broken:
         # OMPL 2.0.1's AORRTC: when its first connection reaches the start tree's root, its own
         # simplification leaves a zero-length path at a goal and it answers INVALID_GOAL.
-        return _fail(PlanStatus.PLANNING_FAILED, f'{stats["planner"]}: {broken} (OMPL status: '
-                     f'{status.asString()})', nq, time.monotonic() - t0, **stats)
+        return failed(PlanStatus.PLANNING_FAILED, f'{stats["planner"]}: {broken} (OMPL status: '
+                      f'{status.asString()})', nq, time.monotonic() - t0, **stats)
     first = goal_obj.first_pair_t
     stats['first_solution_s'] = (first if first is not None else time.monotonic()) - t0
     return _solution(ss, world, t0, t0 + time_budget_s, config, stats)
@@ -240,12 +242,12 @@ def _no_goal(sampler: GoalSampler, nq: int, ik_stats: dict) -> PlanResult:
     """The failure when IK found no collision-free goal configuration in its share of time."""
     ik_time = ik_stats['ik_time_s']
     if sampler.colliding:
-        return _fail(PlanStatus.GOAL_IN_COLLISION,
-                     f'every goal configuration IK found ({sampler.colliding} of '
-                     f'{sampler.attempts} attempts) is in collision', nq, ik_time, **ik_stats)
-    return _fail(PlanStatus.NO_IK_SOLUTION,
-                 f'no IK solution inside the goal region in {sampler.attempts} attempts '
-                 f'({ik_time:.2f} s)', nq, ik_time, **ik_stats)
+        return failed(PlanStatus.GOAL_IN_COLLISION,
+                      f'every goal configuration IK found ({sampler.colliding} of '
+                      f'{sampler.attempts} attempts) is in collision', nq, ik_time, **ik_stats)
+    return failed(PlanStatus.NO_IK_SOLUTION,
+                  f'no IK solution inside the goal region in {sampler.attempts} attempts '
+                  f'({ik_time:.2f} s)', nq, ik_time, **ik_stats)
 
 
 def _simple_setup(ob, og, ou, robot: RobotModel, world: CollisionWorld, q_start: np.ndarray,
@@ -289,9 +291,9 @@ def _no_solution(name: str, time_budget_s: float, nq: int, elapsed: float, stats
                  ) -> PlanResult:
     """The failure when OMPL returned without an exact solution (``name``: its status)."""
     if name == 'Timeout' or 'Approximate' in name:
-        return _fail(PlanStatus.TIMED_OUT, f'no solution within {time_budget_s:g} s '
-                     f'({name.lower()})', nq, elapsed, **stats)
-    return _fail(PlanStatus.PLANNING_FAILED, f'OMPL: {name}', nq, elapsed, **stats)
+        return failed(PlanStatus.TIMED_OUT, f'no solution within {time_budget_s:g} s '
+                      f'({name.lower()})', nq, elapsed, **stats)
+    return failed(PlanStatus.PLANNING_FAILED, f'OMPL: {name}', nq, elapsed, **stats)
 
 
 def _solution(ss, world: CollisionWorld, t0: float, deadline: float, config: PlanningConfig,
@@ -313,8 +315,8 @@ def _solution(ss, world: CollisionWorld, t0: float, deadline: float, config: Pla
     stats['path_length_rad'] = float(path.length())
     colliding = np.flatnonzero(world.collisions_batch(waypoints))
     if len(colliding):
-        return _fail(PlanStatus.INVALID_MOTION_PLAN, f'{stats["planner"]}: waypoint '
-                     f'{colliding[0]} of the {len(waypoints)} of its solution is in collision '
-                     '(between two states its motion check passed)', nq, elapsed, **stats)
+        return failed(PlanStatus.INVALID_MOTION_PLAN, f'{stats["planner"]}: waypoint '
+                      f'{colliding[0]} of the {len(waypoints)} of its solution is in collision '
+                      '(between two states its motion check passed)', nq, elapsed, **stats)
     return PlanResult(PlanStatus.SUCCESS, f'{stats["planner"]}: solved in {elapsed:.3f} s',
                       waypoints, elapsed, stats)

@@ -178,8 +178,10 @@ class PlanResult:
                    float(data['planning_time_s']), dict(data.get('stats', {})))
 
 
-def _fail(status: PlanStatus, message: str, nq: int, elapsed: float = 0.0, **stats
-          ) -> PlanResult:
+def failed(status: PlanStatus, message: str, nq: int, elapsed: float = 0.0, **stats
+           ) -> PlanResult:
+    """A plan that did not succeed: ``status`` and ``message``, no path ((0, nq)), ``elapsed``
+    seconds and ``stats``; every planner and victim reports its failures through it."""
     return PlanResult(status, message, np.zeros((0, nq)), elapsed, stats)
 
 
@@ -190,24 +192,24 @@ def validate_request(robot: RobotModel, q_start, goal: GoalRegion, planner_id: s
     nq = robot.nq
     q = np.asarray(q_start, dtype=float)
     if q.shape != (nq,):
-        return _fail(PlanStatus.INVALID_ROBOT_STATE,
-                     f'start state: expected {nq} joint values, got shape {q.shape}', nq)
+        return failed(PlanStatus.INVALID_ROBOT_STATE,
+                      f'start state: expected {nq} joint values, got shape {q.shape}', nq)
     if not np.all(np.isfinite(q)):
-        return _fail(PlanStatus.INVALID_REQUEST, f'start state: non-finite values {q.tolist()}',
-                     nq)
+        return failed(PlanStatus.INVALID_REQUEST, f'start state: non-finite values {q.tolist()}',
+                      nq)
     if not robot.within_limits(q):
         bad = [robot.joint_names[i] for i in np.flatnonzero(
             (q < robot.lower - 1e-9) | (q > robot.upper + 1e-9))]
-        return _fail(PlanStatus.INVALID_ROBOT_STATE,
-                     f'start state: joints {bad} outside their limits', nq)
+        return failed(PlanStatus.INVALID_ROBOT_STATE,
+                      f'start state: joints {bad} outside their limits', nq)
     if planner_class_name(planner_id) is None:
-        return _fail(PlanStatus.UNKNOWN_METHOD,
-                     f'unknown planner {planner_id!r}; known: {sorted(PLANNERS)}', nq)
+        return failed(PlanStatus.UNKNOWN_METHOD,
+                      f'unknown planner {planner_id!r}; known: {sorted(PLANNERS)}', nq)
     if not (isinstance(time_budget_s, (int, float)) and math.isfinite(time_budget_s)
             and 0 < time_budget_s <= config.max_time_budget_s):
-        return _fail(PlanStatus.INVALID_REQUEST, f'time budget {time_budget_s!r} s: expected '
-                     f'0 < budget <= {config.max_time_budget_s}', nq)
+        return failed(PlanStatus.INVALID_REQUEST, f'time budget {time_budget_s!r} s: expected '
+                      f'0 < budget <= {config.max_time_budget_s}', nq)
     if not robot.model.existFrame(goal.link):
-        return _fail(PlanStatus.INVALID_GOAL_CONSTRAINTS,
-                     f'goal region link {goal.link!r} is not a link of the robot', nq)
+        return failed(PlanStatus.INVALID_GOAL_CONSTRAINTS,
+                      f'goal region link {goal.link!r} is not a link of the robot', nq)
     return None

@@ -54,8 +54,8 @@ import numpy as np
 from advocc_ros.model.robot import RobotError, load_robot
 from advocc_ros.model.goal import GoalRegion
 from advocc_ros.model.scene import Scene, scene_from_data
-from advocc_ros.planning.solve import _ompl, solve
-from advocc_ros.planning.types import (PlanningConfig, PlanResult, PlanStatus, _fail,
+from advocc_ros.planning.solve import ompl_modules, solve
+from advocc_ros.planning.types import (PlanningConfig, PlanResult, PlanStatus, failed,
                                        validate_request)
 
 log = logging.getLogger(__name__)
@@ -98,7 +98,7 @@ def _worker_main() -> None:
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # the parent decides when we stop
     logging.basicConfig(level=logging.WARNING, format='planning worker: %(message)s')
     from advocc_ros.model.collision import CollisionWorld
-    ob, og, ou = _ompl()
+    ob, og, ou = ompl_modules()
     ou.setLogLevel(ou.LOG_ERROR)
     cache: dict[str, Any] = {}
 
@@ -155,7 +155,7 @@ def _our_worker_argv() -> tuple[list[str], dict]:
             '_worker_main()'], env
 
 
-class _Worker:
+class WorkerProcess:
     """One child process and its pipes. ``argv``/``env``: another JSON-line worker (an outside
     victim's, in its own interpreter); by default our OMPL worker."""
 
@@ -229,10 +229,10 @@ class WorkerSlot:
     The start function is passed per call, so the slot keeps no reference to its planner."""
 
     def __init__(self):
-        self.worker: _Worker | None = None
+        self.worker: WorkerProcess | None = None
         self.restarts = 0
 
-    def ensure(self, start) -> tuple[_Worker, bool]:
+    def ensure(self, start) -> tuple[WorkerProcess, bool]:
         """The live worker, and whether ``start()`` made it now."""
         if self.worker is not None and self.worker.proc.poll() is None:
             return self.worker, False
@@ -306,8 +306,8 @@ class Planner:
             self._ensure_worker()
         return self
 
-    def _ensure_worker(self) -> _Worker:
-        worker, fresh = self._slot.ensure(lambda: _Worker(
+    def _ensure_worker(self) -> WorkerProcess:
+        worker, fresh = self._slot.ensure(lambda: WorkerProcess(
             self.config.worker_start_timeout_s, *(self.command() if self.command else ())))
         if fresh:
             log.debug('planning worker %d started', worker.pid)
@@ -347,17 +347,17 @@ class Planner:
         except WorkerDied as exc:
             self._slot.kill()
             log.error('%s', exc)
-            return _fail(PlanStatus.INTERNAL_ERROR, str(exc), nq, time.monotonic() - t0,
-                         worker_died=True)
+            return failed(PlanStatus.INTERNAL_ERROR, str(exc), nq, time.monotonic() - t0,
+                          worker_died=True)
         round_trip = time.monotonic() - t_sent
         if answer is None:
             self._slot.kill()
             msg = (f'watchdog: no answer within budget {budget:g} s + margin '
                    f'{self.config.watchdog_margin_s:g} s; worker killed')
             log.error('%s', msg)
-            return _fail(PlanStatus.TIMED_OUT, msg, nq, round_trip, watchdog=True)
+            return failed(PlanStatus.TIMED_OUT, msg, nq, round_trip, watchdog=True)
         if 'status' not in answer:
-            return _fail(PlanStatus.INTERNAL_ERROR, f'unexpected worker answer {answer}', nq)
+            return failed(PlanStatus.INTERNAL_ERROR, f'unexpected worker answer {answer}', nq)
         result = PlanResult.from_data(answer, nq)
         result.stats['round_trip_s'] = round_trip
         result.stats['overhead_s'] = round_trip - result.planning_time_s
@@ -372,10 +372,10 @@ class Planner:
             answer = worker.read(t0 + watchdog_s)
             if answer is None:
                 self._slot.kill()
-                return _fail(PlanStatus.TIMED_OUT, 'watchdog: worker killed', self.robot.nq,
-                             time.monotonic() - t0, watchdog=True)
-            return _fail(PlanStatus.SUCCESS, 'stall answered', self.robot.nq,
-                         time.monotonic() - t0)
+                return failed(PlanStatus.TIMED_OUT, 'watchdog: worker killed', self.robot.nq,
+                              time.monotonic() - t0, watchdog=True)
+            return failed(PlanStatus.SUCCESS, 'stall answered', self.robot.nq,
+                          time.monotonic() - t0)
 
     def close(self) -> None:
         with self._lock:

@@ -2,7 +2,7 @@
 
 MPlib 0.2.1 needs numpy < 2, so it runs in its own venv (``.venv-mplib``, made by ``make
 install``) and its own process: ``mplib_worker.py``, spoken to in JSON lines through our
-worker's pipes (``advocc_ros.planning.worker._Worker``). The parent keeps what MPlib does not
+worker's pipes (``advocc_ros.planning.worker.WorkerProcess``). The parent keeps what MPlib does not
 have: the goal region becomes K goal configurations (:func:`goal_configurations`, our sampler
 with the boxes, outside the budget), re-checked by the worker in MPlib's model; the start is
 checked in both models (MPlib itself only warns); every exact solution is re-validated at
@@ -29,7 +29,7 @@ import numpy as np
 from advocc_ros.fileio import atomic_write_text
 from advocc_ros.model.collision import CollisionWorld
 from advocc_ros.model.robot import RobotModel, example_robot_data_share, resolve_path
-from advocc_ros.planning.types import PlanResult, PlanStatus, _fail
+from advocc_ros.planning.types import PlanResult, PlanStatus, failed
 from advocc_ros.planning.victims.base import Task, VictimConfig, path_length_rad
 from advocc_ros.planning.victims.outside import OutsideVictim
 from advocc_ros.planning.worker import WorkerDied
@@ -124,27 +124,27 @@ class MplibVictim(OutsideVictim):
         """The worker's answer as a ``PlanResult``, the path re-validated in both models."""
         nq = robot.nq
         if answer['status'] == 'start_invalid':
-            return _fail(PlanStatus.START_STATE_IN_COLLISION, 'the start state is free in our '
-                         'model but in collision in MPlib\'s', nq, 0.0, **stats)
+            return failed(PlanStatus.START_STATE_IN_COLLISION, 'the start state is free in our '
+                          'model but in collision in MPlib\'s', nq, 0.0, **stats)
         stats['goal_configs_valid_victim'] = int(sum(answer['goals_valid']))
         if answer['status'] == 'no_valid_goal':
-            return _fail(PlanStatus.GOAL_STATE_INVALID, f'none of the {len(goals)} goal '
-                         'configurations is collision-free in MPlib\'s model', nq, 0.0, **stats)
+            return failed(PlanStatus.GOAL_STATE_INVALID, f'none of the {len(goals)} goal '
+                          'configurations is collision-free in MPlib\'s model', nq, 0.0, **stats)
         solve_s, ompl = float(answer['solve_s']), str(answer['ompl_status'])
         stats['ompl_status'] = ompl
         if ompl != 'Exact solution':
             status = PlanStatus.TIMED_OUT if ompl in ('Approximate solution', 'Timeout') \
                 else PlanStatus.PLANNING_FAILED
-            return _fail(status, f'MPlib RRTConnect: {ompl} within {budget:g} s', nq, solve_s,
-                         **stats)
+            return failed(status, f'MPlib RRTConnect: {ompl} within {budget:g} s', nq, solve_s,
+                          **stats)
         path = np.asarray(answer['path'], float).reshape(-1, nq)
         stats.update(first_solution_s=solve_s, path_length_rad=path_length_rad(path))
         step = self.config.check_step_rad
         if answer['first_collision'] >= 0 and len(path) >= 2:
-            return _fail(PlanStatus.INVALID_MOTION_PLAN, f'MPlib: its solution collides in its '
-                         f'own model at state {answer["first_collision"]} (checked every '
-                         f'{step:g} rad): its motion check stepped over an obstacle', nq,
-                         solve_s, **stats)
+            return failed(PlanStatus.INVALID_MOTION_PLAN, f'MPlib: its solution collides in its '
+                          f'own model at state {answer["first_collision"]} (checked every '
+                          f'{step:g} rad): its motion check stepped over an obstacle', nq,
+                          solve_s, **stats)
         failure = self._checked(path, world, q_start, goals, solve_s, stats)
         if failure is not None:
             return failure

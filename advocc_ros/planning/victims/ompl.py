@@ -9,7 +9,7 @@ like for like (docs/transfer.md).
 from __future__ import annotations
 
 from advocc_ros.model.collision import CollisionWorld
-from advocc_ros.planning.types import PlanResult, PlanStatus, _fail, planner_class_name
+from advocc_ros.planning.types import PlanResult, PlanStatus, failed, planner_class_name
 from advocc_ros.planning.victims.base import Task, VictimConfig
 from advocc_ros.planning.worker import Planner
 
@@ -54,10 +54,10 @@ class OmplVictim:
                                    self.config.goal_configs, seed)
             goals, stats = found.configs, found.stats()
         if goals is not None and not len(goals):
-            return _fail(PlanStatus.GOAL_IN_COLLISION, 'no goal found: our goal sampler found no '
-                         'collision-free goal configuration for the goal list before the clock '
-                         f'({stats.get("goal_attempts", 0)} IK attempts)', planner.robot.nq,
-                         **stats)
+            return failed(PlanStatus.GOAL_IN_COLLISION, 'no goal found: our goal sampler found no '
+                          'collision-free goal configuration for the goal list before the clock '
+                          f'({stats.get("goal_attempts", 0)} IK attempts)', planner.robot.nq,
+                          **stats)
         result = planner.plan(task.q_start, task.goal, self.planner_id, time_budget_s, seed,
                               goals)
         result.stats.update(stats, victim=self.name)

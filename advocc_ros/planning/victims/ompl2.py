@@ -17,7 +17,7 @@ import pathlib
 
 import numpy as np
 
-from advocc_ros.planning.types import PlanResult, PlanStatus, _fail
+from advocc_ros.planning.types import PlanResult, PlanStatus, failed
 from advocc_ros.planning.victims.base import Task, VictimConfig, first_collision_along
 from advocc_ros.planning.victims.ompl import OmplVictim
 from advocc_ros.planning.worker import Planner
@@ -83,14 +83,14 @@ class Ompl2Victim(OmplVictim):
         region = GoalSampler(robot, world.in_collision, task.goal, np.random.default_rng(0))
         if len(path) < 2 or not np.allclose(path[0], task.q_start, atol=1e-6) \
                 or region.region_distance(path[-1]) > 0.0:
-            return _fail(PlanStatus.INTERNAL_ERROR, f'{self.planner_id} (OMPL 2): its path does '
-                         'not run from the start into the goal region', nq,
-                         result.planning_time_s, **result.stats)
+            return failed(PlanStatus.INTERNAL_ERROR, f'{self.planner_id} (OMPL 2): its path does '
+                          'not run from the start into the goal region', nq,
+                          result.planning_time_s, **result.stats)
         hit = first_collision_along(world, path, step)
         if hit >= 0:
-            return _fail(PlanStatus.INVALID_MOTION_PLAN, f'{self.planner_id} (OMPL 2): its path '
-                         f'collides in our model at state {hit} (checked every {step:g} rad)',
-                         nq, result.planning_time_s, **result.stats)
+            return failed(PlanStatus.INVALID_MOTION_PLAN, f'{self.planner_id} (OMPL 2): its path '
+                          f'collides in our model at state {hit} (checked every {step:g} rad)',
+                          nq, result.planning_time_s, **result.stats)
         return result
 
 

@@ -2,7 +2,7 @@
 
 An outside victim (MPlib, TrajOpt) plans in its own worker process (its own interpreter when
 its dependencies conflict with ours), spoken to in JSON lines through our worker's pipes
-(``advocc_ros.planning.worker._Worker``). The parent keeps what the victim does not have: the
+(``advocc_ros.planning.worker.WorkerProcess``). The parent keeps what the victim does not have: the
 request's checks (``validate_request``, the start in our model), the goal list (the task's, or
 K sampled with the boxes from the trial's seed, outside the budget), and our collision model to
 re-validate the answer. A worker that does not answer within budget + margin is killed (the
@@ -21,9 +21,9 @@ import numpy as np
 
 from advocc_ros.model.collision import CollisionWorld
 from advocc_ros.model.robot import RobotModel, load_robot
-from advocc_ros.planning.types import PlanResult, PlanStatus, _fail, validate_request
+from advocc_ros.planning.types import PlanResult, PlanStatus, failed, validate_request
 from advocc_ros.planning.victims.base import Task, VictimConfig, first_collision_along
-from advocc_ros.planning.worker import WorkerDied, WorkerSlot, _Worker
+from advocc_ros.planning.worker import WorkerDied, WorkerSlot, WorkerProcess
 
 log = logging.getLogger(__name__)
 
@@ -73,15 +73,15 @@ class OutsideVictim:
             return error
         q_start = np.asarray(task.q_start, float)
         if world.in_collision(q_start):
-            return _fail(PlanStatus.START_STATE_IN_COLLISION, 'start state is in collision', nq)
+            return failed(PlanStatus.START_STATE_IN_COLLISION, 'start state is in collision', nq)
         found = task.goal_list(robot, world, self.config.goal_configs, seed)
         goals = found.configs
         stats = {'victim': self.name, 'goal_sampling_s': found.time_s, **found.stats()}
         if not found.found:
-            return _fail(PlanStatus.GOAL_IN_COLLISION, 'no goal found: our goal sampler found no '
-                         f'collision-free goal configuration to hand to {self.label} in '
-                         f'{found.attempts} IK attempts ({found.time_s:.1f} s, before the clock)',
-                         nq, 0.0, **stats)
+            return failed(PlanStatus.GOAL_IN_COLLISION, 'no goal found: our goal sampler found no '
+                          f'collision-free goal configuration to hand to {self.label} in '
+                          f'{found.attempts} IK attempts ({found.time_s:.1f} s, before the clock)',
+                          nq, 0.0, **stats)
         request = {'op': 'plan', 'q_start': q_start.tolist(), 'goals': goals.tolist(),
                    'time_s': float(time_budget_s), 'seed': int(seed),
                    'check_step_rad': self.config.check_step_rad}
@@ -98,14 +98,14 @@ class OutsideVictim:
         nq, step = world.robot.nq, self.config.check_step_rad
         if len(path) < 2 or not np.allclose(path[0], q_start, atol=1e-6) or not np.any(
                 np.all(np.isclose(goals, path[-1], atol=1e-6), axis=1)):
-            return _fail(PlanStatus.INTERNAL_ERROR, f'{self.label}\'s path does not run from '
-                         'the start to a goal configuration', nq, elapsed, **stats)
+            return failed(PlanStatus.INTERNAL_ERROR, f'{self.label}\'s path does not run from '
+                          'the start to a goal configuration', nq, elapsed, **stats)
         ours = first_collision_along(world, path, step)
         if ours >= 0:
-            return _fail(PlanStatus.MODEL_MISMATCH, f'{self.label}: its solution is free in its '
-                         f'own model but collides in ours (convex hulls) at state {ours} '
-                         f'(checked every {step:g} rad)', nq, elapsed,
-                         **dict(stats, outcome='model_mismatch'))
+            return failed(PlanStatus.MODEL_MISMATCH, f'{self.label}: its solution is free in its '
+                          f'own model but collides in ours (convex hulls) at state {ours} '
+                          f'(checked every {step:g} rad)', nq, elapsed,
+                          **dict(stats, outcome='model_mismatch'))
         return None
 
     @property
@@ -119,16 +119,16 @@ class OutsideVictim:
 
     # -- the worker --------------------------------------------------------------------------
 
-    def _ensure_worker(self) -> _Worker:
+    def _ensure_worker(self) -> WorkerProcess:
         worker, fresh = self._slot.ensure(self._new_worker)
         if fresh:
             self._sent = None  # a new worker has seen no robot and scene yet
         return worker
 
-    def _new_worker(self) -> _Worker:
+    def _new_worker(self) -> WorkerProcess:
         argv, env = self._command()
-        return _Worker(self.config.planning.worker_start_timeout_s, argv, env,
-                       what=f'{self.label} worker')
+        return WorkerProcess(self.config.planning.worker_start_timeout_s, argv, env,
+                             what=f'{self.label} worker')
 
     def _scene_key(self, task: Task) -> str:
         """What the worker must have loaded for ``task``: robot, objects, hidden objects."""
@@ -163,17 +163,17 @@ class OutsideVictim:
             except WorkerDied as exc:
                 self._slot.kill()
                 log.error('%s', exc)
-                return _fail(PlanStatus.INTERNAL_ERROR, str(exc), nq,
-                             time.monotonic() - t_sent, worker_died=True, **stats)
+                return failed(PlanStatus.INTERNAL_ERROR, str(exc), nq,
+                              time.monotonic() - t_sent, worker_died=True, **stats)
             stats['round_trip_s'] = time.monotonic() - t_sent
             if answer is None:
                 self._slot.kill()
-                return _fail(PlanStatus.TIMED_OUT, f'watchdog: {self.label} gave no answer '
-                             f'within {wait_s:g} s; worker killed', nq, stats['round_trip_s'],
-                             watchdog=True, **stats)
+                return failed(PlanStatus.TIMED_OUT, f'watchdog: {self.label} gave no answer '
+                              f'within {wait_s:g} s; worker killed', nq, stats['round_trip_s'],
+                              watchdog=True, **stats)
             if 'error' in answer:
-                return _fail(PlanStatus.INTERNAL_ERROR, f'{self.label} worker: '
-                             f'{answer["error"]}', nq, stats['round_trip_s'], **stats)
+                return failed(PlanStatus.INTERNAL_ERROR, f'{self.label} worker: '
+                              f'{answer["error"]}', nq, stats['round_trip_s'], **stats)
             self._sent = key
             return answer
 

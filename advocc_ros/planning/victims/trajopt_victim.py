@@ -25,7 +25,7 @@ import numpy as np
 
 from advocc_ros.model.collision import CollisionWorld
 from advocc_ros.model.robot import RobotModel, load_robot
-from advocc_ros.planning.types import PlanResult, PlanStatus, _fail
+from advocc_ros.planning.types import PlanResult, PlanStatus, failed
 from advocc_ros.planning.victims.base import Task, VictimConfig
 from advocc_ros.planning.victims.outside import OutsideVictim
 from advocc_ros.planning.worker import WorkerDied
@@ -102,7 +102,7 @@ class TrajOptVictim(OutsideVictim):
                 self._ensure_worker()
             except WorkerDied as exc:
                 self._slot.kill()
-                return _fail(PlanStatus.INTERNAL_ERROR, str(exc), robot.nq, worker_died=True)
+                return failed(PlanStatus.INTERNAL_ERROR, str(exc), robot.nq, worker_died=True)
             if self._sent == self._scene_key(task):
                 return None
         answer = self._exchange({'op': 'load', 'check_step_rad': self.config.check_step_rad},
@@ -111,8 +111,8 @@ class TrajOptVictim(OutsideVictim):
             return answer
         if 'loaded' not in answer:
             self._slot.kill()
-            return _fail(PlanStatus.INTERNAL_ERROR, f'TrajOpt worker could not load the '
-                         f'scene: {answer}', robot.nq)
+            return failed(PlanStatus.INTERNAL_ERROR, f'TrajOpt worker could not load the '
+                          f'scene: {answer}', robot.nq)
         return None
 
     def _command(self) -> tuple[list[str], dict]:
