@@ -28,6 +28,7 @@ figures and a heatmap slice with the placed obstacles per scene, ``summary.json`
 from __future__ import annotations
 
 import collections
+import concurrent.futures
 import json
 import logging
 import os
@@ -102,6 +103,8 @@ class Orchestrator:
         self.unit: Unit | None = None
         self.world = None
         """``CollisionWorld`` of the current unit (scene + attack) that scores the paths."""
+        self.objects_key = ''  # Scene.objects_hash() of the current unit's scene + attack
+        self.goal_lists: dict = {}  # trial seed -> future of its GoalList (current unit)
         self.retries: collections.Counter = collections.Counter()
         self.signals = SignalGate()
         self._t0 = time.monotonic()
@@ -270,21 +273,37 @@ class Orchestrator:
         self.pool.inject(objects)
         last_discovery = t_start = time.monotonic()
         todo = len(self.pending)
-        while self.pending or self._busy():
-            self.supervise()
-            now = time.monotonic()
-            for shim in list(self.pool.shims):
-                self._step_shim(shim, now)
-            if all(s.state == ShimState.DEAD for s in self.pool.shims):
-                raise BenchError('no planner shim left to run the trials')
-            if self.cfg.external_shims and now - last_discovery > 10.0:
-                last_discovery = now
-                self.pool.discover()
-            self.pool.spin(0.02)
+        # The trials' goal lists (up to 30 s each where none is found) in a thread beside the
+        # loop, so that the shims are served meanwhile; a record waits for its own.
+        prefetch = concurrent.futures.ThreadPoolExecutor(1, thread_name_prefix='goal-lists')
+        self.goal_lists = {seed: prefetch.submit(self._goal_list, seed)
+                           for seed in dict.fromkeys(t.seed for t in self.pending)}
+        try:
+            while self.pending or self._busy():
+                self.supervise()
+                now = time.monotonic()
+                for shim in list(self.pool.shims):
+                    self._step_shim(shim, now)
+                if all(s.state == ShimState.DEAD for s in self.pool.shims):
+                    raise BenchError('no planner shim left to run the trials')
+                if self.cfg.external_shims and now - last_discovery > 10.0:
+                    last_discovery = now
+                    self.pool.discover()
+                self.pool.spin(0.02)
+        finally:
+            prefetch.shutdown(wait=False, cancel_futures=True)
+            self.goal_lists = {}
         self.trial_phase_s += time.monotonic() - t_start
         self.trials_run += todo
         label = 'unattacked' if unit.attack is None else unit.attack.tag
         self.say(f'{self.task.scene.name}: {label}: {len(unit.trials)} trials done')
+
+    def _goal_list(self, seed: int):
+        """The ``GoalList`` of the trial of ``seed`` in the current unit's scene."""
+        from advocc_ros.planning.goal_list import goal_list
+        from advocc_ros.planning.victims import VictimConfig
+        return goal_list(self.task.robot, self.world, self.task.scene.goal,
+                         VictimConfig().goal_configs, seed, self.objects_key)
 
     def _busy(self) -> bool:
         return any(s.state == ShimState.BUSY for s in self.pool.shims)
@@ -463,12 +482,9 @@ class Orchestrator:
                   'shim': shim.name, 'waypoints': answer.waypoints,
                   'min_manipulability': None, 'min_clearance_rad': None, 'jds_rad': None,
                   'unix': round(time.time(), 3)}
-        # The trial's goal list, searched outside any clock (the victims that take goal lists
-        # got this very list in their shims): "no goal found" is judged apart (psr_given_goals).
-        from advocc_ros.planning.goal_list import goal_list
-        from advocc_ros.planning.victims import VictimConfig
-        found = goal_list(self.task.robot, self.world, self.task.scene.goal,
-                          VictimConfig().goal_configs, trial.seed, self.objects_key)
+        # Its goal list, outside any clock (the shims' victims got the same): psr_given_goals.
+        pending = self.goal_lists.get(trial.seed)
+        found = pending.result() if pending is not None else self._goal_list(trial.seed)
         record.update(goal_found=found.found, goal_attempts=found.attempts)
         if success:
             try:
