@@ -273,8 +273,7 @@ class Orchestrator:
         self.pool.inject(objects)
         last_discovery = t_start = time.monotonic()
         todo = len(self.pending)
-        # The trials' goal lists (up to 30 s each where none is found) in a thread beside the
-        # loop, so that the shims are served meanwhile; a record waits for its own.
+        # The goal lists (up to 30 s each) in a thread: the shims are served meanwhile.
         prefetch = concurrent.futures.ThreadPoolExecutor(1, thread_name_prefix='goal-lists')
         self.goal_lists = {seed: prefetch.submit(self._goal_list, seed)
                            for seed in dict.fromkeys(t.seed for t in self.pending)}
