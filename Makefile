@@ -7,7 +7,7 @@ MSGS   := $(shell find msg_defs -type f | sort)
 OUT    ?= out/demo
 PYTEST_ARGS ?=
 FUZZ_INPUTS ?= 10000
-# MPlib (an outside victim, issue 28) needs numpy < 2: its own venv, used by one worker process.
+# MPlib (an outside victim) needs numpy < 2: its own venv, used by one worker process.
 MPLIB_VENV  ?= .venv-mplib
 MPLIB_STAMP := $(MPLIB_VENV)/.advocc-mplib-installed
 # OMPL 2.0.1 (AORRTC) shares the module name `ompl` with our 1.7.0 and its PRM* deadlocks with

@@ -217,7 +217,7 @@ def test_server_answers_bad_requests_and_keeps_serving(ros, ros_env, heatmap_fil
          ErrorCodes.INVALID_ROBOT_STATE, 'missing joints'),
         (bad(start_state__position=[0.0, -0.785, 0, -2.356, 0, 1.571, 9.0]),
          ErrorCodes.INVALID_ROBOT_STATE, 'panda_joint7 = 9 not in'),
-        # The task check names what collides (issue 25): a scene pair, a self pair.
+        # The task check names what collides: a scene pair, a self pair.
         (bad(start_state__position=[0.0, 1.5, 0, -0.2, 0, 1.571, 0.785]),
          ErrorCodes.START_STATE_IN_COLLISION, 'in collision with the scene: panda_'),
         (bad(start_state__position=[0.0, 0.5, 0.0, -3.0, 0.0, 0.5, 0.785]),

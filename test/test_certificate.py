@@ -232,7 +232,7 @@ def test_the_verdict_is_an_enum_with_the_old_words(task):
 
 def test_guard_step_keeps_the_path_off_the_boxes(task):
     """The guard's arithmetic: half a guard step moves no point more than the margin minus
-    twice the floor, and the Panda's margin is the ~1 mm issue 27 measured as the lever."""
+    twice the floor, and the Panda's margin is the ~1 mm measured as what makes attacks bite."""
     scene, robot, q0, witness = task
     bodies = WitnessBodies(robot, CollisionWorld(robot), witness)
     L = robot.motion_bound.max_m_per_rad

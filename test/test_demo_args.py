@@ -1,4 +1,4 @@
-"""The demo's benchmark judges planners only on tasks that keep a solution (issue 27)."""
+"""The demo's benchmark judges planners only on tasks that keep a solution."""
 
 from advocc_ros.cli import build_parser
 
