@@ -8,11 +8,7 @@ goal policy keeps it so by construction). A planner failing an impossible task s
 Greedy picks are nested (the first m boxes of a budget-K attack are the budget-m attack), so one
 attack at the largest budget K and an evaluation of its prefixes m = 0, 1, 2, ... give, per
 planner, the PSR curve over the budget and the minimal budget reaching each PSR threshold (the
-paper's Table II for one task). A ``task`` attack under ``solvable`` is not nested: it keeps the
-candidate (draw, witness) judged best on all its boxes (``attack.judge``), so there prefix m is
-the attack asked for m boxes, what ``advocc attack --budget m`` places, with its own boxes and
-witness in its entry (judged at 20 boxes instead, the 10-box prefixes of bookshelf_tall's
-attack left PRM* at 50 % where the 10-box attack took it to <= 20 %).
+paper's Table II for one task).
 
 By default every planner is evaluated at every prefix and the sweep stops after the first m at
 which every planner is at PSR 0, or at the last box the attack placed. With a target PSR, a planner
