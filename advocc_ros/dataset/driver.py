@@ -30,6 +30,8 @@ log = logging.getLogger(__name__)
 LOOPBACK_ENV = 'RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER'
 """Set to 0 before Ray is imported, Ray takes the loopback address as the node's and binds its
 servers to it (its single-machine mode); otherwise a local Ray listens on every interface."""
+HEARTBEAT_S = 30.0
+"""Longest wait for a result before the progress shows again [s]."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -169,7 +171,9 @@ def _run(todo: list[Problem], out: pathlib.Path, config: BuildConfig, run: RunCo
         bar = progress_bar(len(todo), 'dataset', 'problem', file=sys.stderr)
         t0 = time.monotonic()
         while pending:
-            ready, _ = ray.wait(list(pending), num_returns=1)
+            ready, _ = ray.wait(list(pending), num_returns=1, timeout=HEARTBEAT_S)
+            if not ready:
+                bar.update(0)  # a line in a log even while no problem finishes
             for ref in ready:
                 p = pending.pop(ref)
                 try:
@@ -179,8 +183,8 @@ def _run(todo: list[Problem], out: pathlib.Path, config: BuildConfig, run: RunCo
                 store.save_result(out, result)
                 outcome = result['record']['outcome']
                 counts[outcome] += 1
-                if outcome == 'error':
-                    bar.write(f'{p.key}: error: {result["record"]["reason"]}')
+                if outcome != 'built':
+                    bar.write(f'{p.key}: {outcome}: {result["record"]["reason"]}')
                 done = len(todo) - len(pending)
                 eta = (time.monotonic() - t0) / done * len(pending)
                 shown = {k: v for k, v in counts.items() if v and k != 'error'}

@@ -9,8 +9,9 @@ wrote it). Per group (a family and a split; ``all`` pools the families):
   where *every* victim is at PSR <= 20 %, each victim's mean PSR, and the median PT ratio
   (attacked / unattacked median time to first solution, ``evaluation.hardness.pt_ratio``) over
   victims and problems;
-- the victims' mean PSR on the unattacked problems (MotionBenchMaker kept only problems its
-  planner solves, so this is the line the attack starts from).
+- the victims' mean PSR on the unattacked problems, and the share of those already at PSR
+  <= 20 % for every victim (MotionBenchMaker kept only problems its planner solves in 60 s;
+  at a budget of a few seconds some are hard before any box): the line the attack starts from.
 """
 
 from __future__ import annotations
@@ -19,7 +20,7 @@ import pathlib
 import statistics
 
 from advocc_ros.dataset import store
-from advocc_ros.dataset.job import OUTCOMES
+from advocc_ros.dataset.job import OUTCOMES, PSR_HARD
 
 SUMMARY_FORMAT = 'advocc_dataset_summary'
 FIGURE = 'summary.png'
@@ -53,10 +54,14 @@ def _group(family: str, split: str, items: list[tuple[dict, dict | None]], budge
             'victims': {v: {'mean_psr': _mean([c.get('psr') for c in cells[v]]),
                             'median_pt_ratio': _median([c.get('pt_ratio') for c in cells[v]])}
                         for v in victims}}
+    base = [[h['unattacked'].get(v, {}).get('psr') for v in victims] for h in hard]
+    base = [all(p <= PSR_HARD for p in row) for row in base if None not in row]
     return {'family': family, 'split': split, 'problems': n, 'outcomes': outcomes,
             'shares': {k: v / n if n else None for k, v in outcomes.items()},
             'unattacked': {v: {'mean_psr': _mean([h['unattacked'].get(v, {}).get('psr')
                                                   for h in hard])} for v in victims},
+            'unattacked_evaluated': len(base),
+            'unattacked_all_victims_psr_le_20': sum(base) / len(base) if base else None,
             'budgets': per_budget}
 
 
@@ -99,9 +104,10 @@ def markdown(summary: dict) -> str:
              f'{", ".join(budgets)}; victims {", ".join(victims)}; {s.get("trials")} trials x '
              f'{s.get("time_s")} s each. "All <= 20 %": share of the problems with a certified '
              'attack at M where every victim is at PSR <= 20 %. PT ratio: median over victims '
-             'and problems of attacked / unattacked median time to first solution. Problems '
+             'and problems of attacked / unattacked median time to first solution. "Unattacked: '
+             'all <= 20 %": the same share before any box (the baseline). Problems '
              '0001-0040 of each family are the train split, 0041-0100 the test split.', '']
-    head = ['family', 'problems'] + list(OUTCOMES)
+    head = ['family', 'problems'] + list(OUTCOMES) + ['unattacked: all <= 20 %']
     for b in budgets:
         head += [f'M={b}: all <= 20 %', f'M={b}: PT ratio']
     for split in ('train', 'test'):
@@ -114,6 +120,8 @@ def markdown(summary: dict) -> str:
             cells = [f'**{g["family"]}**' if g['family'] == 'all' else g['family'],
                      str(g['problems'])]
             cells += [f'{g["outcomes"][k]} ({_pct(g["shares"][k])})' for k in OUTCOMES]
+            cells.append(f'{_pct(g["unattacked_all_victims_psr_le_20"])} of '
+                         f'{g["unattacked_evaluated"]}')
             for b in budgets:
                 cell = g['budgets'][b]
                 cells += [f'{_pct(cell["all_victims_psr_le_20"])} of {cell["evaluated"]}',
@@ -157,13 +165,17 @@ def figure(summary: dict, path: pathlib.Path) -> None:
     left.legend(fontsize=7)
     groups = [g for g in summary['groups'] if g['family'] != 'all']
     labels = [f'{g["family"].removesuffix("_panda")}\n{g["split"]}' for g in groups]
-    width = 0.8 / max(len(budgets), 1)
-    for k, b in enumerate(budgets):
-        cells = [g['budgets'][b] for g in groups]
-        shares = [c['all_victims_psr_le_20'] for c in cells]
-        bars = right.bar([i + (k - (len(budgets) - 1) / 2) * width for i in range(len(groups))],
+    columns = [('unattacked', 'unattacked_all_victims_psr_le_20', 'unattacked_evaluated')] + [
+        (b, 'all_victims_psr_le_20', 'evaluated') for b in budgets]
+    width = 0.8 / len(columns)
+    for k, (b, share_key, count_key) in enumerate(columns):
+        cells = [g if b == 'unattacked' else g['budgets'][b] for g in groups]
+        cells = [{'share': c[share_key], 'evaluated': c[count_key]} for c in cells]
+        shares = [c['share'] for c in cells]
+        bars = right.bar([i + (k - (len(columns) - 1) / 2) * width for i in range(len(groups))],
                          [0 if s is None else 100 * s for s in shares], width,
-                         label=f'M = {b}')
+                         label='unattacked' if b == 'unattacked' else f'M = {b}',
+                         color='0.7' if b == 'unattacked' else f'C{k - 1}')
         right.bar_label(bars, [f'{round((s or 0) * c["evaluated"])}/{c["evaluated"]}'
                                for s, c in zip(shares, cells)], fontsize=6)
     right.set_xticks(range(len(groups)), labels, fontsize=7)
