@@ -8,6 +8,7 @@ witness is searched once for all tests."""
 import json
 import os
 import pathlib
+import secrets
 import shutil
 import signal
 import socket
@@ -258,8 +259,12 @@ def _stop(proc: subprocess.Popen) -> None:
 @pytest.mark.processes
 def test_build_on_a_two_node_ray_cluster(tmp_path, robot_heatmap):
     port = _free_port()
-    env = dict(os.environ, RAY_USAGE_STATS_ENABLED='0', RAY_AUTH_MODE='token')
-    env.pop('RAY_ADDRESS', None)
+    # A token of the test's own for every process of this cluster (none is read from or
+    # written to ~/.ray).
+    env = dict(os.environ, RAY_USAGE_STATS_ENABLED='0', RAY_AUTH_MODE='token',
+               RAY_AUTH_TOKEN=secrets.token_hex(32))
+    for key in ('RAY_ADDRESS', 'RAY_AUTH_TOKEN_PATH'):
+        env.pop(key, None)
     common = ['--num-cpus=1', '--node-ip-address=127.0.0.1', '--block', '--disable-usage-stats']
     nodes = []
     try:
