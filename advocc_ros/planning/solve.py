@@ -185,8 +185,9 @@ def _solve_to(robot, world, q_start, planner_id, time_budget_s, config, t0, samp
     # its deadline between passes, so a success can end ~0.1 s past the budget (measured).
     reserve = min(0.15 * time_budget_s, 0.5) if config.simplify else 0.0
     solve_deadline = t0 + time_budget_s - reserve
-    checks = [0]
+    checks = _CheckCounter()
     ss = _simple_setup(ob, og, ou, robot, world, q_start, planner_id, config, checks)
+    checks.problem = ss.getProblemDefinition()
     goal_obj = _make_goal_class(ob)(ss.getSpaceInformation(), sampler, goals, nq, cap,
                                     solve_deadline)
     ss.setGoal(goal_obj)
@@ -208,7 +209,7 @@ def _solve_to(robot, world, q_start, planner_id, time_budget_s, config, t0, samp
         # simplification leaves a zero-length path at a goal and it answers INVALID_GOAL.
         return failed(PlanStatus.PLANNING_FAILED, f'{stats["planner"]}: {broken} (OMPL status: '
                       f'{status.asString()})', nq, time.monotonic() - t0, **stats)
-    first = goal_obj.first_pair_t
+    first = goal_obj.first_pair_t or checks.first_exact_t  # AORRTC never asks for the pair
     stats['first_solution_s'] = (first if first is not None else time.monotonic()) - t0
     return _solution(ss, world, t0, t0 + time_budget_s, config, stats)
 
@@ -228,6 +229,29 @@ def _not_a_solution(ss, q_start: np.ndarray, goal_obj, nq: int) -> str:
     if not goal_obj.isSatisfied(path.getState(n - 1)):
         return 'its solution does not end in the goal'
     return ''
+
+
+class _CheckCounter(list):
+    """``[states checked]``, counted by the validity checker and the motion validator
+    (``checks[0] += n``), which also notes ``first_exact_t``: the monotonic time at which
+    ``problem`` (OMPL's problem definition) was first seen holding an exact solution, polled
+    every ``POLL`` states. It is the first-solution mark of planners that never call
+    ``isStartGoalPairValid`` (AORRTC), to within ``POLL`` checks (~1 ms)."""
+
+    POLL = 64
+
+    def __init__(self):
+        super().__init__([0])
+        self.problem = None
+        self.first_exact_t: float | None = None
+        self._next_poll = self.POLL
+
+    def __setitem__(self, index, value):
+        super().__setitem__(index, value)
+        if value >= self._next_poll and self.first_exact_t is None and self.problem is not None:
+            self._next_poll = value + self.POLL
+            if self.problem.hasExactSolution():
+                self.first_exact_t = time.monotonic()
 
 
 def _seed_ompl(ou, seed: int) -> None:
