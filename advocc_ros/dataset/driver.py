@@ -233,12 +233,21 @@ def versions() -> dict:
         except importlib.metadata.PackageNotFoundError:
             out[dist] = None
     repo = pathlib.Path(__file__).resolve().parents[2]
+    # The MPlib victim's own venv (the checkout's; ADVOCC_MPLIB_PYTHON may name another).
+    found = sorted(repo.glob('.venv-mplib/lib/python*/site-packages/mplib-*.dist-info'))
+    out['mplib'] = found[-1].name[len('mplib-'):-len('.dist-info')] if found else None
+    out['advocc_ros_commit'] = out['advocc_ros_modified'] = None
     try:
-        git = subprocess.run(['git', '-C', str(repo), 'rev-parse', 'HEAD'], capture_output=True,
-                             text=True, timeout=10)
-        out['advocc_ros_commit'] = git.stdout.strip() or None
+        git = [['git', '-C', str(repo)] + cmd for cmd in (
+            ['rev-parse', 'HEAD'], ['status', '--porcelain', '--untracked-files=no', '--',
+                                    'advocc_ros'])]
+        commit, status = (subprocess.run(cmd, capture_output=True, text=True, timeout=10)
+                          for cmd in git)
+        if commit.returncode == 0:  # a checkout: its commit, and its code files changed since
+            out['advocc_ros_commit'] = commit.stdout.strip()
+            out['advocc_ros_modified'] = sorted(line[3:] for line in status.stdout.splitlines())
     except (OSError, subprocess.SubprocessError):
-        out['advocc_ros_commit'] = None
+        pass
     return out
 
 
