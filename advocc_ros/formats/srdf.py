@@ -131,53 +131,17 @@ def disabled_collision_pairs(urdf: str | pathlib.Path, package_dirs: list[str] =
     links_of_geom = [_link_of(model, g) for g in gmodel.geometryObjects]
     links = tuple(sorted(set(links_of_geom)))
     adjacent = _link_graph(ET.parse(urdf).getroot(), set(links))
-    # Every pair of geometries of two different links, including links on one joint (which
-    # addAllCollisionPairs skips: the Setup Assistant lists them too, as Adjacent/Default/Never).
-    # link pair -> indices of its geometry pairs (two links may have several geometries each)
-    by_link: dict[frozenset, list[int]] = {}
-    for i, j in itertools.combinations(range(len(links_of_geom)), 2):
-        if links_of_geom[i] != links_of_geom[j]:
-            gmodel.addCollisionPair(pin.CollisionPair(i, j))
-            by_link.setdefault(frozenset((links_of_geom[i], links_of_geom[j])), []).append(
-                len(gmodel.collisionPairs) - 1)
-    data, gdata = model.createData(), pin.GeometryData(gmodel)
-    reasons: dict[frozenset, str] = {p: 'Adjacent' for p in by_link if p in adjacent}
-
-    def colliding(q: np.ndarray, pairs: list[frozenset]) -> dict[frozenset, bool]:
-        if threads > 1:
-            pin.computeCollisionsInParallel(threads, model, data, gmodel, gdata, q, False)
-        else:
-            pin.computeCollisions(model, data, gmodel, gdata, q, False)
-        results = gdata.collisionResults
-        return {p: any(results[k].isCollision() for k in by_link[p]) for p in pairs}
-
-    def activate(pairs) -> None:
-        active = {k for p in pairs for k in by_link[p]}
-        for k in range(len(gmodel.collisionPairs)):
-            if k in active:
-                gdata.activateCollisionPair(k)
-            else:
-                gdata.deactivateCollisionPair(k)
-
+    pairs = _LinkPairs(model, gmodel, links_of_geom, threads)
+    reasons: dict[frozenset, str] = {p: 'Adjacent' for p in pairs.by_link if p in adjacent}
     q_default = default_configuration(model)
-    pending = [p for p in by_link if p not in reasons]
-    activate(pending)
-    for p, hit in colliding(q_default, pending).items():
+    pending = [p for p in pairs.by_link if p not in reasons]
+    pairs.activate(pending)
+    for p, hit in pairs.colliding(q_default, pending).items():
         if hit:
             reasons[p] = 'Default'
     pending = [p for p in pending if p not in reasons]
-    counts = dict.fromkeys(pending, 0)
-    misses_allowed = (1.0 - always_fraction) * samples
     Q = random_configurations(model, samples, np.random.default_rng(seed))
-    live = list(pending)
-    activate(live)
-    for i, q in enumerate(Q):
-        for p, hit in colliding(q, live).items():
-            counts[p] += hit
-        sealed = [p for p in live if counts[p] > 0 and (i + 1 - counts[p]) > misses_allowed]
-        if sealed:
-            live = [p for p in live if p not in set(sealed)]
-            activate(live)
+    counts = _collision_counts(pairs, pending, Q, (1.0 - always_fraction) * samples)
     for p in pending:
         if counts[p] >= always_fraction * samples:
             reasons[p] = 'Always'
@@ -186,8 +150,65 @@ def disabled_collision_pairs(urdf: str | pathlib.Path, package_dirs: list[str] =
     order = {r: k for k, r in enumerate(REASONS)}
     disabled = tuple(sorted((DisabledPair(*sorted(p), r) for p, r in reasons.items()),
                             key=lambda d: (order[d.reason], d.link1, d.link2)))
-    enabled = tuple(sorted(tuple(sorted(p)) for p in by_link if p not in reasons))
+    enabled = tuple(sorted(tuple(sorted(p)) for p in pairs.by_link if p not in reasons))
     return CollisionPairsResult(disabled, links, enabled, samples, q_default)
+
+
+class _LinkPairs:
+    """Every pair of geometries of two different links of a model, checked per link pair.
+
+    Links on one joint are included (``addAllCollisionPairs`` skips them: the Setup Assistant
+    lists them too, as Adjacent/Default/Never); two links may have several geometries each.
+    """
+
+    def __init__(self, model: pin.Model, gmodel: pin.GeometryModel, links_of_geom: list[str],
+                 threads: int):
+        self.model, self.gmodel, self.threads = model, gmodel, threads
+        self.by_link: dict[frozenset, list[int]] = {}
+        """Link pair -> indices of its geometry pairs."""
+        for i, j in itertools.combinations(range(len(links_of_geom)), 2):
+            if links_of_geom[i] != links_of_geom[j]:
+                gmodel.addCollisionPair(pin.CollisionPair(i, j))
+                self.by_link.setdefault(frozenset((links_of_geom[i], links_of_geom[j])),
+                                        []).append(len(gmodel.collisionPairs) - 1)
+        self.data, self.gdata = model.createData(), pin.GeometryData(gmodel)
+
+    def colliding(self, q: np.ndarray, pairs: list[frozenset]) -> dict[frozenset, bool]:
+        """Whether each link pair of ``pairs`` (all active) collides at ``q``."""
+        if self.threads > 1:
+            pin.computeCollisionsInParallel(self.threads, self.model, self.data, self.gmodel,
+                                            self.gdata, q, False)
+        else:
+            pin.computeCollisions(self.model, self.data, self.gmodel, self.gdata, q, False)
+        results = self.gdata.collisionResults
+        return {p: any(results[k].isCollision() for k in self.by_link[p]) for p in pairs}
+
+    def activate(self, pairs) -> None:
+        """Check the geometry pairs of ``pairs`` only."""
+        active = {k for p in pairs for k in self.by_link[p]}
+        for k in range(len(self.gmodel.collisionPairs)):
+            if k in active:
+                self.gdata.activateCollisionPair(k)
+            else:
+                self.gdata.deactivateCollisionPair(k)
+
+
+def _collision_counts(pairs: _LinkPairs, pending: list[frozenset], Q: np.ndarray,
+                      misses_allowed: float) -> dict[frozenset, int]:
+    """In how many of the configurations ``Q`` each link pair of ``pending`` collides; a pair
+    stops being counted once it has both collided and missed more than ``misses_allowed``
+    times (neither Never nor Always any more)."""
+    counts = dict.fromkeys(pending, 0)
+    live = list(pending)
+    pairs.activate(live)
+    for i, q in enumerate(Q):
+        for p, hit in pairs.colliding(q, live).items():
+            counts[p] += hit
+        sealed = [p for p in live if counts[p] > 0 and (i + 1 - counts[p]) > misses_allowed]
+        if sealed:
+            live = [p for p in live if p not in set(sealed)]
+            pairs.activate(live)
+    return counts
 
 
 def srdf_text(robot_name: str, disabled, group: str = '', group_joints=(),
