@@ -15,10 +15,12 @@ and ``stats['first_solution_s']`` plus victim-specific detail. Names:
 - outside victims registered by module (imported lazily by name, so a missing optional
   dependency only fails when that victim is asked for).
 
-Victims that take only configurations get :func:`goal_configurations`: the same seeded K goal
-configurations of the region for every victim (our goal sampler, with the boxes), re-checked
-in the victim's own model. Every path an outside victim returns is re-validated by our checker
-(:func:`first_collision_along`, at ``VictimConfig.check_step_rad``) and by its own.
+Victims that take only configurations get the trial's goal list
+(:meth:`Task.goal_list`, ``advocc_ros.planning.goal_list``): the same seeded K goal
+configurations of the region for every victim (our goal sampler, with the boxes, before the
+clock, with a generous budget), re-checked in the victim's own model. Every path an outside
+victim returns is re-validated by our checker (:func:`first_collision_along`, at
+``VictimConfig.check_step_rad``) and by its own.
 """
 
 from __future__ import annotations

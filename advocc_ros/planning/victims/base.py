@@ -95,8 +95,8 @@ class Victim(Protocol):
 
 def goal_configurations(robot, world, goal: GoalRegion, k: int, seed: int) -> np.ndarray:
     """(<= k, nq) collision-free goal configurations in ``goal`` for ``world`` (our model, with
-    the boxes), from ``seed`` alone (``goal_set``'s iteration budgets): every victim that gets
-    the same seed gets the same list."""
+    the boxes), from ``seed`` alone with ``goal_set``'s iteration budgets only (the victims get
+    :meth:`Task.goal_list`, which searches on where this finds none)."""
     from advocc_ros.kinematics.ik import goal_set
     return goal_set(robot, world.collisions_batch, world.in_collision, goal, k, seed)
 

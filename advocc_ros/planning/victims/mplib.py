@@ -3,8 +3,8 @@
 MPlib 0.2.1 needs numpy < 2, so it runs in its own venv (``.venv-mplib``, made by ``make
 install``) and its own process: ``mplib_worker.py``, spoken to in JSON lines through our
 worker's pipes (``advocc_ros.planning.worker.WorkerProcess``). The parent keeps what MPlib does not
-have: the goal region becomes K goal configurations (:func:`goal_configurations`, our sampler
-with the boxes, outside the budget), re-checked by the worker in MPlib's model; the start is
+have: the goal region becomes K goal configurations (``Task.goal_list``, our sampler with the
+boxes, before the clock), re-checked by the worker in MPlib's model; the start is
 checked in both models (MPlib itself only warns); every exact solution is re-validated at
 ``check_step_rad`` in MPlib's model (``INVALID_MOTION_PLAN`` if its coarse motion check
 stepped over an obstacle) and in ours (``MODEL_MISMATCH`` if it is free on the meshes but
