@@ -182,42 +182,9 @@ def vary_scene(scene: Scene, index: int, seed: int,
     redrawn = 0
     for draw in range(config.max_draws):
         rng = np.random.default_rng([seed, index, draw])
-        objects = list(scene.objects)
-        goal = scene.goal
-        group_of = {i: pattern for pattern, members in drawer.groups.items() for i in members}
-        ok = True
-        for pattern, members in drawer.groups.items():
-            for _ in range(config.max_object_draws):
-                M = drawer.group_motion(rng)
-                moved = [SceneObject(scene.objects[i].id, tuple(
-                    _moved(s, M) for s in scene.objects[i].shapes)) for i in members]
-                if not any(bare.shape_collides(s, q_init, config.start_margin_m)
-                           for o in moved for s in o.shapes):
-                    break
-                redrawn += 1
-            else:
-                ok = False
-                break
-            for i, obj in zip(members, moved):
-                objects[i] = obj
-        for i, obj in enumerate(scene.objects):
-            if not ok:
-                break
-            if i in group_of or _matches(obj.id, config.fixed):
-                continue
-            for _ in range(config.max_object_draws):
-                new, M = drawer.item(obj, rng)
-                if not any(bare.shape_collides(s, q_init, config.start_margin_m)
-                           for s in new.shapes):
-                    break
-                redrawn += 1
-            else:
-                ok = False
-                break
-            objects[i] = new
-            if goal is not None and _matches(obj.id, config.target):
-                goal = _goal_moved(scene.goal, M)
-        if not ok:
+        objects, goal, redraws = _draw_objects(scene, drawer, config, bare, q_init, rng)
+        redrawn += redraws
+        if objects is None:
             log.debug('%s variation %d draw %d: an object keeps touching the robot at start',
                       scene.name, index, draw)
             continue
@@ -235,6 +202,46 @@ def vary_scene(scene: Scene, index: int, seed: int,
         return Variation(candidate, index, draw + 1, redrawn)
     raise SceneError(f'{scene.name}: no valid variation {index} (seed {seed}) in '
                      f'{config.max_draws} draws; reduce the jitter')
+
+
+def _draw_objects(scene: Scene, drawer: _Drawer, config: VariationConfig, bare: CollisionWorld,
+                  q_init: np.ndarray, rng: np.random.Generator):
+    """One draw of every movable object's pose (a rigid group moves together), each redrawn
+    until it keeps ``config.start_margin_m`` from the robot at ``q_init``; the goal follows the
+    target object. ``(objects, goal, redraws)``; objects is None when one found no clear pose
+    in ``config.max_object_draws`` draws."""
+    objects = list(scene.objects)
+    goal = scene.goal
+    redrawn = 0
+    group_of = {i: pattern for pattern, members in drawer.groups.items() for i in members}
+    for pattern, members in drawer.groups.items():
+        for _ in range(config.max_object_draws):
+            M = drawer.group_motion(rng)
+            moved = [SceneObject(scene.objects[i].id, tuple(
+                _moved(s, M) for s in scene.objects[i].shapes)) for i in members]
+            if not any(bare.shape_collides(s, q_init, config.start_margin_m)
+                       for o in moved for s in o.shapes):
+                break
+            redrawn += 1
+        else:
+            return None, goal, redrawn
+        for i, obj in zip(members, moved):
+            objects[i] = obj
+    for i, obj in enumerate(scene.objects):
+        if i in group_of or _matches(obj.id, config.fixed):
+            continue
+        for _ in range(config.max_object_draws):
+            new, M = drawer.item(obj, rng)
+            if not any(bare.shape_collides(s, q_init, config.start_margin_m)
+                       for s in new.shapes):
+                break
+            redrawn += 1
+        else:
+            return None, goal, redrawn
+        objects[i] = new
+        if goal is not None and _matches(obj.id, config.target):
+            goal = _goal_moved(scene.goal, M)
+    return objects, goal, redrawn
 
 
 def write_variation(scene: Scene, index: int, seed: int, out_dir: str | pathlib.Path,
