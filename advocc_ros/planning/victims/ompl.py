@@ -37,6 +37,7 @@ class OmplVictim:
             self._planner = self._new_planner(task.scene)
         else:
             self._planner.set_scene(task.scene)
+            self._planner.config = self.config.planning  # the shim may change its settings
         return self._planner
 
     def start(self, scene) -> 'OmplVictim':
