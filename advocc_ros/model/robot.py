@@ -217,51 +217,66 @@ def _geometry_trimesh(geom: pin.GeometryObject) -> trimesh.Trimesh:
     raise RobotError(f'collision geometry {geom.name!r}: unsupported shape {type(shape).__name__}')
 
 
+def _load_full(spec: RobotSpec):
+    """``spec``'s URDF and SRDF paths, the SRDF's XML root, and the full pinocchio model with
+    its collision geometry; ``RobotError`` for a missing or unreadable file."""
+    urdf = resolve_path(spec.urdf)
+    srdf = resolve_path(spec.srdf)
+    for label, path in (('URDF', urdf), ('SRDF', srdf)):
+        if not path.is_file():
+            raise RobotError(f'{label} not found: {path}')
+    try:
+        srdf_xml = ET.parse(srdf).getroot()
+    except ET.ParseError as exc:
+        raise RobotError(f'{srdf}: not valid XML ({exc})') from exc
+    package_dirs = [str(example_robot_data_share())]
+    try:
+        full = pin.buildModelFromUrdf(str(urdf))
+        full_geom = pin.buildGeomFromUrdf(
+            full, str(urdf), pin.GeometryType.COLLISION, package_dirs=package_dirs)
+    except (RuntimeError, ValueError) as exc:
+        raise RobotError(f'{urdf}: pinocchio could not load it ({exc})') from exc
+    return urdf, srdf, srdf_xml, full, full_geom
+
+
+def _locked_joints(spec: RobotSpec, urdf: pathlib.Path, srdf: pathlib.Path,
+                   srdf_xml: ET.Element, full: pin.Model):
+    """The joints outside ``spec``'s planning group and the values they are held at:
+    ``(lock_ids, q_default, q_ref)``, full configurations with the SRDF's group state
+    (``q_default``) and with ``spec.locked`` on top (``q_ref``), mimic joints derived."""
+    group = _srdf_group(srdf_xml, spec.group) if spec.group else list(full.names[1:])
+    if not group:
+        raise RobotError(f'{srdf}: no group named {spec.group!r} (use group: "" to plan '
+                         'for every joint)')
+    state = _srdf_state(srdf_xml, spec.group_state)
+    lock_ids, q_srdf = [], pin.neutral(full)
+    for jid in range(1, full.njoints):
+        name = full.names[jid]
+        if name not in group:
+            lock_ids.append(jid)
+        if name in state and full.joints[jid].nq == 1:
+            q_srdf[full.joints[jid].idx_q] = state[name]
+    mimics = _urdf_mimics(urdf)
+    q_default = _resolve_locked(full, q_srdf, lock_ids, {}, mimics, warn=False)
+    q_ref = _resolve_locked(full, q_srdf, lock_ids, dict(spec.locked), mimics, warn=True)
+    missing = [j for j in group if not full.existJointName(j)]
+    if missing:
+        raise RobotError(f'{srdf}: group {spec.group!r} names joints not in the URDF: '
+                         f'{missing}')
+    return lock_ids, q_default, q_ref
+
+
 class RobotModel:
     """Reduced arm model with collision geometry; immutable after construction."""
 
     def __init__(self, spec: RobotSpec = RobotSpec()):
         self.spec = spec
-        urdf = resolve_path(spec.urdf)
-        srdf = resolve_path(spec.srdf)
-        for label, path in (('URDF', urdf), ('SRDF', srdf)):
-            if not path.is_file():
-                raise RobotError(f'{label} not found: {path}')
-        try:
-            srdf_xml = ET.parse(srdf).getroot()
-        except ET.ParseError as exc:
-            raise RobotError(f'{srdf}: not valid XML ({exc})') from exc
-        package_dirs = [str(example_robot_data_share())]
-        try:
-            full = pin.buildModelFromUrdf(str(urdf))
-            full_geom = pin.buildGeomFromUrdf(
-                full, str(urdf), pin.GeometryType.COLLISION, package_dirs=package_dirs)
-        except (RuntimeError, ValueError) as exc:
-            raise RobotError(f'{urdf}: pinocchio could not load it ({exc})') from exc
-
-        group = _srdf_group(srdf_xml, spec.group) if spec.group else list(full.names[1:])
-        if not group:
-            raise RobotError(f'{srdf}: no group named {spec.group!r} (use group: "" to plan '
-                             'for every joint)')
-        state = _srdf_state(srdf_xml, spec.group_state)
-        lock_ids, q_srdf = [], pin.neutral(full)
-        for jid in range(1, full.njoints):
-            name = full.names[jid]
-            if name not in group:
-                lock_ids.append(jid)
-            if name in state and full.joints[jid].nq == 1:
-                q_srdf[full.joints[jid].idx_q] = state[name]
-        mimics = _urdf_mimics(urdf)
-        q_default = _resolve_locked(full, q_srdf, lock_ids, {}, mimics, warn=False)
-        q_ref = _resolve_locked(full, q_srdf, lock_ids, dict(spec.locked), mimics, warn=True)
+        urdf, srdf, srdf_xml, full, full_geom = _load_full(spec)
+        lock_ids, q_default, q_ref = _locked_joints(spec, urdf, srdf, srdf_xml, full)
         self.locked_values: dict[str, float] = {
             full.names[j]: float(q_ref[full.joints[j].idx_q])
             for j in lock_ids if full.joints[j].nq == 1}
         """Values the locked joints are held at, by joint name."""
-        missing = [j for j in group if not full.existJointName(j)]
-        if missing:
-            raise RobotError(f'{srdf}: group {spec.group!r} names joints not in the URDF: '
-                             f'{missing}')
         self.model, self.collision_model = pin.buildReducedModel(full, full_geom, lock_ids, q_ref)
         if self.model.nq != self.model.nv:
             raise RobotError('continuous/multi-DoF joints in the planning group are not supported')
