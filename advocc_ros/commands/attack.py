@@ -80,16 +80,7 @@ def _attack(args: argparse.Namespace) -> int:
                            search_witness=args.certify)
     except ValueError as exc:
         raise UserError(str(exc)) from None
-    try:
-        scene = scene_from_args(args)
-        if scene.start is None or scene.goal is None:
-            raise UserError(f'{args.scene}: the scene needs a start and a goal to attack')
-        robot = load_robot(scene.robot)
-        heatmap = load_heatmap(args.heatmap, robot_hash=robot.hash)
-        q_init = robot.q_from_names(list(scene.start), list(scene.start.values()),
-                                    f'{args.scene}.start')
-    except (SceneError, HeatmapError, RobotError) as exc:
-        raise UserError(str(exc)) from None
+    scene, robot, heatmap, q_init = _load_task(args)
     refuse_invalid_task(scene, args.scene)  # before any planner (PFA's, the witness search)
     if heatmap.meta.get('scene_hash') not in (None, scene.objects_hash()):
         print(f'advocc attack: warning: {args.heatmap} was built for scene '
@@ -120,25 +111,46 @@ def _attack(args: argparse.Namespace) -> int:
         print(json.dumps(dict(result.to_json(), out=str(args.out),
                               witness_file=str(witness_out) if witness_out else None), indent=2))
     else:
-        print(f'{result.status.value}: {result.message} ({args.method}, '
-              f'{result.compute_s * 1e3:.1f} ms) -> {args.out}')
-        for obj, mass in zip(result.obstacles, result.masses):
-            x, y, z = obj.shapes[0].pose.position_m
-            print(f'  {obj.id:8s} centre [{x:+.3f}, {y:+.3f}, {z:+.3f}] m  mass {mass:.3f}')
-        print(f'  total mass {result.total_mass:.3f}')
-        if result.goal_valid_fraction is not None:
-            print(f'  goal poses still valid: {100 * result.goal_valid_fraction:.0f} % of '
-                  f'{result.stats["goal_samples"]} fixed goal samples (policy '
-                  f'{result.goal_policy})')
-        if 'witness_search_ms' in result.stats:
-            print(f'  witness search (RRTConnect on the unattacked scene, cached per task, '
-                  f'not attack time): {result.stats["witness_search_ms"]:.0f} ms')
-        if result.solvable is not None:
-            print(f'  solvable: {result.solvable.verdict} ({result.solvable.message})'
-                  + (f'; witness -> {witness_out}' if witness_out else ''))
+        _print_attack(args, result, witness_out)
     if result.status == AttackStatus.PARTIAL:
         print(f'advocc attack: warning: {result.message}', file=sys.stderr)
     return 0
+
+
+def _load_task(args: argparse.Namespace):
+    """The scene, robot, heatmap and start configuration the arguments name; ``UserError``
+    with the reason when one cannot be loaded or the scene has no start or goal."""
+    try:
+        scene = scene_from_args(args)
+        if scene.start is None or scene.goal is None:
+            raise UserError(f'{args.scene}: the scene needs a start and a goal to attack')
+        robot = load_robot(scene.robot)
+        heatmap = load_heatmap(args.heatmap, robot_hash=robot.hash)
+        q_init = robot.q_from_names(list(scene.start), list(scene.start.values()),
+                                    f'{args.scene}.start')
+    except (SceneError, HeatmapError, RobotError) as exc:
+        raise UserError(str(exc)) from None
+    return scene, robot, heatmap, q_init
+
+
+def _print_attack(args: argparse.Namespace, result, witness_out) -> None:
+    """The attack's boxes, masses, goal poses left valid, witness search and verdict, as text."""
+    print(f'{result.status.value}: {result.message} ({args.method}, '
+          f'{result.compute_s * 1e3:.1f} ms) -> {args.out}')
+    for obj, mass in zip(result.obstacles, result.masses):
+        x, y, z = obj.shapes[0].pose.position_m
+        print(f'  {obj.id:8s} centre [{x:+.3f}, {y:+.3f}, {z:+.3f}] m  mass {mass:.3f}')
+    print(f'  total mass {result.total_mass:.3f}')
+    if result.goal_valid_fraction is not None:
+        print(f'  goal poses still valid: {100 * result.goal_valid_fraction:.0f} % of '
+              f'{result.stats["goal_samples"]} fixed goal samples (policy '
+              f'{result.goal_policy})')
+    if 'witness_search_ms' in result.stats:
+        print(f'  witness search (RRTConnect on the unattacked scene, cached per task, '
+              f'not attack time): {result.stats["witness_search_ms"]:.0f} ms')
+    if result.solvable is not None:
+        print(f'  solvable: {result.solvable.verdict} ({result.solvable.message})'
+              + (f'; witness -> {witness_out}' if witness_out else ''))
 
 
 def _attack_in_the_loop(args: argparse.Namespace, heatmap, robot, scene, q_init,
