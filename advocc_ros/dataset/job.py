@@ -244,8 +244,9 @@ def _export(folder: str, index: int, attacked, robot, witness, time_s: float) ->
 
 
 def _cell(scene, victim: str, config: BuildConfig) -> dict:
-    """One victim's row on one scene, as ``advocc evaluate --json`` computes it, without the
-    per-trial records; an exception becomes ``error`` (the other cells still run)."""
+    """One victim's row on one scene, as ``advocc evaluate --json`` computes it (every field
+    of ``evaluation.metrics.aggregate``'s row), without the per-trial records; an exception
+    becomes ``error`` (the other cells still run)."""
     from advocc_ros.evaluation.runner import evaluate_planner
     from advocc_ros.planning.victims import VictimConfig
 
@@ -256,10 +257,9 @@ def _cell(scene, victim: str, config: BuildConfig) -> dict:
     except Exception as exc:
         log.exception('victim %s failed', victim)
         return {'error': f'{type(exc).__name__}: {exc}'}
-    keep = ('psr', 'successes', 'trials', 'internal_errors', 'failures', 'pt',
-            'first_solution_median_s', 'first_solution_p90_s', 'first_solution_measured',
-            'psr_at')
-    return dict({k: row.get(k) for k in keep}, wall_s=round(time.perf_counter() - t, 3))
+    drop = ('records', 'scene', 'planner', 'seed')  # per trial, or said by the file already
+    return dict({k: v for k, v in row.items() if k not in drop},
+                wall_s=round(time.perf_counter() - t, 3))
 
 
 def _evaluate(scene, config: BuildConfig, attacks: dict, scenes: dict) -> dict:
