@@ -11,9 +11,9 @@ from advocc_ros.model.scene import make_box
 from advocc_ros.planning.goal_list import goal_list
 
 SLIVER = pathlib.Path(__file__).with_name('data') / 'sliver_boxes.json'
-"""Centres of 119 boxes (6 cm) on table_pick, placed on the links 3-7 of 970 goal
-configurations but never on one kept configuration: about 0.3 % of the IK attempts in the goal
-region end valid (made by hand: one goal branch left, the others covered)."""
+"""Centres of 113 boxes (6 cm) on table_pick, placed on the links 3-7 of 970 goal
+configurations but never on one kept configuration nor on the start: about 0.3 % of the IK
+attempts in the goal region end valid (made by hand: one goal branch left, the others covered)."""
 
 
 def _sliver(table_scene):
