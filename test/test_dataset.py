@@ -105,6 +105,26 @@ def test_bad_input_is_a_clear_error(tmp_path, capsys):
         main(['dataset', 'build', '--problems', str(REAL), '--out', str(out), '--split', 'x'])
 
 
+@pytest.mark.processes  # build.json records the checkout's commit (git)
+def test_a_heatmap_that_does_not_fit_is_refused_before_any_work(tmp_path, heatmap_file):
+    from advocc_ros.dataset.driver import RunConfig, Selection, build
+    from advocc_ros.dataset.job import BuildConfig
+    from advocc_ros.heatmap import HeatmapConfig, build_heatmap, save_heatmap
+    from advocc_ros.model.scene import load_scene
+
+    selection = Selection(str(REAL), ('box',))
+    with pytest.raises(DatasetError, match='scene-conditioned heatmap fits one scene'):
+        build(selection, tmp_path / 'a', BuildConfig(), RunConfig(heatmap_file=str(
+            heatmap_file)))
+    # The problems' Panda locks its fingers at 0.04, the shipped box scene's robot does not.
+    other = tmp_path / 'srdf_fingers.npz'
+    save_heatmap(build_heatmap(load_scene(REPO / 'config' / 'scenes' / 'box.yaml'),
+                               HeatmapConfig(samples=200, robot_only=True)), other)
+    with pytest.raises(DatasetError, match='not the robot of box_panda/0001'):
+        build(selection, tmp_path / 'b', BuildConfig(), RunConfig(heatmap_file=str(other)))
+    assert not list((tmp_path / 'b').glob('*/*/outcome.json'))
+
+
 # --------------------------------------------------------------------------------------------
 # Builds (each starts Ray and planner processes)
 

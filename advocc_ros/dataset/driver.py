@@ -155,6 +155,11 @@ def _run(todo: list[Problem], out: pathlib.Path, config: BuildConfig, run: RunCo
     hashes, scenes = _robots(todo, config.goal_tol)
     heatmaps = robot_heatmaps(scenes, out, run.heatmap_samples, run.heatmap_seed,
                               run.heatmap_file, workers=os.cpu_count() or 1, echo=echo)
+    other = sorted(k for k, h in hashes.items() if h not in heatmaps)
+    if other:  # only a given file can miss a robot: refuse before any work
+        raise DatasetError(f'{run.heatmap_file}: built for robot '
+                           f'{", ".join(map(str, heatmaps))}, not the robot of {other[0]} '
+                           f'({hashes[other[0]]}) and {len(other) - 1} more problem(s)')
     ray = _ray(run)
     counts = dict.fromkeys(OUTCOMES, 0)
     pending: dict = {}
