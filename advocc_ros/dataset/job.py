@@ -22,6 +22,7 @@ import dataclasses
 import logging
 import os
 import pathlib
+import signal
 import socket
 import sys
 import tempfile
@@ -97,7 +98,7 @@ def _kill_once() -> None:
         return
     os.write(fd, f'{os.getpid()}\n'.encode())
     os.close(fd)
-    os.kill(os.getpid(), 9)
+    os.kill(os.getpid(), signal.SIGKILL)
 
 
 def _ray_node() -> str | None:
@@ -137,8 +138,8 @@ def _load(problem: dict, goal_tol):
         if isinstance(problem[key], str):
             return None, problem[key]
     with tempfile.TemporaryDirectory(prefix='advocc_problem_') as tmp:
-        scene_path = pathlib.Path(tmp) / problem['scene_name']
-        request_path = pathlib.Path(tmp) / problem['request_name']
+        scene_path = pathlib.Path(tmp) / pathlib.Path(problem['scene_name']).name
+        request_path = pathlib.Path(tmp) / pathlib.Path(problem['request_name']).name
         scene_path.write_bytes(problem['scene'])
         request_path.write_bytes(problem['request'])
         try:
@@ -151,6 +152,8 @@ def _load(problem: dict, goal_tol):
 
 
 def _run(problem: dict, heatmap, config: BuildConfig, files: dict, record: dict):
+    """(outcome, reason, hardness) of the steps of the module docstring; fills ``files``
+    with the exported problems and ``record`` with the steps' times."""
     from advocc_ros.attack import AttackConfig, AttackStatus
     from advocc_ros.attack.edges import attack_task
     from advocc_ros.attack.task import task_options
