@@ -72,7 +72,8 @@ def test_ompl_script_makes_the_same_database_from_our_logs(run_dir, tmp_path):
     for table in ('experiments', 'plannerConfigs', 'enums', 'runs', 'progress'):
         cols = [c[1] for c in _rows(ours, f'PRAGMA table_info({table})')]
         assert cols == [c[1] for c in _rows(theirs, f'PRAGMA table_info({table})')], table
-    query = ('SELECT p.name, r.time, r.solved, r.status, r.goal_found, r.goal_attempts, r.seed '
+    query = ('SELECT p.name, r.time, r.solved, r.status, r.solution_length, r.goal_found, '
+             'r.goal_attempts, r.seed '
              'FROM runs r JOIN plannerConfigs p ON r.plannerid = p.id ORDER BY r.id')
     assert [tuple(map(str, row)) for row in _rows(ours, query)] == \
         [tuple(map(str, row)) for row in _rows(theirs, query)]
@@ -93,6 +94,7 @@ def test_planner_arena_loads_the_database(run_dir):
               ' "attributes": d["attributes"], "runs": runs.height,'
               ' "planners": sorted(set(map(str, runs["planner"].to_list()))),'
               ' "solved": int(runs["solved"].sum()),'
+              ' "lengths": int(runs["solution length"].is_not_null().sum()),'
               ' "status": d["enums"]["description"].to_list()}))\n')
     done = subprocess.run([str(ARENA_PYTHON), '-c', script, str(out / 'benchmark.db')],
                           check=True, capture_output=True, text=True, timeout=120)
@@ -101,8 +103,9 @@ def test_planner_arena_loads_the_database(run_dir):
     assert data['parameters'] == ['budget', 'method', 'scene']
     assert data['runs'] == len(records) == TRIALS * len(VICTIMS)
     assert data['planners'] == ['AORRTC', 'BKPIECE1', 'RRTConnect']  # geometric_ stripped
-    assert data['solved'] == sum(r['success'] for r in records)
-    assert {'time', 'solved', 'status', 'goal found', 'goal attempts'} <= set(data['attributes'])
+    assert data['solved'] == data['lengths'] == sum(r['success'] for r in records)
+    assert {'time', 'solved', 'status', 'solution length', 'goal found',
+            'goal attempts'} <= set(data['attributes'])
     assert data['status'] == list(STATUS)
 
 

@@ -10,11 +10,12 @@ run folder gets both, from its trial records:
 - ``benchmark.db``: the tables that script makes (``experiments``, ``plannerConfigs``,
   ``enums``, ``runs``, ``progress``), written here directly with the same columns.
 
-Runs carry OMPL's ``time`` (planning time [s]), ``solved`` and ``status`` (here an enum of our
+Runs carry OMPL's ``time`` (planning time [s]), ``solved``, ``status`` (here an enum of our
 outcomes: success, the failure modes, internal error, so Planner Arena's status plot shows how
-trials failed) and ours: time to first solution, whether the goal list searched before the
-clock found a goal and its IK attempts, SMR, CMR, JDS, waypoints, seed. The scene, method and
-budget are experiment properties (Planner Arena's problem parameters).
+trials failed) and ``solution length`` (joint space [rad]), and ours: time to first solution,
+whether the goal list searched before the clock found a goal and its IK attempts, SMR, CMR, JDS,
+waypoints, seed. The scene, method and budget are experiment properties (Planner Arena's problem
+parameters).
 """
 
 from __future__ import annotations
@@ -40,6 +41,7 @@ RUN_PROPERTIES = (
     ('time', 'REAL', lambda r: r.get('planning_time_s')),
     ('solved', 'BOOLEAN', lambda r: int(bool(r.get('success')))),
     ('status', 'ENUM', lambda r: STATUS.index(record_outcome(r))),
+    ('solution length', 'REAL', lambda r: r.get('path_length_rad')),
     ('first solution time', 'REAL', lambda r: r.get('first_solution_s')),
     ('goal found', 'BOOLEAN', lambda r: None if r.get('goal_found') is None
      else int(bool(r['goal_found']))),

@@ -84,6 +84,8 @@ class TrialRecord:
     min_clearance_rad: float | None = None
     """CMR of this trial, raw [rad] (not x10^-2)."""
     jds_rad: float | None = None
+    path_length_rad: float | None = None
+    """Joint-space length of a success's path [rad] (OMPL's "solution length")."""
     waypoints: int = 0
     first_solution_s: float | None = None
     """Request to first exact solution [s] of a success (``PlanResult.first_solution_s``)."""
@@ -211,11 +213,13 @@ def min_clearance(world: CollisionWorld, path: np.ndarray, config: MetricsConfig
 def trial_metrics(robot: RobotModel, world: CollisionWorld, path: np.ndarray,
                   q_init: np.ndarray, config: MetricsConfig = MetricsConfig(),
                   rng: np.random.Generator | None = None) -> dict[str, float]:
-    """SMR, CMR, JDS (raw units) of one successful trajectory; ``PathInCollision`` if it is
-    not collision-free."""
+    """SMR, CMR, JDS (raw units) and the joint-space length [rad] of one successful trajectory;
+    ``PathInCollision`` if it is not collision-free."""
+    path = np.asarray(path, dtype=float)
     return {'min_manipulability': min_manipulability(robot, path, config.smr_step_rad),
             'min_clearance_rad': min_clearance(world, path, config, rng),
-            'jds_rad': joint_deviation(path, q_init)}
+            'jds_rad': joint_deviation(path, q_init),
+            'path_length_rad': float(np.linalg.norm(np.diff(path, axis=0), axis=1).sum())}
 
 
 def _mean(values: list[float]) -> float | None:
