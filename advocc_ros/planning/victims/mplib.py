@@ -139,13 +139,8 @@ class MplibVictim(OutsideVictim):
                           **stats)
         path = np.asarray(answer['path'], float).reshape(-1, nq)
         stats.update(first_solution_s=solve_s, path_length_rad=path_length_rad(path))
-        step = self.config.check_step_rad
-        if answer['first_collision'] >= 0 and len(path) >= 2:
-            return failed(PlanStatus.INVALID_MOTION_PLAN, f'MPlib: its solution collides in its '
-                          f'own model at state {answer["first_collision"]} (checked every '
-                          f'{step:g} rad): its motion check stepped over an obstacle', nq,
-                          solve_s, **stats)
-        failure = self._checked(path, world, q_start, goals, solve_s, stats)
+        failure = self._checked(path, world, q_start, goals, solve_s, stats,
+                                int(answer['first_collision']))
         if failure is not None:
             return failure
         return PlanResult(PlanStatus.SUCCESS, f'MPlib RRTConnect: solved in {solve_s:.3f} s',

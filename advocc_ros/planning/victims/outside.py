@@ -91,15 +91,24 @@ class OutsideVictim:
         return self._answer(answer, robot, world, q_start, goals, time_budget_s, stats)
 
     def _checked(self, path: np.ndarray, world: CollisionWorld, q_start: np.ndarray,
-                 goals: np.ndarray, elapsed: float, stats: dict) -> PlanResult | None:
+                 goals: np.ndarray, elapsed: float, stats: dict, own_collision: int = -1
+                 ) -> PlanResult | None:
         """None if a solution's ``path`` runs from the start to one of the given goals and is
-        free in our model every ``check_step_rad``; else the failure: not from the start to a
-        goal (an internal error) or colliding in our model (``MODEL_MISMATCH``)."""
+        free in the victim's model (``own_collision``: its first colliding state every
+        ``check_step_rad``, -1: none) and in ours; else the failure, in this order: not from
+        the start to a goal (an internal error), colliding in its own model (its motion check
+        stepped over an obstacle: ``INVALID_MOTION_PLAN``), colliding in ours only
+        (``MODEL_MISMATCH``)."""
         nq, step = world.robot.nq, self.config.check_step_rad
         if len(path) < 2 or not np.allclose(path[0], q_start, atol=1e-6) or not np.any(
                 np.all(np.isclose(goals, path[-1], atol=1e-6), axis=1)):
             return failed(PlanStatus.INTERNAL_ERROR, f'{self.label}\'s path does not run from '
                           'the start to a goal configuration', nq, elapsed, **stats)
+        if own_collision >= 0:
+            return failed(PlanStatus.INVALID_MOTION_PLAN, f'{self.label}: its solution collides '
+                          f'in its own model at state {own_collision} (checked every {step:g} '
+                          'rad): its motion check stepped over an obstacle', nq, elapsed,
+                          **stats)
         ours = first_collision_along(world, path, step)
         if ours >= 0:
             return failed(PlanStatus.MODEL_MISMATCH, f'{self.label}: its solution is free in its '
