@@ -206,6 +206,12 @@ def test_planner_shim_end_to_end(ros, table_scene):
     assert res.error_code.val in (ErrorCodes.SUCCESS, ErrorCodes.TIMED_OUT), res.message
     data = json.loads(_call(node, executor, info, GetInfo.Request(), 10).info_json)
     assert data['worker_restarts'] == 0 and data['requests_served'] >= 10
+    # 3c. An OMPL 2 victim by name: AORRTC plans in its own venv's worker, started on first use
+    # (2.0.1 refuses its own solution where start and goal connect directly: planning failed).
+    res = _call(node, executor, plan, request(seed=3, planner_id='aorrtc'), 60)
+    assert res.error_code.val in (ErrorCodes.SUCCESS, ErrorCodes.PLANNING_FAILED,
+                                  ErrorCodes.TIMED_OUT), res.message
+    assert 'AORRTC' in res.message, res.message
 
     # 4. SIGINT: clean exit, worker gone.
     worker_pid = data['worker_pid']
