@@ -1,4 +1,4 @@
-"""The attack core queries no planner (issue 25): ``attack()`` starts no process and imports no
+"""The attack core queries no planner: ``attack()`` starts no process and imports no
 planner; the task's witness is data found at the edges (``attack.edges``), timed apart."""
 
 import json

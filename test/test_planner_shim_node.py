@@ -167,7 +167,7 @@ def test_planner_shim_end_to_end(ros, table_scene):
     outside = JointState(name=list(start), position=list(dict(start, panda_joint4=0.5).values()))
     on_table = JointState(name=list(start), position=[0.0, 1.5, 0, -0.2, 0, 1.571, 0.785])
     bad = [
-        # An invalid task is refused with the reason (issue 25): the joint, the colliding pair.
+        # An invalid task is refused with the reason: the joint, the colliding pair.
         (request(start_state=outside), ErrorCodes.INVALID_ROBOT_STATE,
          'panda_joint4 = 0.5 not in'),
         (request(start_state=on_table), ErrorCodes.START_STATE_IN_COLLISION,

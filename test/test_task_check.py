@@ -1,4 +1,4 @@
-"""An invalid task is refused, not scored (issue 25): a start outside the joint limits or in
+"""An invalid task is refused, not scored: a start outside the joint limits or in
 collision is refused with the reason by the core check and by every entry point (evaluate,
 audit, attack, bench; the services in test_attack_nodes.py and test_planner_shim_node.py)."""
 
