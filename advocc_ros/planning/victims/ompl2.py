@@ -12,6 +12,7 @@ region, and collision-free in our model every ``VictimConfig.check_step_rad``.
 
 from __future__ import annotations
 
+import hashlib
 import os
 import pathlib
 
@@ -43,12 +44,33 @@ def ompl2_python(config: VictimConfig = VictimConfig()) -> pathlib.Path:
     return path
 
 
+def source_path() -> pathlib.Path:
+    """A folder whose only package is ours: the OMPL 2 interpreter's ``PYTHONPATH``. In a
+    checkout it is the checkout; where our package sits in a site-packages (beside OMPL 1.7),
+    a folder in the cache with a link to the package, so nothing else of our venv shadows the
+    OMPL 2 venv's packages."""
+    package = pathlib.Path(__file__).resolve().parents[2]
+    if not any((package.parent / name).exists() for name in ('ompl', 'numpy', 'pinocchio')):
+        return package.parent
+    base = pathlib.Path(os.environ.get('XDG_CACHE_HOME') or pathlib.Path.home() / '.cache')
+    folder = base / 'advocc_ros' / 'ompl2' / hashlib.sha256(str(package).encode()).hexdigest()[:16]
+    link = folder / package.name
+    if not link.exists():
+        folder.mkdir(parents=True, exist_ok=True)
+        tmp = folder / f'.{package.name}.{os.getpid()}'
+        tmp.unlink(missing_ok=True)
+        tmp.symlink_to(package, target_is_directory=True)
+        os.replace(tmp, link)
+    return folder
+
+
 def worker_command(python: pathlib.Path) -> tuple[list[str], dict]:
-    """argv and environment of our planning worker in the OMPL 2 interpreter: this source tree
-    on its path, and none of our venv's library or Python paths (its OMPL 1.7 must not load)."""
+    """argv and environment of our planning worker in the OMPL 2 interpreter: our package on
+    its path (:func:`source_path`), and none of our venv's library or Python paths (its OMPL
+    1.7 must not load)."""
     env = {k: v for k, v in os.environ.items()
            if k not in ('PYTHONPATH', 'PYTHONHOME', 'LD_LIBRARY_PATH', 'VIRTUAL_ENV')}
-    env['PYTHONPATH'] = str(_CHECKOUT)
+    env['PYTHONPATH'] = str(source_path())
     return [str(python), '-P', '-c', 'from advocc_ros.planning.worker import _worker_main; '
             '_worker_main()'], env
 
