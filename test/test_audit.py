@@ -81,6 +81,22 @@ def test_audit_command_errors(tmp_path, capsys):
     assert not list(tmp_path.iterdir())  # nothing ran
 
 
+@pytest.fixture(autouse=True)
+def _own_caches(tmp_path, monkeypatch):
+    """Each audit here finds its own witness and goal sample: nothing another test left in this
+    process's caches or in the session's disk cache (a scripted witness, a sample of a task with
+    the same key) reaches it, and it leaves nothing behind."""
+    from advocc_ros.model.cache import CACHE_ENV, clear_task_caches
+    from advocc_ros.planning import witness
+
+    monkeypatch.setenv(CACHE_ENV, str(tmp_path / 'cache'))
+    witness.WITNESSES.clear()
+    clear_task_caches()
+    yield
+    witness.WITNESSES.clear()
+    clear_task_caches()
+
+
 @pytest.fixture(scope='module')
 def small_heatmap(table_scene):
     from advocc_ros.heatmap import HeatmapConfig, build_heatmap
