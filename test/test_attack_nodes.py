@@ -141,8 +141,8 @@ def test_attacker_publishes_what_the_core_computes(ros, ros_env, heatmap_file, t
             m.primitive_poses[0].position.z) for m in ops[6:9]]
     assert np.allclose(got, expected2.centers_m, atol=1e-9)
 
-    # A new scene with an object where the first box was: new boxes elsewhere.
-    blocker = make_box('blocker', expected.centers_m[0], (0.06, 0.06, 0.06))
+    # A new scene with an object where the last box was: new boxes elsewhere.
+    blocker = make_box('blocker', expected2.centers_m[-1], (0.06, 0.06, 0.06))
     msg.objects = msg.objects + [collision_object_to_msg(blocker, 'panda_link0')]
     scene_pub.publish(msg)
     wait_for(15)
@@ -263,8 +263,6 @@ def test_server_answers_a_repeat_without_recomputing(ros, ros_env, heatmap_file,
     from rcl_interfaces.msg import Parameter, ParameterType, ParameterValue
     from rcl_interfaces.srv import SetParameters
 
-    from advocc_ros.attack.task import TaskOptions
-
     node, executor, children = ros
     server = _start('heatmap_server', ros_env, f'heatmap_file:={heatmap_file}')
     children.append(server)
@@ -301,6 +299,8 @@ def test_server_task_options_are_node_parameters(ros, ros_env, heatmap_file, tab
     from advocc_msgs.srv import Attack, GetInfo
     from rcl_interfaces.msg import Parameter, ParameterType, ParameterValue
     from rcl_interfaces.srv import SetParameters
+
+    from advocc_ros.attack.task import TaskOptions
 
     node, executor, children = ros
     server = _start('heatmap_server', ros_env, f'heatmap_file:={heatmap_file}', 'task_detours:=1',

@@ -18,7 +18,6 @@ import pytest
 
 from advocc_ros.attack import AttackConfig, AttackStatus, attack, load_obstacles
 from advocc_ros.attack.solvable import CERTIFICATE, WitnessBodies, assess, probe_goal
-from advocc_ros.attack.task import TaskOptions
 from advocc_ros.heatmap import HeatmapConfig, build_heatmap, save_heatmap
 from advocc_ros.model.collision import CollisionWorld, coal_geometry
 from advocc_ros.model.robot import load_robot
@@ -97,7 +96,7 @@ def search(tmp_path, monkeypatch):
 def test_the_disk_cache_spares_the_next_process_the_search(task, tmp_path, monkeypatch, search):
     scene, robot, q0, _ = task
     first = find_witness(robot, scene.objects, q0, scene.goal)
-    (cached,) = tmp_path.iterdir()
+    (cached,) = tmp_path.glob('*.yaml')  # beside it: the task's goal sample the search used
     _new_process(monkeypatch)
     again = find_witness(robot, scene.objects, q0, scene.goal)
     assert search.calls == 1 and again is not first
@@ -105,7 +104,7 @@ def test_the_disk_cache_spares_the_next_process_the_search(task, tmp_path, monke
     # Another task (a box elsewhere) has a file of its own.
     box = make_box('elsewhere', (-0.5, 0.5, 0.2), (0.05,) * 3)
     find_witness(robot, scene.objects + (box,), q0, scene.goal)
-    assert search.calls == 2 and len(list(tmp_path.iterdir())) == 2 and cached.exists()
+    assert search.calls == 2 and len(list(tmp_path.glob('*.yaml'))) == 2 and cached.exists()
 
 
 @pytest.mark.parametrize('damage', ['garbage', 'other start', 'through a wall'])
@@ -113,7 +112,7 @@ def test_a_damaged_cache_file_costs_a_search_not_a_wrong_verdict(task, tmp_path,
                                                                  search, damage, caplog):
     scene, robot, q0, _ = task
     good = find_witness(robot, scene.objects, q0, scene.goal)
-    (path,) = tmp_path.iterdir()
+    (path,) = tmp_path.glob('*.yaml')
     if damage == 'garbage':
         path.write_text('joint_names: [\n')
     else:

@@ -210,10 +210,12 @@ def _select_task(region: SearchRegion, budget: int, seed: int, cfg: AttackConfig
         'task_approach_covered': int(covered[cover.shape[0] - len(Q_app):].sum()),
         'task_sampling_ms': round((t_sample - t0) * 1e3, 1),
         'task_cover_ms': round((t_cover - t_sample) * 1e3, 1)})
-    if len(picks) < budget and len(picks) and not rejected > cfg.max_rejections:
+    if len(picks) < budget and len(cand) and not rejected > cfg.max_rejections:
         region.stats['stop_reason'] = (
             f'{len(picks)} of {budget} boxes: no further box covers a sampled task '
-            'configuration' + (' within the goal policy' if region.guard is not None else ''))
+            'configuration' + (' within the goal policy' if region.guard is not None else '')
+            + ('' if n_goal else f' (no collision-free goal configuration in '
+               f'{goals.attempts} IK attempts)'))
     return [(cand[j], m) for j, m in zip(picks, masses)], rejected
 
 

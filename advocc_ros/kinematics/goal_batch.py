@@ -81,7 +81,7 @@ class _Region:
         self.rot_tol = np.asarray(goal.orientation_tolerance_rad) + 1e-6
 
     def contains(self, T_base_link: np.ndarray) -> np.ndarray:
-        """(N,) whether each link pose puts the tool inside the region (``GoalRegion.contains``)."""
+        """(N,) whether each link pose puts the tool in the region (``GoalRegion.contains``)."""
         T_tool = T_base_link @ self.T_link_tool
         R_c, p_c = self.T_center[:3, :3], self.T_center[:3, 3]
         p_local = (T_tool[:, :3, 3] - p_c) @ R_c

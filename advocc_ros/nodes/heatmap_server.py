@@ -3,8 +3,8 @@
 Parameters: :data:`PARAMETERS` (defaults = ``advocc_ros.attack.AttackConfig`` and
 ``RobotSpec``, the same in ``config/heatmap_server.yaml``; ``ros2 param describe``):
 ``heatmap_file`` (required), the attack parameters, the ``task`` method's options
-(``task_<option>``: ``advocc_ros.attack.task.TaskOptions``, e.g. ``task_tube_samples:=512``), the robot
-description and ``base_frame``.
+(``task_<option>``: ``advocc_ros.attack.task.TaskOptions``, e.g. ``task_tube_samples:=512``),
+the robot description and ``base_frame``.
 The values of joints outside the planning group (locked at the task's robot state, see
 ``docs/design.md``) come from ``robot_locked`` (``['joint=value', ...]``) or else from the
 heatmap file, which records the robot it was built for (a heatmap of a Panda with open fingers

@@ -17,11 +17,11 @@ floor between two checked states, e.g. a grasp in a pocket a few mm wide) is dro
 next seed tried, and when every path found was unproven, the targets are tried once more
 without simplification (shortcuts pull a path taut against the objects).
 
-A found witness is kept twice: in this process, and on disk (``model.cache.disk_cache_dir``) so that
-the next process (another ``advocc attack``, a restarted node) skips the search; a witness read
-from disk is certified again on the unattacked scene, from the task's start, before it is used,
-so a stale or damaged file costs a search, never a wrong verdict. A failed search is not kept:
-the next call searches again.
+A found witness is kept twice: in this process, and on disk (``model.cache.disk_cache_dir``)
+so that the next process (another ``advocc attack``, a restarted node) skips the search; a
+witness read from disk is certified again on the unattacked scene, from the task's start,
+before it is used, so a stale or damaged file costs a search, never a wrong verdict. A failed
+search is not kept: the next call searches again.
 
 File (``<obstacles>.witness.yaml`` beside an obstacles file): ``joint_names`` (the planned
 joints), ``waypoints`` (rad; the path is the linear interpolation in joint space between them),
@@ -36,7 +36,6 @@ import hashlib
 import json
 import logging
 import math
-import os
 import pathlib
 import typing
 
