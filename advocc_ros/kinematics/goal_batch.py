@@ -99,8 +99,10 @@ class _Region:
 
 def planner_goals(robot: RobotModel, goal: GoalRegion,
                   collisions_batch: Callable[[np.ndarray], np.ndarray], n: int, seed: int,
-                  attempts_per_sample: int = ATTEMPTS_PER_SAMPLE, config=IkConfig()) -> GoalDraw:
-    """Up to ``n`` valid goal configurations from ``seed`` (module docstring)."""
+                  attempts_per_sample: int = ATTEMPTS_PER_SAMPLE, config=IkConfig(),
+                  enough: int | None = None) -> GoalDraw:
+    """Up to ``n`` valid goal configurations from ``seed`` (module docstring); with ``enough``,
+    it stops after the first batch that brings the count to ``enough``."""
     chain = ChainKinematics(robot.model, robot.model.getFrameId(goal.link))
     if not chain.supports:
         return _one_at_a_time(robot, goal, collisions_batch, n, seed, attempts_per_sample,
@@ -110,7 +112,8 @@ def planner_goals(robot: RobotModel, goal: GoalRegion,
     seeds = seed_configurations(robot, goal)
     found, attempts, converged = [], 0, 0
     budget = attempts_per_sample * n
-    while sum(len(f) for f in found) < n and attempts < budget:
+    wanted = n if enough is None else min(enough, n)
+    while sum(len(f) for f in found) < wanted and attempts < budget:
         k = min(BATCH, budget - attempts)
         starts, iterations = _starts(robot, rng, seeds, attempts, k, config.ik_iterations)
         Q, ok = dls(chain, starts, region.random_targets(rng, k), iterations, config.ik_damping,

@@ -28,7 +28,6 @@ figures and a heatmap slice with the placed obstacles per scene, ``summary.json`
 from __future__ import annotations
 
 import collections
-import concurrent.futures
 import json
 import logging
 import os
@@ -104,7 +103,7 @@ class Orchestrator:
         self.world = None
         """``CollisionWorld`` of the current unit (scene + attack) that scores the paths."""
         self.objects_key = ''  # Scene.objects_hash() of the current unit's scene + attack
-        self.goal_lists: dict = {}  # trial seed -> future of its GoalList (current unit)
+        self.goal_lists: dict = {}  # trial seed -> its GoalList (current unit)
         self.retries: collections.Counter = collections.Counter()
         self.signals = SignalGate()
         self._t0 = time.monotonic()
@@ -273,9 +272,8 @@ class Orchestrator:
         self.pool.inject(objects)
         last_discovery = t_start = time.monotonic()
         todo = len(self.pending)
-        # The goal lists (up to 30 s each) in a thread: the shims are served meanwhile.
-        prefetch = concurrent.futures.ThreadPoolExecutor(1, thread_name_prefix='goal-lists')
-        self.goal_lists = {seed: prefetch.submit(self._goal_list, seed)
+        # The goal lists before the first trial: no search shares the cores with a victim.
+        self.goal_lists = {seed: self._goal_list(seed)
                            for seed in dict.fromkeys(t.seed for t in self.pending)}
         try:
             while self.pending or self._busy():
@@ -290,7 +288,6 @@ class Orchestrator:
                     self.pool.discover()
                 self.pool.spin(0.02)
         finally:
-            prefetch.shutdown(wait=False, cancel_futures=True)
             self.goal_lists = {}
         self.trial_phase_s += time.monotonic() - t_start
         self.trials_run += todo
@@ -482,8 +479,7 @@ class Orchestrator:
                   'min_manipulability': None, 'min_clearance_rad': None, 'jds_rad': None,
                   'unix': round(time.time(), 3)}
         # Its goal list, outside any clock (the shims' victims got the same): psr_given_goals.
-        pending = self.goal_lists.get(trial.seed)
-        found = pending.result() if pending is not None else self._goal_list(trial.seed)
+        found = self.goal_lists.get(trial.seed) or self._goal_list(trial.seed)
         record.update(goal_found=found.found, goal_attempts=found.attempts)
         if success:
             try:

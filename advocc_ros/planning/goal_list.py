@@ -1,15 +1,15 @@
 """Goal configurations found before the victim's clock: the goal list of a trial, judged fairly.
 
 A victim that takes goal configurations (MPlib, TrajOpt, ours with ``--goal-list``) can only be
-charged with its path search if it was given goals. Our ``goal_set`` works to iteration budgets
-(a few hundred IK attempts) that find nothing when an attack leaves only a sliver of the goal
-region valid, and such a trial used to count as the victim's failure. Here the list is sampled
-outside every victim's clock with a generous budget: ``goal_set`` first (the same list as
-before wherever it finds one), then, if it found none, single IK attempts from a stream of
-their own until one is valid or ``GoalListConfig.max_attempts`` attempts or ``cap_s`` seconds
-are spent, and local walks around what was found to fill K. ``attempts`` says how thin the
-valid goal set is. A trial whose list stays empty is "no goal found": the task as posed fails
-(``psr``), the victim's path search is not judged on it (``psr_given_goals``).
+charged with its path search if it was given goals. When an attack leaves only a sliver of the
+goal region valid, a small sampling budget finds none, and such a trial used to count as the
+victim's failure. Here the list is sampled outside every victim's clock with a generous budget:
+goal configurations drawn the way the planners draw theirs (``kinematics.goal_batch``, batched)
+until one is valid or ``GoalListConfig.max_attempts`` attempts are spent, then local walks
+around what was found to fill K. ``attempts`` says how thin the valid goal set is. A trial whose
+list stays empty is "no goal found": the task as posed fails (``psr``), the victim's path search
+is not judged on it (``psr_given_goals``). Callers search the lists of their trials before the
+first trial starts, so no search shares the machine with a victim's clock.
 
 The list depends on the task and the trial's seed only, so every victim of a trial gets the
 same one; lists are cached per process (``goal_list``).
@@ -30,10 +30,10 @@ class GoalListConfig:
     """Budget of the search for a trial's goal list (outside the victim's clock)."""
 
     max_attempts: int = 50_000
-    """IK attempts (random seed + damped least squares) at most, ``goal_set``'s included."""
+    """IK attempts (random seed + damped least squares) at most before the first valid goal."""
     cap_s: float = 30.0
-    """Wall-clock cap of the search [s]; the attempts, not the cap, decide on an idle machine
-    only when they run out first (a cut by the cap is reported as ``cap_hit``)."""
+    """Wall-clock cap of the walks that fill the list [s] (a cut is reported as
+    ``cap_hit``); the attempts are bounded by their count alone."""
     walks_per_goal: int = 20
     """Local walks (perturb a found goal by N(0, 0.3 rad), pull it back into the region) per
     missing goal once one goal is found (``goal_set``'s ratio)."""
@@ -46,7 +46,8 @@ class GoalList:
     configs: np.ndarray
     """(k, nq) collision-free configurations in the goal region [rad]; k = 0: none found."""
     attempts: int
-    """IK attempts made (``goal_set``'s and the extended search's; walks not counted)."""
+    """IK attempts made until the first valid goal (or all of them when none was found;
+    walks not counted)."""
     walks: int
     """Local walks made."""
     time_s: float
@@ -79,33 +80,25 @@ def goal_list(robot, world, goal, k: int, seed: int, objects_key: str,
 
 
 def _search(robot, world, goal, k: int, seed: int, config: GoalListConfig) -> GoalList:
-    from advocc_ros.kinematics.ik import GoalSampler, goal_set
+    from advocc_ros.kinematics.goal_batch import planner_goals
+    from advocc_ros.kinematics.ik import GoalSampler
 
     t0 = time.monotonic()
-    stats: dict = {}
-    found = goal_set(robot, world.collisions_batch, world.in_collision, goal, k, seed,
-                     cap_s=config.cap_s, stats=stats)
-    attempts, walks = int(stats.get('goal_ik_attempts', 0)), int(stats.get('goal_walks', 0))
-    if len(found):
-        return GoalList(found, attempts, walks, time.monotonic() - t0,
-                        bool(stats.get('goal_time_cap_hit')))
+    draw = planner_goals(robot, goal, world.collisions_batch, k, int(seed) % 2 ** 63,
+                         attempts_per_sample=max(config.max_attempts // max(k, 1), 1),
+                         enough=1)
+    out = list(draw.Q)
     sampler = GoalSampler(robot, world.in_collision, goal,
                           np.random.default_rng([int(seed) % 2 ** 63, 1]))
-    deadline = t0 + config.cap_s
-    out: list[np.ndarray] = []
-    while not out and attempts < config.max_attempts and time.monotonic() < deadline:
-        attempts += 1
-        q = sampler.attempt()
-        if q is not None:
-            out.append(q)
     rng = np.random.default_rng([int(seed) % 2 ** 63, 2])
-    budget = config.walks_per_goal * k
-    while out and len(out) < k and walks < budget and time.monotonic() < deadline:
+    deadline, walks = t0 + config.cap_s, 0
+    while out and len(out) < k and walks < config.walks_per_goal * k \
+            and time.monotonic() < deadline:
         walks += 1
         q = sampler.pull(out[int(rng.integers(len(out)))] + rng.normal(0.0, 0.3, robot.nq),
                          GoalSampler.walk_iterations)
         if q is not None and not world.in_collision(q):
             out.append(q)
     cap_hit = time.monotonic() >= deadline and len(out) < k
-    return GoalList(np.array(out).reshape(-1, robot.nq), attempts, walks,
+    return GoalList(np.array(out).reshape(-1, robot.nq), draw.attempts, walks,
                     time.monotonic() - t0, cap_hit)
