@@ -76,10 +76,12 @@ def goal_list(robot, world, goal, k: int, seed: int, objects_key: str,
     cached per (robot, ``objects_key`` = ``Scene.objects_hash()`` of ``world``'s scene, goal,
     k, seed, config)."""
     key = (robot.hash, objects_key, repr(goal.to_data()), int(k), int(seed), config)
-    return _CACHE.get_or_make(key, lambda: _search(robot, world, goal, k, seed, config))
+    return _CACHE.get_or_make(key, lambda: search_goal_list(robot, world, goal, k, seed, config))
 
 
-def _search(robot, world, goal, k: int, seed: int, config: GoalListConfig) -> GoalList:
+def search_goal_list(robot, world, goal, k: int, seed: int,
+                     config: GoalListConfig = GoalListConfig()) -> GoalList:
+    """:func:`goal_list` without the cache."""
     from advocc_ros.kinematics.goal_batch import planner_goals
     from advocc_ros.kinematics.ik import GoalSampler
 

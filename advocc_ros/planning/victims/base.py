@@ -95,10 +95,10 @@ class Victim(Protocol):
 
 def goal_configurations(robot, world, goal: GoalRegion, k: int, seed: int) -> np.ndarray:
     """(<= k, nq) collision-free goal configurations in ``goal`` for ``world`` (our model, with
-    the boxes), from ``seed`` alone with ``goal_set``'s iteration budgets only (the victims get
-    :meth:`Task.goal_list`, which searches on where this finds none)."""
-    from advocc_ros.kinematics.ik import goal_set
-    return goal_set(robot, world.collisions_batch, world.in_collision, goal, k, seed)
+    the boxes), from ``seed`` alone: the configurations of the trial's goal list
+    (:meth:`Task.goal_list`), searched again."""
+    from advocc_ros.planning.goal_list import search_goal_list
+    return search_goal_list(robot, world, goal, k, seed).configs
 
 
 def densify(path: np.ndarray, step_rad: float) -> np.ndarray:
