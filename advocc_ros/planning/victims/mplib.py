@@ -31,27 +31,17 @@ from advocc_ros.model.collision import CollisionWorld
 from advocc_ros.model.robot import RobotModel, example_robot_data_share, resolve_path
 from advocc_ros.planning.types import PlanResult, PlanStatus, failed
 from advocc_ros.planning.victims.base import Task, VictimConfig, path_length_rad
-from advocc_ros.planning.victims.outside import OutsideVictim
+from advocc_ros.planning.victims.outside import OutsideVictim, venv_python
 from advocc_ros.planning.worker import WorkerDied
 
 PYTHON_ENV = 'ADVOCC_MPLIB_PYTHON'
 WORKER_SCRIPT = pathlib.Path(__file__).with_name('mplib_worker.py')
-_CHECKOUT = pathlib.Path(__file__).resolve().parents[3]
-
-
-class VictimUnavailable(ValueError):
-    """The victim's interpreter or library is not installed."""
 
 
 def mplib_python(config: VictimConfig = VictimConfig()) -> pathlib.Path:
     """The MPlib venv's interpreter (``VictimConfig.mplib_python``, ``$ADVOCC_MPLIB_PYTHON``,
-    the checkout's ``.venv-mplib``), or ``VictimUnavailable`` saying how to make it."""
-    path = pathlib.Path(config.mplib_python or os.environ.get(PYTHON_ENV)
-                        or _CHECKOUT / '.venv-mplib' / 'bin' / 'python')
-    if not path.is_file():
-        raise VictimUnavailable(f'MPlib victim: no interpreter at {path}; run `make install` '
-                                f'(it creates .venv-mplib) or set {PYTHON_ENV}')
-    return path
+    the checkout's ``.venv-mplib``)."""
+    return venv_python(config.mplib_python, PYTHON_ENV, '.venv-mplib', 'MPlib victim')
 
 
 def _cache_dir() -> pathlib.Path:

@@ -21,27 +21,18 @@ import numpy as np
 from advocc_ros.planning.types import PlanResult, PlanStatus, failed
 from advocc_ros.planning.victims.base import Task, VictimConfig, first_collision_along
 from advocc_ros.planning.victims.ompl import OmplVictim
+from advocc_ros.planning.victims.outside import venv_python
 from advocc_ros.planning.worker import Planner
 
 PYTHON_ENV = 'ADVOCC_OMPL2_PYTHON'
 PLANNERS = {'aorrtc': 'AORRTC', 'rrtconnect2': 'RRTConnect'}
 """Victim name -> OMPL 2 planner class."""
-_CHECKOUT = pathlib.Path(__file__).resolve().parents[3]
-
-
-class VictimUnavailable(ValueError):
-    """The OMPL 2 venv is not installed."""
 
 
 def ompl2_python(config: VictimConfig = VictimConfig()) -> pathlib.Path:
     """The OMPL 2 venv's interpreter (``VictimConfig.ompl2_python``, ``$ADVOCC_OMPL2_PYTHON``,
-    the checkout's ``.venv-ompl2``), or ``VictimUnavailable`` saying how to make it."""
-    path = pathlib.Path(config.ompl2_python or os.environ.get(PYTHON_ENV)
-                        or _CHECKOUT / '.venv-ompl2' / 'bin' / 'python')
-    if not path.is_file():
-        raise VictimUnavailable(f'OMPL 2 victims: no interpreter at {path}; run `make install` '
-                                f'(it creates .venv-ompl2) or set {PYTHON_ENV}')
-    return path
+    the checkout's ``.venv-ompl2``)."""
+    return venv_python(config.ompl2_python, PYTHON_ENV, '.venv-ompl2', 'OMPL 2 victims')
 
 
 def source_path() -> pathlib.Path:

@@ -14,6 +14,8 @@ how to read its answer.
 from __future__ import annotations
 
 import logging
+import os
+import pathlib
 import threading
 import time
 
@@ -25,7 +27,23 @@ from advocc_ros.planning.types import PlanResult, PlanStatus, failed, validate_r
 from advocc_ros.planning.victims.base import Task, VictimConfig, first_collision_along
 from advocc_ros.planning.worker import WorkerDied, WorkerSlot, WorkerProcess
 
+_CHECKOUT = pathlib.Path(__file__).resolve().parents[3]
+
 log = logging.getLogger(__name__)
+
+
+class VictimUnavailable(ValueError):
+    """The victim's interpreter or library is not installed."""
+
+
+def venv_python(configured: str, env: str, venv: str, label: str) -> pathlib.Path:
+    """An outside victim's interpreter: ``configured`` (its ``VictimConfig`` field), else
+    ``$env``, else the checkout's ``venv``; ``VictimUnavailable`` saying how to make it."""
+    path = pathlib.Path(configured or os.environ.get(env) or _CHECKOUT / venv / 'bin' / 'python')
+    if not path.is_file():
+        raise VictimUnavailable(f'{label}: no interpreter at {path}; run `make install` '
+                                f'(it creates {venv}) or set {env}')
+    return path
 
 
 class OutsideVictim:
