@@ -6,7 +6,7 @@ from __future__ import annotations
 import dataclasses
 import logging
 import math
-from typing import Any
+from typing import Any, Protocol
 
 import coal
 import numba
@@ -46,6 +46,17 @@ def robot_occupancy(robot: RobotModel, placements: list[pin.SE3], grid: VoxelGri
 
 
 @dataclasses.dataclass
+class Guard(Protocol):
+    """A goal policy's check of each pick (``attack.goals.GoalGuard`` under ``reachable``,
+    ``attack.solvable.WitnessGuard`` under ``solvable``)."""
+
+    reason: str
+    """Why a refused box is refused (the rejection's log line)."""
+
+    def admit(self, center_m: np.ndarray) -> bool:
+        """Whether the box at ``center_m`` may be placed (a guard may count it as placed)."""
+
+
 class SearchRegion:
     """Candidates and masses over a window ``[lo, hi)`` of the heatmap grid, plus the exact
     checker for boxes. Build it with :func:`search_region`."""
@@ -65,9 +76,9 @@ class SearchRegion:
     stats: dict
     lut_pitch_m: float
     """Pitch of the heatmap's link look-up tables [m]: rasterize the robot as the build did."""
-    guard: Any = None
-    """The goal policy's guard (set by ``attack``): ``GoalGuard`` (``reachable``, commits the
-    boxes it accepts) or ``WitnessGuard`` (``solvable``); ``admit(center_m)`` and ``reason``."""
+    guard: Guard | None = None
+    """The goal policy's guard (``attack`` sets it on the region it built: the witness guard
+    prunes the region's candidates first); None under ``paper``."""
     weight_config: HeatmapConfig = HeatmapConfig()
     """w(q)'s parameters, the heatmap's own (methods that weigh configurations use them)."""
 
