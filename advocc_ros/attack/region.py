@@ -45,7 +45,6 @@ def robot_occupancy(robot: RobotModel, placements: list[pin.SE3], grid: VoxelGri
         np.zeros(tuple(hi - lo), dtype=bool), origin, grid.voxel_m, R, t, links)
 
 
-@dataclasses.dataclass
 class Guard(Protocol):
     """A goal policy's check of each pick (``attack.goals.GoalGuard`` under ``reachable``,
     ``attack.solvable.WitnessGuard`` under ``solvable``)."""
@@ -57,6 +56,7 @@ class Guard(Protocol):
         """Whether the box at ``center_m`` may be placed (a guard may count it as placed)."""
 
 
+@dataclasses.dataclass
 class SearchRegion:
     """Candidates and masses over a window ``[lo, hi)`` of the heatmap grid, plus the exact
     checker for boxes. Build it with :func:`search_region`."""
