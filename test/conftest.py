@@ -4,14 +4,26 @@ ROS domain per test and an rclpy client on it."""
 import os
 import pathlib
 import random
+import shutil
 
 import numpy as np
 import pytest
 
 REPO = pathlib.Path(__file__).resolve().parents[1]
+CHROMIUM = shutil.which('chromium')
+"""Debian's headless Chromium, which draws the 3D page and Planner Arena (``.ci/run``
+installs it)."""
 FAST_LANE_ENV = 'ADVOCC_FAST_LANE'
 """Set by ``make test-fast``: tests marked ``processes`` are deselected, and any other test that
 starts a process fails, naming itself, so the marks stay true."""
+
+
+def needs_chromium():
+    """Skip the calling test, saying why, on a machine without Chromium."""
+    if CHROMIUM is None:
+        reason = 'chromium is not installed (apt-get install -y chromium; .ci/run does)'
+        print(f'skipped: {reason}')
+        pytest.skip(reason)
 
 
 def pytest_configure(config):

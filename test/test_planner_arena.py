@@ -22,11 +22,11 @@ import pytest
 from advocc_ros.bench.arena import STATUS, write_ompl_results
 from advocc_ros.bench.protocol import BenchConfig, trial_key
 from advocc_ros.evaluation.runner import evaluate_planner
+from conftest import CHROMIUM, needs_chromium
 
 REPO = pathlib.Path(__file__).resolve().parents[1]
 ARENA_PYTHON = REPO / '.venv-arena' / 'bin' / 'python'
 OMPL_STATISTICS = REPO / '.venv-ompl2' / 'bin' / 'ompl_benchmark_statistics'
-CHROMIUM = shutil.which('chromium')
 PAGE_DRIVER = pathlib.Path(__file__).with_name('arena_page.py')
 VICTIMS = ('rrtconnect', 'bkpiece1', 'aorrtc')
 TRIALS = 3
@@ -118,8 +118,7 @@ def _free_port() -> int:
 @pytest.mark.processes
 def test_planner_arena_page_draws_the_benchmark_in_chromium(run_dir, tmp_path):
     _needs(ARENA_PYTHON, 'Planner Arena')
-    if CHROMIUM is None:
-        pytest.skip('chromium is not installed (apt-get install -y chromium; .ci/run does)')
+    needs_chromium()
     out, _ = run_dir
     port = _free_port()
     env = dict(os.environ, DATABASE=str(out / 'benchmark.db'))

@@ -17,18 +17,11 @@ import pytest
 import yaml
 
 from advocc_ros.cli import main as advocc
+from conftest import CHROMIUM, needs_chromium
 
-CHROMIUM = shutil.which('chromium')
 WINDOW = (1200, 800)
 SIDE_PX = 340
 """Width of the page's side panel: the viewer is to its right."""
-
-
-def needs_chromium():
-    if CHROMIUM is None:
-        reason = 'chromium is not installed (apt-get install -y chromium; .ci/run does)'
-        print(f'test_view: skipped: {reason}')
-        pytest.skip(reason)
 
 
 def _chromium(page: pathlib.Path, *flags: str, window=WINDOW, budget_ms: int = 10000) -> str:

@@ -63,7 +63,7 @@ def _core(heatmap, robot, scene, q, budgets, method, repeats, policy='paper',
     from advocc_ros.model.cache import CACHE_ENV, clear_task_caches
     from advocc_ros.planning.witness import WITNESSES
 
-    def run(seed: int):
+    def run(budget: int, seed: int):
         t0 = time.perf_counter()
         res = attack_task(heatmap, robot, scene.objects, q, scene.goal, budget, method,
                           seed=seed, goal_policy=policy, method_options=options)
@@ -71,8 +71,7 @@ def _core(heatmap, robot, scene, q, budgets, method, repeats, policy='paper',
             raise UserError(f'attack failed: {res.status.value}: {res.message}')
         return res, time.perf_counter() - t0
 
-    budget = budgets[0]
-    run(0)  # models, JIT
+    run(budgets[0], 0)  # models, JIT
     out = {}
     saved = os.environ.get(CACHE_ENV)
     try:
@@ -83,8 +82,8 @@ def _core(heatmap, robot, scene, q, budgets, method, repeats, policy='paper',
                     os.environ[CACHE_ENV] = empty
                     clear_task_caches()
                     WITNESSES.clear()
-                    cold.append(run(rep)[1])
-                    res, wall = run(rep)
+                    cold.append(run(budget, rep)[1])
+                    res, wall = run(budget, rep)
                 warm.append(wall)
                 compute.append(res.compute_s)
             out[str(budget)] = {'cold': _stats_ms(cold), 'warm': _stats_ms(warm),

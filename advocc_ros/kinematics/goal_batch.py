@@ -106,7 +106,7 @@ def planner_goals(robot: RobotModel, goal: GoalRegion,
     chain = ChainKinematics(robot.model, robot.model.getFrameId(goal.link))
     if not chain.supports:
         return _one_at_a_time(robot, goal, collisions_batch, n, seed, attempts_per_sample,
-                              config)
+                              config, n if enough is None else min(enough, n))
     region = _Region(robot, goal)
     rng = np.random.default_rng(seed)
     seeds = seed_configurations(robot, goal)
@@ -217,12 +217,14 @@ def _starts(robot: RobotModel, rng: np.random.Generator, seeds: np.ndarray, firs
     return starts, iterations
 
 
-def _one_at_a_time(robot, goal, collisions_batch, n, seed, attempts_per_sample, config):
-    """The same draw through ``GoalSampler`` for chains ``kinematics.batch`` does not model."""
+def _one_at_a_time(robot, goal, collisions_batch, n, seed, attempts_per_sample, config,
+                   wanted):
+    """The same draw through ``GoalSampler`` for chains ``kinematics.batch`` does not model
+    (stops at ``wanted`` valid ones)."""
     sampler = GoalSampler(robot, lambda q: bool(collisions_batch(q[None])[0]), goal,
                           np.random.default_rng(seed), config)
     found = []
-    while len(found) < n and sampler.attempts < attempts_per_sample * n:
+    while len(found) < wanted and sampler.attempts < attempts_per_sample * n:
         q = sampler.attempt()
         if q is not None:
             found.append(q)

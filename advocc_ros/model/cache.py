@@ -21,6 +21,13 @@ CACHE_ENV = 'ADVOCC_WITNESS_CACHE'
 """Environment variable: the on-disk cache's directory, or ``off``."""
 
 
+def user_cache_root() -> pathlib.Path:
+    """The user's cache folder of this tool: ``$XDG_CACHE_HOME/advocc_ros`` (default
+    ``~/.cache/advocc_ros``)."""
+    base = os.environ.get('XDG_CACHE_HOME') or pathlib.Path.home() / '.cache'
+    return pathlib.Path(base) / 'advocc_ros'
+
+
 def disk_cache_dir() -> pathlib.Path | None:
     """Where a task's witness and goal sample are kept between processes:
     ``$ADVOCC_WITNESS_CACHE`` (``off``: nowhere), by default
@@ -31,8 +38,7 @@ def disk_cache_dir() -> pathlib.Path | None:
         return None
     if value:
         return pathlib.Path(value)
-    base = os.environ.get('XDG_CACHE_HOME') or pathlib.Path.home() / '.cache'
-    return pathlib.Path(base) / 'advocc_ros' / 'witness'
+    return user_cache_root() / 'witness'
 
 
 class BoundedCache(Generic[V]):

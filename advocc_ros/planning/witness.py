@@ -290,8 +290,8 @@ def _search(robot: RobotModel, world: CollisionWorld, objects: tuple[SceneObject
     (``END_TIME_S`` each), then to the region (``time_s``), each target on seeds
     ``WITNESS_SEED``, + 1, ... (up to ``WITNESS_TRIES``) until the certificate proves a path;
     a target without a path is left (another seed would spend its budget too). Simplified
-    paths first; when paths were found but none proven (pulled taut against an object), once
-    more without simplification."""
+    paths first; the targets whose paths were all unproven (pulled taut against an object)
+    once more without simplification."""
     from advocc_ros.planning.worker import Planner
 
     targets = [(end, END_TIME_S) for end in rare_clear_ends(robot, world, objects, goal)]
@@ -302,7 +302,7 @@ def _search(robot: RobotModel, world: CollisionWorld, objects: tuple[SceneObject
         config = PlanningConfig(time_budget_s=time_s, motion_step_rad=WITNESS_STEP_RAD,
                                 stop_at_first_solution=True, simplify=simplify,
                                 interpolate=False)
-        unproven = False
+        unproven = []
         with Planner(scene, config) as planner:
             for q_end, budget in targets:
                 for seed in range(WITNESS_SEED, WITNESS_SEED + WITNESS_TRIES):
@@ -312,11 +312,13 @@ def _search(robot: RobotModel, world: CollisionWorld, objects: tuple[SceneObject
                     why = certify(robot, world, goal, witness, q_init, shape_names=names).why
                     if why is None:
                         return witness
-                    unproven = True
                     log.info('witness search (seed %d, %s): the path is not proven on the '
                              'unattacked scene: %s', seed, witness.source.get('target'), why)
+                    if not unproven or unproven[-1][0] is not q_end:
+                        unproven.append((q_end, budget))
         if not unproven:
             return None
+        targets = unproven
     log.warning('no witness: every path found grazed an object closer than the certificate\'s '
                 'floor')
     return None

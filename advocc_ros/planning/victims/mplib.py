@@ -29,6 +29,7 @@ import numpy as np
 from advocc_ros.fileio import atomic_write_text
 from advocc_ros.model.collision import CollisionWorld
 from advocc_ros.model.robot import RobotModel, example_robot_data_share, resolve_path
+from advocc_ros.model.cache import user_cache_root
 from advocc_ros.planning.types import PlanResult, PlanStatus, failed
 from advocc_ros.planning.victims.base import Task, VictimConfig, path_length_rad
 from advocc_ros.planning.victims.outside import OutsideVictim, venv_python
@@ -45,8 +46,7 @@ def mplib_python(config: VictimConfig = VictimConfig()) -> pathlib.Path:
 
 
 def _cache_dir() -> pathlib.Path:
-    base = os.environ.get('XDG_CACHE_HOME') or pathlib.Path.home() / '.cache'
-    return pathlib.Path(base) / 'advocc_ros' / 'mplib'
+    return user_cache_root() / 'mplib'
 
 
 def mplib_urdf(robot: RobotModel, cache_dir: pathlib.Path | None = None) -> pathlib.Path:

@@ -18,6 +18,7 @@ import pathlib
 
 import numpy as np
 
+from advocc_ros.model.cache import user_cache_root
 from advocc_ros.planning.types import PlanResult, PlanStatus, failed
 from advocc_ros.planning.victims.base import Task, VictimConfig, first_collision_along
 from advocc_ros.planning.victims.ompl import OmplVictim
@@ -43,8 +44,7 @@ def source_path() -> pathlib.Path:
     package = pathlib.Path(__file__).resolve().parents[2]
     if not any((package.parent / name).exists() for name in ('ompl', 'numpy', 'pinocchio')):
         return package.parent
-    base = pathlib.Path(os.environ.get('XDG_CACHE_HOME') or pathlib.Path.home() / '.cache')
-    folder = base / 'advocc_ros' / 'ompl2' / hashlib.sha256(str(package).encode()).hexdigest()[:16]
+    folder = user_cache_root() / 'ompl2' / hashlib.sha256(str(package).encode()).hexdigest()[:16]
     link = folder / package.name
     if not link.exists():
         folder.mkdir(parents=True, exist_ok=True)
