@@ -195,7 +195,7 @@ def _prefix_one_is_the_one_box_attack(audit, scene, heatmap, cfg):
     assert not [b for b in audit['budgets'] if 'boxes' in b]  # no prefix is an attack of its own
     robot = load_robot(scene.robot)
     q_init = start_configuration(scene, robot)
-    witness = task_witness(robot, scene.objects, q_init, scene.goal).witness
+    witness = task_witness(robot, scene.objects, q_init, scene.goal).witnesses
     one = attack(heatmap, robot, scene.objects, q_init, scene.goal, 1, 'task', seed=cfg.seed,
                  goal_policy='solvable', witness=witness, method_options=cfg.task_options)
     assert audit['boxes'][0]['center_m'] == [round(float(v), 4) for v in one.centers_m[0]]

@@ -2,7 +2,7 @@
 
 Each test here fails on the code before it (HEAD ec4ef43): the old ``certify`` checked states
 0.005 rad apart, ignored a missing locked joint (NaN compares False), took the start as an
-option, and ``find_witness`` kept a failed search for the process's lifetime.
+option, and the witness search kept a failed search for the process's lifetime.
 """
 
 import numpy as np
@@ -16,7 +16,7 @@ from advocc_ros.model.robot import load_robot
 from advocc_ros.model.scene import make_box
 from advocc_ros.planning import witness as witness_mod
 from advocc_ros.planning.certificate import CertificateConfig, certify_path
-from advocc_ros.planning.witness import Witness, certify, find_witness, witness_states
+from advocc_ros.planning.witness import Witness, certify, find_witnesses, witness_states
 
 OLD_STEP_RAD = 0.005
 """The step of the old per-state check."""
@@ -168,13 +168,13 @@ def test_a_failed_search_is_not_kept(task, monkeypatch, tmp_path):
     scene, robot, q0, witness = task
     monkeypatch.setenv(witness_mod.CACHE_ENV, str(tmp_path))
     witness_mod.WITNESSES.clear()
-    calls, answers = [], [None, witness]
+    calls, answers = [], [(), (witness,)]
     monkeypatch.setattr(witness_mod, '_search', lambda *a: calls.append(a) or answers.pop(0))
-    assert find_witness(robot, scene.objects, q0, scene.goal) is None
+    assert find_witnesses(robot, scene.objects, q0, scene.goal) == ()
     assert len(calls) == 1 and not list(tmp_path.iterdir())  # no path: no other seed either
-    again = find_witness(robot, scene.objects, q0, scene.goal)  # searches again
-    assert again is witness and len(calls) == 2
-    assert find_witness(robot, scene.objects, q0, scene.goal) is witness  # now kept
+    again = find_witnesses(robot, scene.objects, q0, scene.goal)  # searches again
+    assert again == (witness,) and len(calls) == 2
+    assert find_witnesses(robot, scene.objects, q0, scene.goal)[0] is witness  # now kept
     assert len(calls) == 2 and len(list(tmp_path.iterdir())) == 1
 
 
@@ -200,7 +200,7 @@ def test_an_unproven_path_is_dropped_for_the_next_seed(task, monkeypatch):
     down = np.insert(witness.waypoints, 1, q0 + np.array([0, 1.2, 0, 0, 0, 1.5, 0]), 0)
     bad = Witness(witness.joint_names, down, witness.locked)
     runs = _scripted_runs(monkeypatch, robot, [bad, witness])
-    assert find_witness(robot, scene.objects, q0, scene.goal) is witness
+    assert find_witnesses(robot, scene.objects, q0, scene.goal) == (witness,)
     assert runs == [(witness_mod.WITNESS_SEED, True), (witness_mod.WITNESS_SEED + 1, True)]
 
 
@@ -215,7 +215,7 @@ def test_unproven_simplified_paths_are_searched_again_unsimplified(task, monkeyp
     bad = Witness(witness.joint_names, down, witness.locked)
     tries = witness_mod.WITNESS_TRIES
     runs = _scripted_runs(monkeypatch, robot, [bad] * tries + [witness])
-    assert find_witness(robot, scene.objects, q0, scene.goal) is witness
+    assert find_witnesses(robot, scene.objects, q0, scene.goal) == (witness,)
     assert [simplified for _, simplified in runs] == [True] * tries + [False]
 
 

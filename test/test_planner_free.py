@@ -68,12 +68,12 @@ def test_attack_under_paper_and_reachable_starts_no_process(table, no_process, m
 def witness(table):
     """The task's witness, found as the edges find it (a planning worker), before any test
     forbids processes."""
-    from advocc_ros.planning.witness import find_witness
+    from advocc_ros.planning.witness import find_witnesses
 
     heatmap, robot, scene, q = table
-    found = find_witness(robot, scene.objects, q, scene.goal)
-    assert found is not None
-    return found
+    found = find_witnesses(robot, scene.objects, q, scene.goal)
+    assert found
+    return found[0]
 
 
 @pytest.mark.processes  # the witness fixture's search (a planning worker)
@@ -167,8 +167,8 @@ def test_edge_attack_task_finds_the_witness_only_when_needed(table, monkeypatch)
 
     heatmap, robot, scene, q = table
     searches = []
-    real = witness_module.find_witness
-    monkeypatch.setattr(witness_module, 'find_witness',
+    real = witness_module.find_witnesses
+    monkeypatch.setattr(witness_module, 'find_witnesses',
                         lambda *a, **k: searches.append(1) or real(*a, **k))
     paper = attack_task(heatmap, robot, scene.objects, q, scene.goal, 2, 'ours')
     assert searches == [] and paper.witness is None

@@ -24,7 +24,7 @@ from advocc_ros.model.robot import load_robot
 from advocc_ros.model.pose import SceneError
 from advocc_ros.model.scene import make_box
 from advocc_ros.planning import witness as witness_mod
-from advocc_ros.planning.witness import (Witness, certify, find_witness, load_witness,
+from advocc_ros.planning.witness import (Witness, certify, find_witnesses, load_witness,
                                          save_witness, witness_file, witness_states)
 
 pytestmark = pytest.mark.processes  # nodes, workers or CLI runs
@@ -60,9 +60,9 @@ def independent_collisions(robot, objects, Q) -> np.ndarray:
 def test_witness_search_is_deterministic_for_a_seed(task, monkeypatch):
     scene, robot, q0, _ = task
     monkeypatch.setenv(witness_mod.CACHE_ENV, 'off')  # two searches, not one and a file
-    first = find_witness(robot, scene.objects, q0, scene.goal)
+    first = find_witnesses(robot, scene.objects, q0, scene.goal)[0]
     witness_mod.WITNESSES.clear()
-    again = find_witness(robot, scene.objects, q0, scene.goal)
+    again = find_witnesses(robot, scene.objects, q0, scene.goal)[0]
     assert first is not None and again is not first
     assert np.array_equal(first.waypoints, again.waypoints)
     assert first.locked == robot.locked_values and first.joint_names == robot.joint_names
@@ -95,15 +95,15 @@ def search(tmp_path, monkeypatch):
 
 def test_the_disk_cache_spares_the_next_process_the_search(task, tmp_path, monkeypatch, search):
     scene, robot, q0, _ = task
-    first = find_witness(robot, scene.objects, q0, scene.goal)
+    first = find_witnesses(robot, scene.objects, q0, scene.goal)[0]
     (cached,) = tmp_path.glob('*.yaml')  # beside it: the task's goal sample the search used
     _new_process(monkeypatch)
-    again = find_witness(robot, scene.objects, q0, scene.goal)
+    again = find_witnesses(robot, scene.objects, q0, scene.goal)[0]
     assert search.calls == 1 and again is not first
     np.testing.assert_array_equal(again.waypoints, first.waypoints)  # the same boxes follow
     # Another task (a box elsewhere) has a file of its own.
     box = make_box('elsewhere', (-0.5, 0.5, 0.2), (0.05,) * 3)
-    find_witness(robot, scene.objects + (box,), q0, scene.goal)
+    find_witnesses(robot, scene.objects + (box,), q0, scene.goal)
     assert search.calls == 2 and len(list(tmp_path.glob('*.yaml'))) == 2 and cached.exists()
 
 
@@ -111,7 +111,7 @@ def test_the_disk_cache_spares_the_next_process_the_search(task, tmp_path, monke
 def test_a_damaged_cache_file_costs_a_search_not_a_wrong_verdict(task, tmp_path, monkeypatch,
                                                                  search, damage, caplog):
     scene, robot, q0, _ = task
-    good = find_witness(robot, scene.objects, q0, scene.goal)
+    good = find_witnesses(robot, scene.objects, q0, scene.goal)[0]
     (path,) = tmp_path.glob('*.yaml')
     if damage == 'garbage':
         path.write_text('joint_names: [\n')
@@ -121,12 +121,14 @@ def test_a_damaged_cache_file_costs_a_search_not_a_wrong_verdict(task, tmp_path,
             waypoints[0, 0] += 0.1
         else:  # the middle waypoint pushed down through the table
             waypoints = np.insert(waypoints, 1, q0 + np.array([0, 1.2, 0, 0, 0, 1.5, 0]), 0)
-        save_witness(path, Witness(good.joint_names, waypoints, good.locked, good.source))
+        witness_mod._to_disk(path, (Witness(good.joint_names, waypoints, good.locked,
+                                            good.source),))
     _new_process(monkeypatch)
-    again = find_witness(robot, scene.objects, q0, scene.goal)
+    again = find_witnesses(robot, scene.objects, q0, scene.goal)[0]
     assert search.calls == 2 and 'witness cache' in caplog.text
     np.testing.assert_allclose(again.waypoints, good.waypoints, atol=1e-12)
-    assert load_witness(path).waypoints.shape == good.waypoints.shape  # replaced
+    assert witness_mod._from_disk(path, robot, CollisionWorld(robot, scene.shapes), q0,
+                                  scene.goal)[0].waypoints.shape == good.waypoints.shape
 
 
 def test_attack_cli_reuses_the_witness_of_an_earlier_run(task, tmp_path):
@@ -153,12 +155,42 @@ def test_attack_cli_reuses_the_witness_of_an_earlier_run(task, tmp_path):
     np.testing.assert_allclose(runs[1][2], runs[0][2], atol=1e-12)
 
 
+def test_the_policy_keeps_the_candidate_that_shields_the_fewest_goals(task):
+    """Of the search's candidates, the kept witness is the one whose guard leaves the boxes
+    the most goal samples to cut, whatever the candidates' order; and the boxes placed with it
+    leave no more of the task's goal sample valid than those placed with the worst one."""
+    from advocc_ros.kinematics.goal_batch import task_goals
+
+    scene, robot, q0, heatmap = task
+    witnesses = find_witnesses(robot, scene.objects, q0, scene.goal)
+    assert len(witnesses) >= 2
+    results = [attack(heatmap, robot, scene.objects, q0, scene.goal, 10, 'task',
+                      goal_policy='solvable', witness=order, certify=False)
+               for order in (witnesses, witnesses[::-1])]
+    shielded = results[0].stats['witness_shielded']
+    assert len(shielded) == len(witnesses) and shielded[results[0].stats['witness_kept']] \
+        == min(shielded) < max(shielded), shielded
+    assert results[1].stats['witness_shielded'] == shielded[::-1]
+    if shielded.count(min(shielded)) == 1:
+        assert results[0].witness is results[1].witness
+    goals = task_goals(robot, scene.objects, scene.goal).Q
+
+    def valid_goals(witness):
+        boxes = attack(heatmap, robot, scene.objects, q0, scene.goal, 10, 'task',
+                       goal_policy='solvable', witness=witness, certify=False).obstacles
+        world = CollisionWorld(robot, [sh for o in scene.objects + boxes for sh in o.shapes])
+        return int((~world.collisions_batch(goals, 1)).sum())
+
+    worst = witnesses[int(np.argmax(shielded))]
+    assert valid_goals(results[0].witness) <= valid_goals(worst)
+
+
 @pytest.mark.parametrize('method', ['task', 'random', 'ours'])
 def test_solvable_attacks_stay_certified_under_an_independent_check(task, method):
     scene, robot, q0, heatmap = task
-    witness = find_witness(robot, scene.objects, q0, scene.goal)
+    witnesses = find_witnesses(robot, scene.objects, q0, scene.goal)
     result = attack(heatmap, robot, scene.objects, q0, scene.goal, 10, method,
-                    goal_policy='solvable', seed=3, witness=witness)
+                    goal_policy='solvable', seed=3, witness=witnesses)
     assert result.status.ok and len(result.obstacles) >= 5, result.message
     assert result.solvable.verdict == 'certified', result.solvable.message
     states = WitnessBodies(robot, CollisionWorld(robot), result.witness).states
@@ -176,7 +208,7 @@ def test_solvable_attacks_stay_certified_under_an_independent_check(task, method
 
 def test_the_paper_policy_blocks_the_goal_and_says_so(task):
     scene, robot, q0, heatmap = task
-    witness = find_witness(robot, scene.objects, q0, scene.goal)
+    witness = find_witnesses(robot, scene.objects, q0, scene.goal)[0]
     result = attack(heatmap, robot, scene.objects, q0, scene.goal, 5, 'task', seed=3,
                     witness=witness)
     verdict = result.solvable
@@ -188,7 +220,7 @@ def test_the_paper_policy_blocks_the_goal_and_says_so(task):
 
 def test_certify_finds_a_box_on_the_witness(task):
     scene, robot, q0, _ = task
-    witness = find_witness(robot, scene.objects, q0, scene.goal)
+    witness = find_witnesses(robot, scene.objects, q0, scene.goal)[0]
     states = witness_states(witness.configurations(robot))
     k = len(states) // 2
     data = robot.create_data()
@@ -217,7 +249,7 @@ def test_goal_probe_is_reproducible(task):
 
 def test_witness_file_round_trip_and_errors(tmp_path, task):
     scene, robot, q0, _ = task
-    witness = find_witness(robot, scene.objects, q0, scene.goal)
+    witness = find_witnesses(robot, scene.objects, q0, scene.goal)[0]
     path = witness_file(tmp_path / 'obs.yaml')
     assert path.name == 'obs.witness.yaml'
     save_witness(path, witness)
@@ -239,7 +271,7 @@ def test_witness_file_round_trip_and_errors(tmp_path, task):
 
 def test_solvable_is_refused_for_planner_in_the_loop_methods(task):
     scene, robot, q0, heatmap = task
-    witness = find_witness(robot, scene.objects, q0, scene.goal)
+    witness = find_witnesses(robot, scene.objects, q0, scene.goal)[0]
     result = attack(heatmap, robot, scene.objects, q0, scene.goal, 2, 'pfa',
                     goal_policy='solvable', witness=witness)
     assert result.status == AttackStatus.INVALID_REQUEST and 'solvable' in result.message
@@ -272,7 +304,7 @@ def test_tube_samples_surround_the_witness_and_are_valid(task):
     from advocc_ros.attack.task import tube_samples
 
     scene, robot, q0, _ = task
-    witness = find_witness(robot, scene.objects, q0, scene.goal)
+    witness = find_witnesses(robot, scene.objects, q0, scene.goal)[0]
     states = witness_states(witness.configurations(robot))
     world = CollisionWorld(robot, scene.shapes)
     Q = tube_samples(world, states, 200, 0.2, np.random.default_rng(0))

@@ -49,12 +49,14 @@ from typing import Any
 import numpy as np
 
 from advocc_ros.attack.goals import GoalGuard, goal_samples
-from advocc_ros.attack.solvable import WitnessGuard, assess, witness_bodies
+from advocc_ros.attack.solvable import (WitnessGuard, assess, choose_witness, witness_bodies,
+                                        witness_candidates)
 from advocc_ros.attack.methods import CONTEXT_METHODS, METHODS, MethodContext, load_method
 from advocc_ros.attack.region import search_region
 from advocc_ros.attack.types import (BOX_ID, DEFAULT_METHOD, POLICIES, AttackConfig,
                                      AttackError, AttackResult, AttackStatus, box_id)
 from advocc_ros.heatmap import Heatmap, link_tables
+from advocc_ros.kinematics.goal_batch import task_goals
 from advocc_ros.model.collision import shared_world
 from advocc_ros.model.robot import RobotError, RobotModel
 from advocc_ros.model.goal import GoalRegion
@@ -162,9 +164,10 @@ def attack(heatmap: Heatmap, robot: RobotModel, objects: tuple[SceneObject, ...]
             region.guard = GoalGuard(goal_samples(robot, objects, goal), s,
                                      cfg.reachable_fraction)
         elif policy == 'solvable':
-            region.guard = WitnessGuard(witness_bodies(robot, shared_world(robot),
-                                                       _required(witness)), s)
-            region.guard.prune(region, heatmap.lut_pitch_m)
+            witness, touching = _kept_witness(robot, objects, goal, region,
+                                              _required(witness))
+            region.guard = WitnessGuard(witness_bodies(robot, shared_world(robot), witness), s)
+            region.guard.prune(region, touching)
         extra = {}
         if method in CONTEXT_METHODS:
             extra['context'] = MethodContext(robot, objects, q_init, goal, method_options)
@@ -203,19 +206,44 @@ def attack(heatmap: Heatmap, robot: RobotModel, objects: tuple[SceneObject, ...]
         stats['solvable_ms'] = round((time.perf_counter() - t1) * 1e3, 3)
     result = AttackResult(status, message, obstacles, masses, float(sum(masses)), compute_s,
                           stats=stats, goal_valid_fraction=fraction, solvable=solvable,
-                          witness=witness, **base)
+                          witness=_judged_witness(witness, solvable), **base)
     log.info('attack %s M=%d: %s, mass %.3f, %.1f ms, goal valid %s, %s', method, budget,
              status.value, result.total_mass, result.compute_s * 1e3, fraction,
              solvable.verdict if solvable else 'solvability not assessed')
     return result
 
 
-def _required(witness):
-    """The ``solvable`` policy's witness; ``AttackError`` (``NO_WITNESS``) without one."""
-    if witness is None:
+def _judged_witness(witness, solvable):
+    """The witness a result reports: the one the verdict was proven with, else the kept (or
+    first) candidate."""
+    if solvable is not None and solvable.witness is not None:
+        return solvable.witness
+    candidates = witness_candidates(witness)
+    return candidates[0] if candidates else None
+
+
+def _kept_witness(robot: RobotModel, objects, goal: GoalRegion, region, witnesses):
+    """(the candidate the ``solvable`` policy keeps, its lattice mask or None): see
+    ``attack.solvable.choose_witness``, on the task's goal sample; the choice in
+    ``region.stats``."""
+    if len(witnesses) == 1:
+        return witnesses[0], None
+    Q_goal = task_goals(robot, objects, goal).Q
+    kept, shielded, touching = choose_witness(robot, shared_world(robot), region, witnesses,
+                                              Q_goal)
+    region.stats.update(witness_candidates=len(witnesses), witness_kept=kept,
+                        witness_shielded=shielded)
+    return witnesses[kept], touching
+
+
+def _required(witness) -> tuple:
+    """The ``solvable`` policy's candidate witnesses (a witness or a sequence of them);
+    ``AttackError`` (``NO_WITNESS``) without one."""
+    witnesses = witness_candidates(witness)
+    if not witnesses:
         raise AttackError(AttackStatus.NO_WITNESS,
                           'the solvable policy needs the task\'s witness and none was given: '
                           'it keeps a witness path valid, and without one no attack can be '
                           'certified to keep a solution (the tool finds it on the unattacked '
                           'scene with RRTConnect: advocc_ros.attack.edges)')
-    return witness
+    return witnesses

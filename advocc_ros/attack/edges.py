@@ -7,10 +7,11 @@ once per task, by the tool and never by the victim, and reported apart from the 
 1. the request is checked first (``validate_request``, the task check of ``model.task_check``
    included): a refused task starts nothing;
 2. the witness, when the ``solvable`` policy needs it or ``AttackConfig.search_witness`` asks for
-   a verdict that can say ``certified``: ``planning.witness.find_witness``, one search in a
-   fresh planning worker, cached per task in the process and on disk; its wall time is
-   ``stats['witness_search_ms']``, never part of ``compute_s``;
-3. the core attack, with the witness as data.
+   a verdict that can say ``certified``: ``planning.witness.find_witnesses``, one search in a
+   fresh planning worker for the task's candidate witnesses, cached per task in the process and
+   on disk; its wall time is ``stats['witness_search_ms']``, never part of ``compute_s``;
+3. the core attack, with the candidates as data (under ``solvable`` it keeps one of them:
+   ``attack.solvable.choose_witness``).
 
 ``attack_task`` is what ``advocc attack``, ``advocc export``, the data set builder and the
 heatmap server's ``~/attack`` call; ``advocc perf attack`` and the audit call
@@ -21,7 +22,6 @@ from __future__ import annotations
 
 import dataclasses
 import time
-from typing import Any
 
 import numpy as np
 
@@ -35,22 +35,23 @@ from advocc_ros.model.pose import SceneError
 
 @dataclasses.dataclass(frozen=True)
 class WitnessSearch:
-    """The task's witness and what finding it cost."""
+    """The task's candidate witnesses and what finding them cost."""
 
-    witness: Any
-    """``planning.witness.Witness``, or None when the search found no path (or failed)."""
+    witnesses: tuple
+    """``planning.witness.Witness`` candidates; empty when the search found no path (or
+    failed)."""
     search_s: float
     """Wall time of the search [s] (a cached witness: the cache lookup)."""
 
 
 def task_witness(robot: RobotModel, objects, q_init, goal: GoalRegion) -> WitnessSearch:
-    """The witness of the task (module docstring); starts a planning worker unless it is
-    cached."""
-    from advocc_ros.planning.witness import find_witness
+    """The candidate witnesses of the task (module docstring); starts a planning worker unless
+    they are cached."""
+    from advocc_ros.planning.witness import find_witnesses
 
     t0 = time.perf_counter()
-    witness = find_witness(robot, tuple(objects), np.asarray(q_init, dtype=float), goal)
-    return WitnessSearch(witness, time.perf_counter() - t0)
+    witnesses = find_witnesses(robot, tuple(objects), np.asarray(q_init, dtype=float), goal)
+    return WitnessSearch(witnesses, time.perf_counter() - t0)
 
 
 def needs_witness(cfg: AttackConfig, goal_policy: str | None, certify: bool = True) -> bool:
@@ -75,7 +76,7 @@ def attack_task(heatmap, robot: RobotModel, objects, q_init, goal: GoalRegion, b
                       certify=False, **options)
     search = task_witness(robot, objects, q_init, goal)
     result = attack(heatmap, robot, objects, q_init, goal, budget, method, cfg,
-                    certify=certify, witness=search.witness, **options)
+                    certify=certify, witness=search.witnesses, **options)
     stats = dict(result.stats, witness_search_ms=round(search.search_s * 1e3, 3))
     if result.status == AttackStatus.NO_WITNESS:
         return dataclasses.replace(result, stats=stats, message=no_witness_message())

@@ -18,9 +18,14 @@ guard state, the witness cut at ``h = CertificateConfig.guard_step_rad(L)`` (L2)
 motion bound (``RobotModel.motion_bound``). Every point of the path is within ``h / 2`` of a
 guard state, where a body point has moved at most ``L h / 2 = m - 2 floor``, so every box keeps
 ``2 floor`` from the whole continuous sweep and the certificate (floor at every state it
-measures) proves the witness again with the boxes. Candidates are first pruned on the voxel
-lattice (the guard states' swept volume rasterized like the heatmap), and every pick is then
+measures) proves the witness again with the boxes. Candidates whose box holds a voxel centre
+inside the body at a guard state are first dropped on the voxel lattice, and every pick is then
 checked exactly with coal.
+
+A task has many solutions, and the one kept decides how much of the goal set the boxes may cut:
+the goal configurations whose bodies only boxes touching the witness could reach stay valid.
+The witness search returns candidates, and the policy keeps the one that shields the fewest of
+the task's goal samples (``choose_witness``).
 """
 
 from __future__ import annotations
@@ -30,11 +35,11 @@ import enum
 import time
 
 import numpy as np
+from scipy import ndimage
 
 from advocc_ros.attack.bodies import LinkBoxes
 from advocc_ros.model.cache import BoundedCache
-from advocc_ros.attack.coverage import box_distance
-from advocc_ros.heatmap import link_tables
+from advocc_ros.attack.configurations import cover_matrix
 from advocc_ros.model.collision import CollisionWorld
 from advocc_ros.kinematics.ik import GoalSampler, IkConfig
 from advocc_ros.model.robot import RobotModel
@@ -75,6 +80,8 @@ class Solvability:
     """States at which the continuous certificate measured distances."""
     certificate_ms: float = 0.0
     """Time the certificate took [ms]."""
+    witness: Witness | None = None
+    """The witness the verdict was judged with (the candidate proven, when one was)."""
 
     @property
     def certified(self) -> bool:
@@ -103,25 +110,36 @@ def probe_goal(robot: RobotModel, world: CollisionWorld, goal: GoalRegion,
             'colliding': sampler.colliding, 'free': free}
 
 
+def witness_candidates(witness) -> tuple:
+    """A witness argument as candidates: None -> (), a ``Witness`` -> (it,), a sequence ->
+    its witnesses."""
+    if witness is None:
+        return ()
+    return tuple(witness) if isinstance(witness, (tuple, list)) else (witness,)
+
+
 def assess(robot: RobotModel, objects: tuple[SceneObject, ...], boxes: tuple[SceneObject, ...],
-           goal: GoalRegion, witness: Witness | None, q_init: np.ndarray) -> Solvability:
+           goal: GoalRegion, witness, q_init: np.ndarray) -> Solvability:
     """The verdict for the task (start ``q_init``) on ``objects`` + ``boxes`` (module
-    docstring)."""
+    docstring); ``witness``: a ``Witness``, candidates (the first one the certificate proves
+    makes the verdict ``certified``) or None."""
     everything = tuple(objects) + tuple(boxes)
     world = CollisionWorld(robot, [sh for o in everything for sh in o.shapes])
     names = object_shape_names(everything)
     t0 = time.perf_counter()
-    if witness is None:
-        why, states = ('no witness (none was found on the unattacked scene, or none was '
-                       'handed in)', 0)
-    else:
-        why, proof = certify(robot, world, goal, witness, q_init, CERTIFICATE, names)
+    why, states, proven = ('no witness (none was found on the unattacked scene, or none was '
+                           'handed in)', 0, None)
+    for candidate in witness_candidates(witness):
+        why, proof = certify(robot, world, goal, candidate, q_init, CERTIFICATE, names)
         states = proof.states if proof is not None else 0
+        if why is None:
+            proven = candidate
+            break
     ms = (time.perf_counter() - t0) * 1e3
     if why is None:
         return Solvability(Verdict.CERTIFIED, f'the witness is proven collision-free as a '
                            f'continuous path ({states} states) and ends in the goal region',
-                           None, states, ms)
+                           None, states, ms, proven)
     probe = probe_goal(robot, world, goal)
     if probe['free']:
         return Solvability(Verdict.UNKNOWN, f'{why}; a collision-free goal configuration '
@@ -138,37 +156,44 @@ def assess(robot: RobotModel, objects: tuple[SceneObject, ...], boxes: tuple[Sce
 
 class WitnessBodies:
     """The robot's body at every guard state of the witness: exact box tests and the lattice
-    swept volume (built once per task and kept: ``witness_bodies``)."""
+    test of a region's candidates (built once per task and kept: ``witness_bodies``)."""
 
     def __init__(self, robot: RobotModel, world: CollisionWorld, witness: Witness,
                  config: CertificateConfig = CERTIFICATE):
-        self.robot = robot
+        self.robot, self._world = robot, world
         self.step_rad = config.guard_step_rad(robot.motion_bound.max_m_per_rad)
         """Largest joint-space distance between guard states [rad] (L2)."""
         self.states = witness_states(witness.configurations(robot), self.step_rad)
-        self.boxes = LinkBoxes(world, self.states)
-        # The lattice prune may use any subset of the states (it only drops boxes the exact
+        # The lattice test may use any subset of the states (it only drops boxes the exact
         # test would refuse): every k-th, about the witness search's step apart, and the last.
         k = max(int(WITNESS_STEP_RAD / self.step_rad), 1)
         self._lattice = np.unique(np.r_[np.arange(0, len(self.states), k), len(self.states) - 1])
-        self._swept: dict = {}
+        self._boxes: LinkBoxes | None = None
+
+    @property
+    def boxes(self) -> LinkBoxes:
+        """The link hulls at every guard state (built on the first exact test: a candidate
+        witness the policy does not keep never needs them)."""
+        if self._boxes is None:
+            self._boxes = LinkBoxes(self._world, self.states)
+        return self._boxes
 
     def touched_by(self, center_m: np.ndarray, box_size_m: float) -> bool:
         """Whether the axis-aligned cube of edge ``box_size_m`` at ``center_m`` touches the body
         at any guard state (coal on the hulls, for the pairs whose bounding boxes meet)."""
         return self.boxes.touched_by(center_m, box_size_m)
 
-    def swept_mask(self, grid, lo: np.ndarray, hi: np.ndarray, pitch_m: float) -> np.ndarray:
-        """Voxel centres of the window ``[lo, hi)`` of ``grid`` inside the robot at some guard
-        state of the lattice subset (computed once per window)."""
-        key = (grid, tuple(lo), tuple(hi), pitch_m)
-        if key not in self._swept:
-            origin = np.asarray(grid.origin_m) + np.asarray(lo) * grid.voxel_m
-            mask = np.zeros(tuple(np.asarray(hi) - lo), dtype=bool)
-            self._swept[key] = link_tables(self.robot, pitch_m).rasterize(
-                mask, origin, grid.voxel_m, self.boxes.R[self._lattice],
-                self.boxes.t[self._lattice])
-        return self._swept[key]
+    def touching(self, region) -> np.ndarray:
+        """Mask of ``region``'s window: candidates whose box holds a voxel centre inside the
+        body at a state of the lattice subset (``attack.configurations.cover_matrix``, the
+        relation the attack covers with). Such a box touches the body, so the exact test
+        refuses it too."""
+        mask = np.zeros(region.candidates.shape, dtype=bool)
+        if region.candidates.any():
+            cover = cover_matrix(self.robot, self._world, self.states[self._lattice], region)
+            mask[tuple(np.argwhere(region.candidates)[np.diff(cover.tocsc().indptr) > 0].T)] \
+                = True
+        return mask
 
 
 class WitnessGuard:
@@ -186,15 +211,33 @@ class WitnessGuard:
         grown = self.box_size_m + 2 * self.clearance_m
         return not self.bodies.touched_by(center_m, grown)
 
-    def prune(self, region, pitch_m: float) -> None:
-        """Drop ``region``'s candidates whose box comes within the clearance of the swept
-        volume on the lattice; ``admit`` still checks each pick exactly."""
-        if region.candidates.size:
-            swept = self.bodies.swept_mask(region.grid, region.lo, region.hi, pitch_m)
-            near = box_distance(swept, region.grid.voxel_m, self.box_size_m / 2,
-                                self.clearance_m) < self.clearance_m
-            region.candidates &= ~near
+    def prune(self, region, touching: np.ndarray | None = None) -> None:
+        """Drop ``region``'s candidates the body touches on the lattice (``touching``: the
+        bodies' mask, when the caller has it); ``admit`` still checks each pick exactly."""
+        region.candidates &= ~(self.bodies.touching(region) if touching is None else touching)
         region.stats['witness_clear'] = int(region.candidates.sum())
+
+
+def choose_witness(robot: RobotModel, world: CollisionWorld, region, witnesses, Q_goal
+                   ) -> tuple[int, list[int], np.ndarray | None]:
+    """Which of the task's candidate witnesses the ``solvable`` policy keeps: the one whose
+    guard shields the fewest goal configurations of ``Q_goal`` (the task's goal sample), i.e.
+    leaves the fewest that no admitted candidate box covers on the lattice, so the boxes may
+    cut the most of the goal set (earlier candidates win ties). A box beside one the body
+    touches counts as refused too: the exact test works on the link hulls grown by the
+    clearance, which reach about a voxel beyond the lattice's solid links. (index, shielded
+    count per candidate, the kept one's ``touching`` mask or None when there was no choice)."""
+    if len(witnesses) == 1 or not len(Q_goal) or not region.candidates.any():
+        return 0, [], None
+    cover = cover_matrix(robot, world, Q_goal, region).tocsc()
+    cand = tuple(np.argwhere(region.candidates).T)
+    shielded, masks = [], []
+    for witness in witnesses:
+        masks.append(witness_bodies(robot, world, witness).touching(region))
+        refused = ndimage.binary_dilation(masks[-1])[cand]
+        shielded.append(int((cover[:, ~refused].sum(axis=1) == 0).sum()))
+    kept = int(np.argmin(shielded))
+    return kept, shielded, masks[kept]
 
 
 _BODIES: BoundedCache = BoundedCache('witness bodies', 8, per_task=True)
@@ -209,5 +252,5 @@ def witness_bodies(robot: RobotModel, world: CollisionWorld, witness: Witness
 
 
 __all__ = ['CERTIFICATE', 'GOAL_PROBE_CONVERGED', 'VERDICTS', 'Solvability', 'Verdict',
-           'WitnessBodies', 'WitnessGuard', 'assess', 'certify', 'probe_goal',
-           'witness_bodies']
+           'WitnessBodies', 'WitnessGuard', 'assess', 'certify', 'choose_witness', 'probe_goal',
+           'witness_bodies', 'witness_candidates']

@@ -154,7 +154,7 @@ def run_audit(scene, heatmap, cfg: AuditConfig = AuditConfig(),
     q_init = start_configuration(scene, robot)
     require_valid_task(robot, scene.objects, q_init, scene.goal)
     search = task_witness(robot, scene.objects, q_init, scene.goal)
-    task = _Task(scene, robot, q_init, search.witness)
+    task = _Task(scene, robot, q_init, search.witnesses)
     result = _attack(task, heatmap, cfg, cfg.policy, attack_cfg)
     log.info('audit %s: %d boxes (%s), evaluating prefixes', scene.name,
              len(result.obstacles), result.status.value)
@@ -192,13 +192,13 @@ def run_audit(scene, heatmap, cfg: AuditConfig = AuditConfig(),
 
 @dataclasses.dataclass(frozen=True)
 class _Task:
-    """The task under audit: its scene, robot, start and witness (None: the search found
-    none)."""
+    """The task under audit: its scene, robot, start and candidate witnesses (empty: the
+    search found none)."""
 
     scene: Any
     robot: Any
     q_init: Any
-    witness: Any = None
+    witness: Any = ()
 
     def solvability(self, attack, m: int) -> dict:
         """The verdict on the task with ``attack``'s first m boxes added, judged with the

@@ -8,18 +8,21 @@ of states (``advocc_ros.planning.certificate``: conservative advancement with th
 motion bound, exact distances on the planners' hulls, a clearance floor).
 
 The search is one loop in one planning worker (a fresh process: OMPL's RNG is seeded once per
-process, so the sequence is deterministic). The ``solvable`` attack leaves the witness's last
-configuration free, and with it the goal configurations near it; so the search aims first at
-goal configurations the planners' goal samplers rarely land on (``rare_clear_ends``), then at
-the region itself. Each run checks motions at ``WITNESS_STEP_RAD`` (discrete); a path the
-continuous certificate cannot prove on the unattacked scene (it grazes an object closer than the
-floor between two checked states, e.g. a grasp in a pocket a few mm wide) is dropped and the
-next seed tried, and when every path found was unproven, the targets are tried once more
-without simplification (shortcuts pull a path taut against the objects).
+process, so the sequence is deterministic). A task has many solutions, and which one the
+``solvable`` attack must keep decides how much of the goal set its boxes may cut (the goal
+configurations the witness's body shields stay valid). So the search returns *candidates*, one
+per target, and the attack keeps the one that shields the fewest of the task's goal samples
+(``attack.solvable.choose_witness``): paths to goal configurations the planners' goal samplers
+rarely land on (``rare_clear_ends``), then one into the region itself. Each run checks motions at
+``WITNESS_STEP_RAD`` (discrete); a path the continuous certificate cannot prove on the unattacked
+scene (it grazes an object closer than the floor between two checked states, e.g. a grasp in a
+pocket a few mm wide) is dropped and the next seed tried, and when no target gave a proven path,
+the targets are tried once more without simplification (shortcuts pull a path taut against the
+objects).
 
-A found witness is kept twice: in this process, and on disk (``model.cache.disk_cache_dir``)
+The candidates are kept twice: in this process, and on disk (``model.cache.disk_cache_dir``)
 so that the next process (another ``advocc attack``, a restarted node) skips the search; a
-witness read from disk is certified again on the unattacked scene, from the task's start,
+candidate read from disk is certified again on the unattacked scene, from the task's start,
 before it is used, so a stale or damaged file costs a search, never a wrong verdict. A failed
 search is not kept: the next call searches again.
 
@@ -60,8 +63,9 @@ WITNESS_STEP_RAD = 0.005
 WITNESS_TRIES = 4
 """Seeds tried per target until one gives a path the continuous certificate proves on the
 unattacked scene (a run that finds no path leaves the target)."""
-END_CANDIDATES = 3
-"""Rare goal configurations the search aims at before the region (``rare_clear_ends``)."""
+END_CANDIDATES = 6
+"""Rare goal configurations the search aims at before the region (``rare_clear_ends``): each
+reached one is a candidate witness."""
 END_CLEARANCE_M = 2e-3
 """Least scene clearance of an aimed-at end [m]: well above the certificate's floor."""
 END_TIME_S = 2.0
@@ -75,7 +79,10 @@ WITNESS_SEED = 9_200_001
 and its random stream is not a victim's (trial k plans with seed ``seed + k``, small integers;
 a victim's trial on the witness's own stream would sample the witness's end first)."""
 WITNESS_TIME_S = 30.0
-"""Budget of one witness search [s] (RRTConnect solves the shipped scenes in < 1 s)."""
+"""Budget of the run into the region when no rare end was reached [s] (RRTConnect solves the
+shipped scenes in < 1 s); once an end was, the region run gets ``END_TIME_S``."""
+SET_FORMAT = 'advocc_witness_candidates'
+"""The disk cache's file: ``{format, witnesses: [witness data, ...]}``."""
 WAYPOINT_DECIMALS = 12
 """Waypoints are rounded to 1e-12 rad, in memory as in files (YAML keeps them exactly)."""
 
@@ -239,33 +246,34 @@ def load_witness(path: str | pathlib.Path) -> Witness:
 
 
 WITNESSES: BoundedCache = BoundedCache('witnesses', 32)
-"""Task hash -> Witness found in this process (a failed search is not kept)."""
+"""Task hash -> the candidate witnesses found in this process (a failed search is not kept)."""
 
 
-def find_witness(robot: RobotModel, objects: tuple[SceneObject, ...] | list,
-                 q_init: np.ndarray, goal: GoalRegion, time_s: float = WITNESS_TIME_S
-                 ) -> Witness | None:
-    """A witness for the task on the scene ``objects``, certified there (None when the search
-    found none), cached per task in this process and on disk (module docstring)."""
+def find_witnesses(robot: RobotModel, objects: tuple[SceneObject, ...] | list,
+                   q_init: np.ndarray, goal: GoalRegion, time_s: float = WITNESS_TIME_S
+                   ) -> tuple[Witness, ...]:
+    """The task's candidate witnesses on the scene ``objects``, each certified there (empty
+    when the search found none), cached per task in this process and on disk (module
+    docstring)."""
     objects = tuple(objects)
     q_init = np.asarray(q_init, float)
     key = task_hash(robot.hash, objects, goal, np.round(q_init, 12).tolist(), time_s,
-                    WITNESS_FORMAT, WITNESS_PLANNER, WITNESS_SEED, WITNESS_STEP_RAD,
-                    'continuous', WITNESS_TRIES, END_CANDIDATES, END_CLEARANCE_M)
+                    SET_FORMAT, WITNESS_PLANNER, WITNESS_SEED, WITNESS_STEP_RAD,
+                    'continuous', WITNESS_TRIES, END_CANDIDATES, END_CLEARANCE_M, END_TIME_S)
     cached = WITNESSES.get(key)
     if cached is not None:
         return cached
     cache_dir = disk_cache_dir()
     disk = cache_dir / f'{key}.yaml' if cache_dir is not None else None
     world = CollisionWorld(robot, [sh for o in objects for sh in o.shapes])
-    witness = _from_disk(disk, robot, world, q_init, goal) if disk is not None else None
-    if witness is None:
-        witness = _search(robot, world, objects, q_init, goal, time_s)
-        if witness is None:  # not kept: a later call searches again
-            return None
+    witnesses = _from_disk(disk, robot, world, q_init, goal) if disk is not None else ()
+    if not witnesses:
+        witnesses = _search(robot, world, objects, q_init, goal, time_s)
+        if not witnesses:  # not kept: a later call searches again
+            return ()
         if disk is not None:
-            _to_disk(disk, witness)
-    return WITNESSES.put(key, witness)
+            _to_disk(disk, witnesses)
+    return WITNESSES.put(key, witnesses)
 
 
 def rare_clear_ends(robot: RobotModel, world: CollisionWorld, objects: tuple[SceneObject, ...],
@@ -285,13 +293,13 @@ def rare_clear_ends(robot: RobotModel, world: CollisionWorld, objects: tuple[Sce
 
 
 def _search(robot: RobotModel, world: CollisionWorld, objects: tuple[SceneObject, ...],
-            q_init: np.ndarray, goal: GoalRegion, time_s: float) -> Witness | None:
-    """The one search (module docstring): RRTConnect to each rare clear end
-    (``END_TIME_S`` each), then to the region (``time_s``), each target on seeds
-    ``WITNESS_SEED``, + 1, ... (up to ``WITNESS_TRIES``) until the certificate proves a path;
-    a target without a path is left (another seed would spend its budget too). Simplified
-    paths first; the targets whose paths were all unproven (pulled taut against an object)
-    once more without simplification."""
+            q_init: np.ndarray, goal: GoalRegion, time_s: float) -> tuple[Witness, ...]:
+    """The one search (module docstring): RRTConnect to each rare clear end (``END_TIME_S``
+    each), then into the region (``time_s``, or ``END_TIME_S`` once an end was reached), each
+    target on seeds ``WITNESS_SEED``, + 1, ... (up to ``WITNESS_TRIES``) until the certificate
+    proves a path; a target without a path is left (another seed would spend its budget too).
+    Simplified paths first; when no target gave a proven path, the targets whose paths were all
+    unproven (pulled taut against an object) once more without simplification."""
     from advocc_ros.planning.worker import Planner
 
     targets = [(end, END_TIME_S) for end in rare_clear_ends(robot, world, objects, goal)]
@@ -302,26 +310,40 @@ def _search(robot: RobotModel, world: CollisionWorld, objects: tuple[SceneObject
         config = PlanningConfig(time_budget_s=time_s, motion_step_rad=WITNESS_STEP_RAD,
                                 stop_at_first_solution=True, simplify=simplify,
                                 interpolate=False)
-        unproven = []
+        found, unproven = [], []
         with Planner(scene, config) as planner:
             for q_end, budget in targets:
-                for seed in range(WITNESS_SEED, WITNESS_SEED + WITNESS_TRIES):
-                    witness = _plan(planner, robot, q_init, goal, q_end, budget, seed, simplify)
-                    if witness is None:
-                        break
-                    why = certify(robot, world, goal, witness, q_init, shape_names=names).why
-                    if why is None:
-                        return witness
-                    log.info('witness search (seed %d, %s): the path is not proven on the '
-                             'unattacked scene: %s', seed, witness.source.get('target'), why)
-                    if not unproven or unproven[-1][0] is not q_end:
-                        unproven.append((q_end, budget))
-        if not unproven:
-            return None
+                budget = END_TIME_S if found else budget
+                why = _proven_path(planner, robot, world, q_init, goal, q_end, budget,
+                                   simplify, names, found)
+                if why == 'unproven':
+                    unproven.append((q_end, budget))
+        if found or not unproven:
+            return tuple(found)
         targets = unproven
     log.warning('no witness: every path found grazed an object closer than the certificate\'s '
                 'floor')
-    return None
+    return ()
+
+
+def _proven_path(planner, robot: RobotModel, world: CollisionWorld, q_init: np.ndarray,
+                 goal: GoalRegion, q_end: np.ndarray | None, budget: float, simplify: bool,
+                 names: list[str], found: list) -> str:
+    """Seeds of one target until a proven path, appended to ``found``: 'proven', 'no path'
+    or 'unproven' (every path found failed the certificate)."""
+    outcome = 'no path'
+    for seed in range(WITNESS_SEED, WITNESS_SEED + WITNESS_TRIES):
+        witness = _plan(planner, robot, q_init, goal, q_end, budget, seed, simplify)
+        if witness is None:
+            return outcome
+        why = certify(robot, world, goal, witness, q_init, shape_names=names).why
+        if why is None:
+            found.append(witness)
+            return 'proven'
+        outcome = 'unproven'
+        log.info('witness search (seed %d, %s): the path is not proven on the unattacked '
+                 'scene: %s', seed, witness.source.get('target'), why)
+    return outcome
 
 
 def _plan(planner, robot: RobotModel, q_init: np.ndarray, goal: GoalRegion,
@@ -344,31 +366,39 @@ def _plan(planner, robot: RobotModel, q_init: np.ndarray, goal: GoalRegion,
 
 
 def _from_disk(path: pathlib.Path, robot: RobotModel, world: CollisionWorld,
-               q_init: np.ndarray, goal: GoalRegion) -> Witness | None:
-    """The cached witness of ``path`` if it is one for this task (certified again)."""
+               q_init: np.ndarray, goal: GoalRegion) -> tuple[Witness, ...]:
+    """The cached candidates of ``path`` if every one is a witness of this task (certified
+    again); else none."""
     if not path.is_file():
-        return None
+        return ()
     try:
-        witness = load_witness(path)
+        data = read_yaml(path)
+        if not isinstance(data, dict) or data.get('format') != SET_FORMAT or \
+                not isinstance(data.get('witnesses'), list) or not data['witnesses']:
+            raise SceneError(f'{path}: not a {SET_FORMAT} file')
+        witnesses = tuple(Witness.from_data(w, f'{path}: witnesses[{i}]')
+                          for i, w in enumerate(data['witnesses']))
     except (SceneError, OSError) as exc:
         log.warning('witness cache: %s (searching again)', exc)
-        return None
-    why = certify(robot, world, goal, witness, q_init).why
-    if why is not None:
-        log.warning('witness cache: %s is not a witness of this task: %s (searching again)',
-                    path, why)
-        return None
-    return witness
+        return ()
+    for witness in witnesses:
+        why = certify(robot, world, goal, witness, q_init).why
+        if why is not None:
+            log.warning('witness cache: %s is not a witness of this task: %s (searching '
+                        'again)', path, why)
+            return ()
+    return witnesses
 
 
-def _to_disk(path: pathlib.Path, witness: Witness) -> None:
+def _to_disk(path: pathlib.Path, witnesses: tuple[Witness, ...]) -> None:
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
-        save_witness(path, witness)
+        save_yaml_atomic(path, {'format': SET_FORMAT,
+                                'witnesses': [w.to_data() for w in witnesses]})
     except OSError as exc:  # a read-only home must not fail the attack
         log.warning('witness cache: cannot write %s (%s)', path, exc)
 
 
-__all__ = ['CACHE_ENV', 'WITNESS_STEP_RAD', 'Certified', 'Witness', 'certify', 'find_witness',
+__all__ = ['CACHE_ENV', 'WITNESS_STEP_RAD', 'Certified', 'Witness', 'certify', 'find_witnesses',
            'load_witness', 'rare_clear_ends', 'object_shape_names', 'save_witness',
            'witness_file', 'witness_states']
