@@ -5,6 +5,7 @@ with malformed problems, and resumed. Tiny settings (one box, one RRTConnect tri
 keep each build to seconds of CPU; the witness cache of the session is shared, so a problem's
 witness is searched once for all tests."""
 
+import csv
 import json
 import os
 import pathlib
@@ -75,6 +76,14 @@ def test_split_and_seeded_selection(tmp_path):
     # One family's choice does not depend on which other families are built.
     alone = select(discover(tmp_path, ['cage']), 'test', limit=2, seed=3)
     assert alone == [p for p in test if p.family == 'cage_panda']
+    # A build takes the families in turn: stopped part-way, it has some of each.
+    from advocc_ros.dataset.driver import interleaved
+
+    order = interleaved(test + [p for p in train if p.family == 'box_panda'])
+    assert [p.family[:3] for p in order] == ['box', 'cag'] * 2 + ['box'] * 4
+    assert [p for p in order if p.family == 'box_panda'] == [
+        p for p in test + train if p.family == 'box_panda']
+    assert interleaved([]) == []
 
 
 def test_bad_input_is_a_clear_error(tmp_path, capsys):
@@ -181,6 +190,33 @@ def test_build_on_embedded_ray(built):
     assert pooled['shares']['built'] == 1.0 and pooled['budgets']['1']['evaluated'] == 2
     assert '| box_panda | 1 |' in (out / 'summary.md').read_text()
     assert (out / 'summary.png').read_bytes()[:4] == b'\x89PNG'
+    # problems.csv: per problem, the unattacked row and the attacked one, per victim.
+    rows = list(csv.DictReader((out / 'problems.csv').open()))
+    assert [(r['family'], r['budget'], r['victim']) for r in rows] == [
+        ('box_panda', '0', 'rrtconnect'), ('box_panda', '1', 'rrtconnect'),
+        ('table_pick_panda', '0', 'rrtconnect'), ('table_pick_panda', '1', 'rrtconnect')]
+    attacked = json.loads((out / 'box_panda/0001/hardness.json').read_text())['attacks']['1']
+    assert rows[1]['certificate'] == 'certified' and rows[1]['boxes'] == '1'
+    assert float(rows[1]['psr']) == attacked['victims']['rrtconnect']['psr']
+
+
+def test_summary_rewrites_a_build_folders_summary(built, tmp_path, capsys):
+    """``advocc dataset summary`` summarises what a folder holds (a stopped build's too); a
+    folder without a build record is a clear error."""
+    from advocc_ros.cli import main
+
+    out, _ = built
+    copy = tmp_path / 'copy'
+    shutil.copytree(out, copy)
+    shutil.rmtree(copy / 'table_pick_panda')  # as if stopped before its second problem
+    for name in ('summary.json', 'summary.md', 'problems.csv'):
+        (copy / name).unlink()
+    assert main(['dataset', 'summary', str(copy)]) == 0
+    assert '| box_panda | 1 |' in capsys.readouterr().out
+    summary = json.loads((copy / 'summary.json').read_text())
+    assert summary['problems'] == 1 and len((copy / 'problems.csv').read_text().splitlines()) == 3
+    assert main(['dataset', 'summary', str(tmp_path / 'nowhere')]) == 2
+    assert 'not a data set build folder' in capsys.readouterr().err
 
 
 @pytest.mark.processes

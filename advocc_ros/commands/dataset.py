@@ -1,5 +1,7 @@
 """``advocc dataset build``: a certified hard-problem data set from MotionBenchMaker problems,
-one Ray task per problem (a local Ray by default, a cluster with ``--ray-address``).
+one Ray task per problem (a local Ray by default, a cluster with ``--ray-address``);
+``advocc dataset summary``: the summary of what a build folder holds (a build in progress or
+stopped included).
 
 Per problem: the task check, the witness, the ``task`` attack under the ``solvable`` policy at
 each budget, the continuous certificate, the victims on the unattacked and the attacked
@@ -68,6 +70,11 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help='Ray CPUs each problem holds (default %(default)s)')
     p.add_argument('--json', action='store_true', help='print the build record as JSON')
     p.set_defaults(func=_build)
+    p = verbs.add_parser('summary', help='write the summary of a build folder again (what it '
+                         'holds so far)', description=describe(__doc__))
+    p.add_argument('out', metavar='DIR', help='a build\'s output folder (--out)')
+    p.add_argument('--json', action='store_true', help='print the summary as JSON')
+    p.set_defaults(func=_summary)
 
 
 def _ints(text: str, what: str) -> tuple[int, ...]:
@@ -124,6 +131,20 @@ def _config(args: argparse.Namespace):
                     cpus_per_problem=args.cpus_per_problem,
                     heatmap_samples=args.heatmap_samples, heatmap_file=args.heatmap)
     return build, run
+
+
+def _summary(args: argparse.Namespace) -> int:
+    import pathlib
+
+    from advocc_ros.dataset import store
+    from advocc_ros.dataset.summary import markdown, write_summary
+
+    out = pathlib.Path(args.out)
+    if not (out / store.BUILD_FILE).is_file():
+        raise UserError(f'{out}: not a data set build folder (no {store.BUILD_FILE})')
+    summary = write_summary(out)
+    print(json.dumps(summary, indent=1) if args.json else markdown(summary))
+    return 0
 
 
 def _build(args: argparse.Namespace) -> int:

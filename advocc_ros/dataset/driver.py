@@ -82,7 +82,7 @@ def build(selection: Selection, out: str | pathlib.Path, config: BuildConfig,
         run.heatmap_samples, run.heatmap_seed, run.heatmap_file)}))  # as build.json reads back
     out.mkdir(parents=True, exist_ok=True)
     store.check_settings(out, settings)
-    todo = [p for p in problems if store.finished(out, p.family, p.name) is None]
+    todo = interleaved([p for p in problems if store.finished(out, p.family, p.name) is None])
     record = {'format': 'advocc_dataset_build', 'version': 1, 'settings': settings,
               'selection': {**dataclasses.asdict(selection),
                             'root': str(pathlib.Path(selection.root).resolve()),
@@ -99,6 +99,16 @@ def build(selection: Selection, out: str | pathlib.Path, config: BuildConfig,
     store.write_json(out / store.BUILD_FILE, record)
     record['summary'] = write_summary(out)
     return record
+
+
+def interleaved(problems: list[Problem]) -> list[Problem]:
+    """``problems`` taken one family at a time in turn (each family in its own order), so that
+    a build stopped part-way has built about as many problems of every family."""
+    families: dict[str, list[Problem]] = {}
+    for p in problems:
+        families.setdefault(p.family, []).append(p)
+    queues = list(families.values())
+    return [q[i] for i in range(max(map(len, queues), default=0)) for q in queues if i < len(q)]
 
 
 def _now() -> str:
@@ -256,4 +266,4 @@ def versions() -> dict:
     return out
 
 
-__all__ = ['RunConfig', 'Selection', 'build', 'versions']
+__all__ = ['RunConfig', 'Selection', 'build', 'interleaved', 'versions']

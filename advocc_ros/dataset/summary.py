@@ -1,5 +1,6 @@
 """The data set's summary: per family and split, how problems ended and how hard the built ones
-are; written as ``summary.json``, ``summary.md`` and ``summary.png``.
+are; written as ``summary.json``, ``summary.md`` and ``summary.png``, beside ``problems.csv``
+(one row per problem, budget and victim: the table the summary pools).
 
 Read from the problems' records in the output folder (every problem there, whichever build
 wrote it). Per group (a family and a split; ``all`` pools the families):
@@ -24,6 +25,12 @@ from advocc_ros.dataset.job import OUTCOMES, PSR_HARD
 
 SUMMARY_FORMAT = 'advocc_dataset_summary'
 FIGURE = 'summary.png'
+TABLE = 'problems.csv'
+TABLE_COLUMNS = ('family', 'problem', 'split', 'outcome', 'budget', 'certificate', 'boxes',
+                 'victim', 'trials', 'psr', 'psr_given_goals', 'no_goal_found',
+                 'first_solution_median_s', 'pt_ratio', 'unattacked_psr')
+"""``problems.csv``: budget 0 rows are the unattacked problem; a problem without a hardness
+record (refused, no witness, error) has one row with its outcome only."""
 
 
 def _mean(values: list) -> float | None:
@@ -85,6 +92,45 @@ def summarise(out: pathlib.Path) -> dict:
             'settings': settings, 'budgets': budgets, 'victims': victims, 'groups': groups,
             'errors': [f'{r["family"]}/{r["problem"]}: {r.get("reason")}' for r, _ in found
                        if r['outcome'] == 'error']}
+
+
+def table_rows(out: pathlib.Path) -> list[dict]:
+    """The rows of ``problems.csv`` for every problem recorded under ``out``."""
+    rows = []
+    for record, hardness in store.records(out):
+        key = {'family': record['family'], 'problem': record['problem'],
+               'split': record.get('split'), 'outcome': record['outcome']}
+        if not hardness:
+            rows.append(key)
+            continue
+        base = hardness.get('unattacked', {})
+        for victim, cell in base.items():
+            rows.append(dict(key, budget=0, victim=victim, **_cell(cell)))
+        for budget, attack in hardness.get('attacks', {}).items():
+            head = dict(key, budget=int(budget), certificate=attack.get('certificate'),
+                        boxes=attack.get('boxes'))
+            for victim, cell in attack.get('victims', {}).items():
+                rows.append(dict(head, victim=victim, **_cell(cell),
+                                 unattacked_psr=base.get(victim, {}).get('psr')))
+            if not attack.get('victims'):
+                rows.append(head)
+    return rows
+
+
+def _cell(cell: dict) -> dict:
+    return {k: cell.get(k) for k in ('trials', 'psr', 'psr_given_goals', 'no_goal_found',
+                                     'first_solution_median_s', 'pt_ratio')}
+
+
+def _csv(rows: list[dict]) -> str:
+    import csv
+    import io
+
+    text = io.StringIO()
+    writer = csv.DictWriter(text, TABLE_COLUMNS, lineterminator='\n')
+    writer.writeheader()
+    writer.writerows(rows)
+    return text.getvalue()
 
 
 def _pct(value) -> str:
@@ -189,14 +235,17 @@ def figure(summary: dict, path: pathlib.Path) -> None:
 
 
 def write_summary(out: pathlib.Path) -> dict:
-    """Write ``summary.json``, ``summary.md`` and ``summary.png`` into ``out``; the summary."""
+    """Write ``summary.json``, ``summary.md``, ``summary.png`` and ``problems.csv`` into
+    ``out``; the summary."""
     from advocc_ros.fileio import atomic_write_text
 
     summary = summarise(out)
     store.write_json(out / 'summary.json', summary)
     atomic_write_text(out / 'summary.md', markdown(summary))
+    atomic_write_text(out / TABLE, _csv(table_rows(out)))
     figure(summary, out / FIGURE)
     return summary
 
 
-__all__ = ['FIGURE', 'SUMMARY_FORMAT', 'markdown', 'summarise', 'write_summary']
+__all__ = ['FIGURE', 'SUMMARY_FORMAT', 'TABLE', 'TABLE_COLUMNS', 'markdown', 'summarise',
+           'table_rows', 'write_summary']
