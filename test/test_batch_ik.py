@@ -4,7 +4,8 @@ import numpy as np
 import pinocchio as pin
 import pytest
 
-from advocc_ros.kinematics.batch import ChainKinematics, exp3, inverse, log3, log6
+from advocc_ros.kinematics.batch import (ChainKinematics, _log3_row, dls, exp3, inverse, log3,
+                                         log6)
 from advocc_ros.kinematics.goal_batch import (GoalSampler, planner_goals, rarest_first,
                                               task_goals)
 from advocc_ros.model.collision import CollisionWorld
@@ -37,12 +38,40 @@ def test_lie_group_maps_match_pinocchio():
     for i in range(len(w)):
         np.testing.assert_allclose(R[i], pin.exp3(w[i]), atol=1e-12)
         np.testing.assert_allclose(log3(R[i:i + 1])[0], pin.log3(R[i]), atol=1e-9)
+        compiled = np.empty(3)
+        _log3_row(R[i], compiled)
+        np.testing.assert_allclose(compiled, pin.log3(R[i]), atol=1e-9)
     T = np.broadcast_to(np.eye(4), (50, 4, 4)).copy()
     T[:, :3, :3], T[:, :3, 3] = R, rng.normal(0, 1, (50, 3))
     for i in range(2, len(w)):
         np.testing.assert_allclose(log6(T[i:i + 1])[0], pin.log6(pin.SE3(T[i])).vector,
                                    atol=1e-9)
         np.testing.assert_allclose(inverse(T[i:i + 1])[0], np.linalg.inv(T[i]), atol=1e-12)
+
+
+def test_compiled_ik_steps_like_pinocchios_dls(panda, table_scene, chain):
+    """The compiled batch IK takes pinocchio's DLS steps (``kinematics.ik.dls_ik``, one
+    configuration at a time): the same rows reach the region, at the same configurations."""
+    from advocc_ros.kinematics.goal_batch import _Region
+    from advocc_ros.kinematics.ik import IkConfig, dls_ik
+
+    goal, cfg = table_scene.goal, IkConfig()
+    region = _Region(panda, goal)
+    rng = np.random.default_rng(5)
+    starts = rng.uniform(panda.lower, panda.upper, (48, panda.nq))
+    targets = region.random_targets(rng, 48)
+    iterations = rng.integers(5, 60, 48)
+    Q, reached = dls(chain, starts, targets, iterations, cfg.ik_damping,
+                     GoalSampler.max_step_rad, panda.lower, panda.upper, region.box)
+    assert 5 <= reached.sum() < 48
+    data, fid = panda.create_data(), panda.model.getFrameId(goal.link)
+    for i in range(48):
+        q, ok = dls_ik(panda, data, fid, starts[i], pin.SE3(targets[i]), int(iterations[i]) + 1,
+                       cfg.ik_damping, lambda T, err: bool(region.box.contains(
+                           T.homogeneous[None])[0]), max_step=GoalSampler.max_step_rad)
+        assert ok == reached[i]
+        if ok:
+            np.testing.assert_allclose(Q[i], q, atol=1e-7)
 
 
 def test_planner_goals_are_valid_goal_configurations_and_follow_their_seed(panda, table_scene):

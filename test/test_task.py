@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from advocc_ros.attack import AttackConfig, AttackStatus, attack, robot_occupancy, search_region
-from advocc_ros.attack.configurations import cover_matrix, greedy_configurations
+from advocc_ros.attack.configurations import cover_matrix, greedy_configurations, touching_mask
 from advocc_ros.attack.goals import goal_samples
 from advocc_ros.evaluation.runner import evaluate_planner
 from advocc_ros.heatmap import HeatmapConfig, build_heatmap
@@ -110,6 +110,23 @@ def test_cover_matrix_matches_a_direct_rasterization(panda, heatmap, task):
         # a handful of boundary voxels where float rounding differs.
         assert np.sum(row != expected) <= max(3, 0.002 * len(cand))
         assert row.sum() > 0
+
+
+def test_touching_mask_is_the_union_of_the_cover_rows(panda, heatmap, task):
+    """The union kernel (fills each voxel once over all configurations) marks exactly the
+    candidates that cover some configuration: the witness guard's prune relies on it."""
+    q, goal, objects = task
+    region = search_region(heatmap, panda, objects, q, goal)
+    world = CollisionWorld(panda, [s for o in objects for s in o.shapes])
+    Q = goal_set(panda, world.collisions_batch, world.in_collision, goal, 24, seed=3)
+    Q = np.concatenate([Q, np.linspace(q, Q[0], 16)])  # overlapping bodies along a path
+    cover = cover_matrix(panda, world, Q, region)
+    expected = np.zeros(region.candidates.shape, dtype=bool)
+    expected[tuple(np.argwhere(region.candidates)[np.diff(cover.tocsc().indptr) > 0].T)] = True
+    mask = touching_mask(panda, world, Q, region)
+    assert expected.any() and not expected.all()
+    assert np.array_equal(mask, expected)
+    assert not touching_mask(panda, world, Q[:0], region).any()
 
 
 def test_task_respects_every_constraint_and_is_nested(panda, heatmap, task):

@@ -61,6 +61,58 @@ def _cover(cover, cand_id, near, stamp, win_origin, voxel, k, R, t, lut_data, lu
     return cover
 
 
+@numba.njit(cache=True, nogil=True, parallel=True)
+def _occupy(occ, near, win_origin, voxel, k, R, t, lut_data, lut_offset, lut_shape, lut_origin,
+            lut_pitch, box_lo, box_hi):
+    """``occ[v] = True`` for every voxel v (window grid, padded by k like ``near``) near a
+    candidate whose centre is inside a link at some configuration s: the union of the bodies,
+    each voxel tested until one configuration fills it. Configurations run in parallel (a race
+    costs a repeated test and an idempotent write)."""
+    nx, ny, nz = near.shape
+    lo_limit = np.full(3, -k, np.int64)
+    hi_limit = np.array([nx - 1 - k, ny - 1 - k, nz - 1 - k], np.int64)
+    inv = 1.0 / lut_pitch
+    for s in numba.prange(R.shape[0]):
+        for li in range(R.shape[1]):
+            r, tl = R[s, li], t[s, li]
+            lo, hi = link_voxel_box(r, tl, box_lo[li], box_hi[li], win_origin, voxel,
+                                    lo_limit, hi_limit)
+            for i in range(lo[0], hi[0] + 1):
+                px = win_origin[0] + (i + 0.5) * voxel - tl[0]
+                for j in range(lo[1], hi[1] + 1):
+                    py = win_origin[1] + (j + 0.5) * voxel - tl[1]
+                    for kk in range(lo[2], hi[2] + 1):
+                        if not near[i + k, j + k, kk + k] or occ[i + k, j + k, kk + k]:
+                            continue
+                        pz = win_origin[2] + (kk + 0.5) * voxel - tl[2]
+                        if in_link(r, px, py, pz, lut_data, lut_offset[li], lut_shape[li],
+                                   lut_origin[li], inv):
+                            occ[i + k, j + k, kk + k] = True
+    return occ
+
+
+class _Lattice:
+    """What both kernels take for configurations ``Q`` in ``region``'s window: the packed link
+    tables, the links' placements, the window's origin, the cube half-width k and the
+    k-padded mask of voxels with a candidate within k."""
+
+    def __init__(self, robot: RobotModel, world: CollisionWorld, Q: np.ndarray,
+                 region: SearchRegion, shrink: int, placements):
+        grid = region.grid
+        self.tables = link_tables(robot, region.lut_pitch_m)
+        self.R, self.t = placement_arrays(world, Q) if placements is None else placements
+        self.origin_m = np.asarray(grid.origin_m) + np.asarray(region.lo) * grid.voxel_m
+        self.voxel_m = grid.voxel_m
+        self.k = max(region.k - shrink, 0)
+        self.near = np.pad(box_sum(region.candidates.astype(np.float64), self.k) > 0, self.k)
+
+    def args(self) -> tuple:
+        """The kernels' arguments after their output: window, placements and tables."""
+        tb = self.tables
+        return (self.origin_m, self.voxel_m, self.k, self.R, self.t, tb.data, tb.offset,
+                tb.shape, tb.origin, tb.pitch, tb.box_lo, tb.box_hi)
+
+
 def cover_matrix(robot: RobotModel, world: CollisionWorld, Q: np.ndarray,
                  region: SearchRegion, shrink: int = 0,
                  placements: tuple[np.ndarray, np.ndarray] | None = None) -> sparse.csr_matrix:
@@ -73,18 +125,27 @@ def cover_matrix(robot: RobotModel, world: CollisionWorld, Q: np.ndarray,
     cand_id = np.full(region.candidates.shape, -1, dtype=np.int64)
     cand_id[tuple(cand.T)] = np.arange(len(cand))
     dense = np.zeros((len(Q), len(cand)), dtype=np.bool_)
-    grid = region.grid
-    tables = link_tables(robot, region.lut_pitch_m)
-    R, t = placement_arrays(world, Q) if placements is None else placements
-    origin = np.asarray(grid.origin_m) + np.asarray(region.lo) * grid.voxel_m
-    k = max(region.k - shrink, 0)
-    near = np.pad(box_sum(region.candidates.astype(np.float64), k) > 0, k)
-    stamp = np.full(near.shape, -1, dtype=np.int64)
-    _cover(dense, cand_id, near, stamp, origin, grid.voxel_m, k, R, t, tables.data,
-           tables.offset, tables.shape, tables.origin, tables.pitch, tables.box_lo,
-           tables.box_hi)
+    lattice = _Lattice(robot, world, Q, region, shrink, placements)
+    stamp = np.full(lattice.near.shape, -1, dtype=np.int64)
+    _cover(dense, cand_id, lattice.near, stamp, *lattice.args())
     indptr, indices = _dense_to_csr(dense)
     return sparse.csr_matrix((np.ones(len(indices)), indices, indptr), shape=dense.shape)
+
+
+def touching_mask(robot: RobotModel, world: CollisionWorld, Q: np.ndarray,
+                  region: SearchRegion) -> np.ndarray:
+    """Mask of ``region``'s candidates that cover at least one configuration of ``Q`` (the
+    rows of ``cover_matrix`` or-ed, at a fraction of its cost): the union of the bodies is
+    filled once, then widened by the cube."""
+    mask = np.zeros(region.candidates.shape, dtype=bool)
+    if not len(Q) or not region.candidates.any():
+        return mask
+    lattice = _Lattice(robot, world, Q, region, 0, None)
+    occ = _occupy(np.zeros(lattice.near.shape, dtype=np.bool_), lattice.near, *lattice.args())
+    k = lattice.k
+    reach = box_sum(occ.astype(np.float64), k) > 0
+    inner = reach[k:reach.shape[0] - k, k:reach.shape[1] - k, k:reach.shape[2] - k]
+    return inner & region.candidates
 
 
 @numba.njit(cache=True, nogil=True, parallel=True)
@@ -154,4 +215,4 @@ def greedy_configurations(cover: sparse.spmatrix | np.ndarray, weights: np.ndarr
     return picks, rejected
 
 
-__all__ = ['cover_matrix', 'greedy_configurations']
+__all__ = ['cover_matrix', 'greedy_configurations', 'touching_mask']

@@ -39,7 +39,7 @@ from scipy import ndimage
 
 from advocc_ros.attack.bodies import LinkBoxes
 from advocc_ros.model.cache import BoundedCache
-from advocc_ros.attack.configurations import cover_matrix
+from advocc_ros.attack.configurations import cover_matrix, touching_mask
 from advocc_ros.model.collision import CollisionWorld
 from advocc_ros.kinematics.ik import GoalSampler, IkConfig
 from advocc_ros.model.robot import RobotModel
@@ -185,15 +185,10 @@ class WitnessBodies:
 
     def touching(self, region) -> np.ndarray:
         """Mask of ``region``'s window: candidates whose box holds a voxel centre inside the
-        body at a state of the lattice subset (``attack.configurations.cover_matrix``, the
+        body at a state of the lattice subset (``attack.configurations.touching_mask``, the
         relation the attack covers with). Such a box touches the body, so the exact test
         refuses it too."""
-        mask = np.zeros(region.candidates.shape, dtype=bool)
-        if region.candidates.any():
-            cover = cover_matrix(self.robot, self._world, self.states[self._lattice], region)
-            mask[tuple(np.argwhere(region.candidates)[np.diff(cover.tocsc().indptr) > 0].T)] \
-                = True
-        return mask
+        return touching_mask(self.robot, self._world, self.states[self._lattice], region)
 
 
 class WitnessGuard:

@@ -1,19 +1,22 @@
-"""Batched kinematics: forward kinematics, frame Jacobians and damped-least-squares IK for many
-configurations at once, in numpy.
+"""Batched kinematics: forward kinematics and frame Jacobians for many configurations at once
+(numpy), and damped-least-squares IK for many attempts at once (a compiled kernel, rows in
+parallel).
 
 Goal sampling is the online phase's largest cost when every IK runs one configuration at a time
 through pinocchio (~4-16 ms per converged sample on the Panda). Here the chain to one frame is
-read once from the pinocchio model and every step runs on (N, ...) arrays, so N attempts cost
-about as much as a few single ones. Revolute and prismatic joints (aligned or not) are
-supported, which covers the serial arms the tool loads; ``ChainKinematics.supports`` tells.
-The results agree with pinocchio's ``framesForwardKinematics`` and ``computeFrameJacobian``
-(LOCAL) to round-off (test/test_batch_ik.py).
+read once from the pinocchio model into arrays, and the IK runs every attempt's whole loop
+(kinematics, Jacobian, a 6x6 Cholesky solve) in compiled code. Revolute and prismatic joints
+(aligned or not) are supported, which covers the serial arms the tool loads;
+``ChainKinematics.supports`` tells. The kinematics agree with pinocchio's
+``framesForwardKinematics`` and ``computeFrameJacobian`` (LOCAL) to round-off, and the
+compiled IK with the same loop in numpy (test/test_batch_ik.py).
 """
 
 from __future__ import annotations
 
 import dataclasses
 
+import numba
 import numpy as np
 import pinocchio as pin
 
@@ -64,6 +67,11 @@ class ChainKinematics:
                                       model.jointPlacements[j].homogeneous))
         self.T_joint_frame = frame.placement.homogeneous
         self.nq = model.nq
+        # The chain as arrays, for the compiled IK.
+        self.T_parent_joint = np.array([jt.T_parent_joint for jt in self.joints]).reshape(-1, 4, 4)
+        self.axis = np.array([jt.axis for jt in self.joints]).reshape(-1, 3)
+        self.revolute = np.array([jt.revolute for jt in self.joints], dtype=np.bool_)
+        self.index_q = np.array([jt.index_q for jt in self.joints], dtype=np.int64)
 
     def frame_and_jacobian(self, Q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """T_base_frame (N, 4, 4) and the frame Jacobian in the LOCAL frame (N, 6, nq), rows
@@ -165,34 +173,239 @@ def inverse(T: np.ndarray) -> np.ndarray:
     return out
 
 
+@dataclasses.dataclass(frozen=True)
+class PoseBox:
+    """A goal region as the IK's stopping test: the tool (``T_link_tool`` on the chain's frame)
+    within ``pos_tol`` [m] per axis of ``T_center``'s origin, in its frame, and its rotation
+    vector relative to ``T_center`` within ``rot_tol`` [rad] per axis."""
+
+    T_center: np.ndarray
+    T_link_tool: np.ndarray
+    pos_tol: np.ndarray
+    rot_tol: np.ndarray
+
+    def contains(self, T_base_link: np.ndarray) -> np.ndarray:
+        """(N,) whether each link pose (N, 4, 4) puts the tool in the box."""
+        T_tool = T_base_link @ self.T_link_tool
+        R_c, p_c = self.T_center[:3, :3], self.T_center[:3, 3]
+        p_local = (T_tool[:, :3, 3] - p_c) @ R_c
+        r_err = log3(np.einsum('ji,njk->nik', R_c, T_tool[:, :3, :3]))
+        return (np.all(np.abs(p_local) <= self.pos_tol, axis=1)
+                & np.all(np.abs(r_err) <= self.rot_tol, axis=1))
+
+
 def dls(chain: ChainKinematics, Q: np.ndarray, T_target: np.ndarray, iterations: np.ndarray,
-        damping: float, max_step: float, lower: np.ndarray, upper: np.ndarray, reached
+        damping: float, max_step: float, lower: np.ndarray, upper: np.ndarray, region: PoseBox
         ) -> tuple[np.ndarray, np.ndarray]:
     """Damped least squares for every row at once: ``GoalSampler``'s DLS (local Jacobian,
     steps of at most ``max_step`` in norm, clipped into the limits), row i running at most
-    ``iterations[i]`` steps towards ``T_target[i]`` and stopping when ``reached(T_frame)``
-    (N,) bool says so. Returns the last configurations and the reached flags."""
+    ``iterations[i]`` steps towards ``T_target[i]`` and stopping once its frame is in
+    ``region``. Returns the last configurations and the reached flags."""
     Q = np.clip(np.array(Q, dtype=float), lower, upper)
-    done = np.zeros(len(Q), dtype=bool)
-    active = np.arange(len(Q))
-    eye = np.eye(6) * damping
-    for step in range(int(iterations.max(initial=0)) + 1):
-        if not len(active):
-            break
-        T, J = chain.frame_and_jacobian(Q[active])
-        hit = reached(T)
-        done[active[hit]] = True
-        keep = ~hit & (iterations[active] > step)
-        active, T, J = active[keep], T[keep], J[keep]
-        if not len(active):
-            break
-        err = log6(inverse(T) @ T_target[active])
-        J_t = np.transpose(J, (0, 2, 1))
-        dq = np.einsum('nij,nj->ni', J_t, np.linalg.solve(J @ J_t + eye, err[..., None])[..., 0])
-        norm = np.linalg.norm(dq, axis=1)
-        dq *= np.minimum(1.0, max_step / np.maximum(norm, 1e-300))[:, None]
-        Q[active] = np.clip(Q[active] + dq, lower, upper)
+    done = np.zeros(len(Q), dtype=np.bool_)
+    if len(Q):
+        _dls_rows(Q, done, np.ascontiguousarray(T_target, dtype=float),
+                  np.asarray(iterations, dtype=np.int64), float(damping), float(max_step),
+                  np.asarray(lower, float), np.asarray(upper, float), chain.T_parent_joint,
+                  chain.axis, chain.revolute, chain.index_q, chain.T_joint_frame,
+                  region.T_center, region.T_link_tool, np.asarray(region.pos_tol, float),
+                  np.asarray(region.rot_tol, float))
     return Q, done
 
 
-__all__ = ['ChainKinematics', 'dls', 'exp3', 'inverse', 'log3', 'log6']
+@numba.njit(cache=True, nogil=True)
+def _log3_row(R, out):
+    """Rotation vector of the 3x3 rotation ``R`` into ``out`` (3,), stable near a half turn
+    (the axis from the symmetric part there)."""
+    cos = min(max((R[0, 0] + R[1, 1] + R[2, 2] - 1.0) / 2.0, -1.0), 1.0)
+    theta = np.arccos(cos)
+    vx, vy, vz = R[2, 1] - R[1, 2], R[0, 2] - R[2, 0], R[1, 0] - R[0, 1]
+    if theta < 1e-6:
+        scale = 0.5 + theta * theta / 12.0
+        out[0], out[1], out[2] = vx * scale, vy * scale, vz * scale
+    elif theta < np.pi - 1e-4:
+        scale = theta / (2.0 * np.sin(theta))
+        out[0], out[1], out[2] = vx * scale, vy * scale, vz * scale
+    else:
+        one_minus = 1.0 - cos
+        i = 0
+        for a in range(1, 3):
+            if R[a, a] > R[i, i]:
+                i = a
+        ai = np.sqrt(max((R[i, i] - cos) / one_minus, 0.0))
+        for a in range(3):
+            out[a] = ai if a == i else (R[i, a] + R[a, i]) / (2.0 * one_minus * ai)
+        if out[0] * vx + out[1] * vy + out[2] * vz < 0.0:
+            for a in range(3):
+                out[a] = -out[a]
+        for a in range(3):
+            out[a] *= theta
+
+
+@numba.njit(cache=True, nogil=True)
+def _mul4(A, B, out):
+    """``out = A @ B`` for 4x4 rigid transforms (last row 0 0 0 1); ``out`` may be ``A``."""
+    for a in range(3):
+        r0, r1, r2, r3 = A[a, 0], A[a, 1], A[a, 2], A[a, 3]
+        for b in range(4):
+            out[a, b] = r0 * B[0, b] + r1 * B[1, b] + r2 * B[2, b] + (r3 if b == 3 else 0.0)
+    out[3, 0], out[3, 1], out[3, 2], out[3, 3] = 0.0, 0.0, 0.0, 1.0
+
+
+@numba.njit(cache=True, nogil=True)
+def _fk_jacobian(q, T_pj, axis, revolute, index_q, T_jf, T, J, origins, axes_w, M):
+    """T_base_frame into ``T`` (4, 4) and the LOCAL frame Jacobian into ``J`` (6, nq) at ``q``
+    (``ChainKinematics.frame_and_jacobian`` for one row; the rest are scratch arrays)."""
+    T[:, :] = 0.0
+    for a in range(4):
+        T[a, a] = 1.0
+    for j in range(T_pj.shape[0]):
+        _mul4(T, T_pj[j], T)
+        for a in range(3):
+            origins[j, a] = T[a, 3]
+            axes_w[j, a] = T[a, 0] * axis[j, 0] + T[a, 1] * axis[j, 1] + T[a, 2] * axis[j, 2]
+        M[:, :] = 0.0
+        M[3, 3] = 1.0
+        x = q[index_q[j]]
+        if revolute[j]:
+            wx, wy, wz = axis[j, 0] * x, axis[j, 1] * x, axis[j, 2] * x
+            th = np.sqrt(wx * wx + wy * wy + wz * wz)
+            if th < 1e-8:
+                sa, sb = 1.0 - th * th / 6.0, 0.5 - th * th / 24.0
+            else:
+                sa, sb = np.sin(th) / th, (1.0 - np.cos(th)) / (th * th)
+            # R = I + sa [w] + sb [w]^2, with [w]^2 = w w^T - |w|^2 I
+            M[0, 0] = 1.0 + sb * (wx * wx - th * th)
+            M[1, 1] = 1.0 + sb * (wy * wy - th * th)
+            M[2, 2] = 1.0 + sb * (wz * wz - th * th)
+            M[0, 1], M[1, 0] = -sa * wz + sb * wx * wy, sa * wz + sb * wx * wy
+            M[0, 2], M[2, 0] = sa * wy + sb * wx * wz, -sa * wy + sb * wx * wz
+            M[1, 2], M[2, 1] = -sa * wx + sb * wy * wz, sa * wx + sb * wy * wz
+        else:
+            for a in range(3):
+                M[a, a] = 1.0
+                M[a, 3] = axis[j, a] * x
+        _mul4(T, M, T)
+    _mul4(T, T_jf, T)
+    J[:, :] = 0.0
+    for j in range(T_pj.shape[0]):
+        col = index_q[j]
+        aw = axes_w[j]
+        if revolute[j]:
+            dx, dy, dz = T[0, 3] - origins[j, 0], T[1, 3] - origins[j, 1], T[2, 3] - origins[j, 2]
+            cx = aw[1] * dz - aw[2] * dy
+            cy = aw[2] * dx - aw[0] * dz
+            cz = aw[0] * dy - aw[1] * dx
+            for a in range(3):  # R^T (axis x (p - origin)), R^T axis
+                J[a, col] = T[0, a] * cx + T[1, a] * cy + T[2, a] * cz
+                J[3 + a, col] = T[0, a] * aw[0] + T[1, a] * aw[1] + T[2, a] * aw[2]
+        else:
+            for a in range(3):
+                J[a, col] = T[0, a] * aw[0] + T[1, a] * aw[1] + T[2, a] * aw[2]
+
+
+@numba.njit(cache=True, nogil=True)
+def _in_box(T, T_center, T_link_tool, pos_tol, rot_tol, tool, Rrel, w):
+    """``PoseBox.contains`` for one link pose (``tool``, ``Rrel``, ``w``: scratch)."""
+    _mul4(T, T_link_tool, tool)
+    for a in range(3):
+        d = 0.0
+        for b in range(3):
+            d += T_center[b, a] * (tool[b, 3] - T_center[b, 3])
+        if abs(d) > pos_tol[a]:
+            return False
+    for a in range(3):
+        for b in range(3):
+            Rrel[a, b] = (T_center[0, a] * tool[0, b] + T_center[1, a] * tool[1, b]
+                          + T_center[2, a] * tool[2, b])
+    _log3_row(Rrel, w)
+    for a in range(3):
+        if abs(w[a]) > rot_tol[a]:
+            return False
+    return True
+
+
+@numba.njit(cache=True, nogil=True)
+def _log6_row(E, twist, Rs, w):
+    """(linear, angular) twist of the rigid transform ``E`` into ``twist`` (6,), as
+    pinocchio's ``log6``."""
+    Rs[:, :] = E[:3, :3]
+    _log3_row(Rs, w)
+    th = np.sqrt(w[0] * w[0] + w[1] * w[1] + w[2] * w[2])
+    if th < 1e-6:
+        c = 1.0 / 12.0
+    else:
+        c = (1.0 - th * np.sin(th) / (2.0 * (1.0 - np.cos(th)))) / (th * th)
+    p0, p1, p2 = E[0, 3], E[1, 3], E[2, 3]
+    # V^-1 p = p - 0.5 w x p + c w x (w x p)
+    x0, x1, x2 = w[1] * p2 - w[2] * p1, w[2] * p0 - w[0] * p2, w[0] * p1 - w[1] * p0
+    y0, y1, y2 = w[1] * x2 - w[2] * x1, w[2] * x0 - w[0] * x2, w[0] * x1 - w[1] * x0
+    twist[0], twist[1], twist[2] = p0 - 0.5 * x0 + c * y0, p1 - 0.5 * x1 + c * y1, \
+        p2 - 0.5 * x2 + c * y2
+    twist[3], twist[4], twist[5] = w[0], w[1], w[2]
+
+
+@numba.njit(cache=True, nogil=True, parallel=True)
+def _dls_rows(Q, done, T_target, iterations, damping, max_step, lower, upper, T_pj, axis,
+              revolute, index_q, T_jf, T_center, T_link_tool, pos_tol, rot_tol):
+    """``dls``'s loop, one row per attempt, rows in parallel (each touches only its own row)."""
+    n, nq = Q.shape
+    nj = T_pj.shape[0]
+    for i in numba.prange(n):
+        T, M, E = np.empty((4, 4)), np.empty((4, 4)), np.empty((4, 4))
+        J = np.empty((6, nq))
+        origins, axes_w = np.empty((nj, 3)), np.empty((nj, 3))
+        Rs, w, err = np.empty((3, 3)), np.empty(3), np.empty(6)
+        A, x, dq = np.empty((6, 6)), np.empty(6), np.empty(nq)
+        q = Q[i]
+        for step in range(iterations[i] + 1):
+            _fk_jacobian(q, T_pj, axis, revolute, index_q, T_jf, T, J, origins, axes_w, M)
+            if _in_box(T, T_center, T_link_tool, pos_tol, rot_tol, E, Rs, w):
+                done[i] = True
+                break
+            if step >= iterations[i]:
+                break
+            # E = T^-1 T_target
+            for a in range(3):
+                for b in range(4):
+                    v = 0.0
+                    for c in range(3):
+                        v += T[c, a] * (T_target[i, c, b] - (T[c, 3] if b == 3 else 0.0))
+                    E[a, b] = v
+            _log6_row(E, err, Rs, w)
+            # A = J J^T + damping I, solved by Cholesky (symmetric positive definite)
+            for a in range(6):
+                for b in range(a + 1):
+                    v = 0.0
+                    for c in range(nq):
+                        v += J[a, c] * J[b, c]
+                    A[a, b] = v + (damping if a == b else 0.0)
+            for a in range(6):
+                for b in range(a + 1):
+                    v = A[a, b]
+                    for c in range(b):
+                        v -= A[a, c] * A[b, c]
+                    A[a, b] = np.sqrt(v) if a == b else v / A[b, b]
+            for a in range(6):
+                v = err[a]
+                for c in range(a):
+                    v -= A[a, c] * x[c]
+                x[a] = v / A[a, a]
+            for a in range(5, -1, -1):
+                v = x[a]
+                for c in range(a + 1, 6):
+                    v -= A[c, a] * x[c]
+                x[a] = v / A[a, a]
+            norm = 0.0
+            for c in range(nq):
+                v = 0.0
+                for a in range(6):
+                    v += J[a, c] * x[a]
+                dq[c] = v
+                norm += v * v
+            scale = min(1.0, max_step / max(np.sqrt(norm), 1e-300))
+            for c in range(nq):
+                q[c] = min(max(q[c] + dq[c] * scale, lower[c]), upper[c])
+
+
+__all__ = ['ChainKinematics', 'PoseBox', 'dls', 'exp3', 'inverse', 'log3', 'log6']

@@ -25,7 +25,7 @@ from typing import Callable
 
 import numpy as np
 
-from advocc_ros.kinematics.batch import ChainKinematics, dls, exp3, log3
+from advocc_ros.kinematics.batch import ChainKinematics, PoseBox, dls, exp3
 from advocc_ros.kinematics.ik import GoalSampler, IkConfig, seed_configurations
 from advocc_ros.fileio import atomic_open
 from advocc_ros.model.cache import BoundedCache, disk_cache_dir
@@ -75,19 +75,11 @@ class _Region:
         sampler = GoalSampler(robot, None, goal, np.random.default_rng(0))
         self.tol_p, self.tol_r = sampler.tol_p, sampler.tol_r
         self.T_center = goal.center.to_se3().homogeneous
-        self.T_link_tool = sampler.T_link_tool.homogeneous
         self.T_tool_link = sampler.T_tool_link.homogeneous
-        self.pos_tol = np.asarray(goal.position_tolerance_m) + 1e-6
-        self.rot_tol = np.asarray(goal.orientation_tolerance_rad) + 1e-6
-
-    def contains(self, T_base_link: np.ndarray) -> np.ndarray:
-        """(N,) whether each link pose puts the tool in the region (``GoalRegion.contains``)."""
-        T_tool = T_base_link @ self.T_link_tool
-        R_c, p_c = self.T_center[:3, :3], self.T_center[:3, 3]
-        p_local = (T_tool[:, :3, 3] - p_c) @ R_c
-        r_err = log3(np.einsum('ji,njk->nik', R_c, T_tool[:, :3, :3]))
-        return (np.all(np.abs(p_local) <= self.pos_tol, axis=1)
-                & np.all(np.abs(r_err) <= self.rot_tol, axis=1))
+        self.box = PoseBox(self.T_center, sampler.T_link_tool.homogeneous,
+                           np.asarray(goal.position_tolerance_m) + 1e-6,
+                           np.asarray(goal.orientation_tolerance_rad) + 1e-6)
+        """``GoalRegion.contains`` for link poses (the IK's stopping test)."""
 
     def random_targets(self, rng: np.random.Generator, n: int) -> np.ndarray:
         """(n, 4, 4) T_base_link of tool poses drawn uniformly in the region's box."""
@@ -117,7 +109,7 @@ def planner_goals(robot: RobotModel, goal: GoalRegion,
         k = min(BATCH, budget - attempts)
         starts, iterations = _starts(robot, rng, seeds, attempts, k, config.ik_iterations)
         Q, ok = dls(chain, starts, region.random_targets(rng, k), iterations, config.ik_damping,
-                    GoalSampler.max_step_rad, robot.lower, robot.upper, region.contains)
+                    GoalSampler.max_step_rad, robot.lower, robot.upper, region.box)
         Q = Q[ok]
         converged += len(Q)
         if len(Q):
@@ -168,7 +160,7 @@ def _read(path: pathlib.Path, robot: RobotModel, goal: GoalRegion, collisions, n
              and bool(np.isfinite(Q).all())
              and bool(np.all((Q >= robot.lower) & (Q <= robot.upper))))
     if valid and len(Q):
-        in_region = (_Region(robot, goal).contains(chain.frame(Q)) if chain.supports
+        in_region = (_Region(robot, goal).box.contains(chain.frame(Q)) if chain.supports
                      else np.ones(len(Q), bool))
         valid = bool(in_region.all()) and not collisions(Q).any()
     if not valid:
