@@ -22,14 +22,16 @@ from advocc_ros.model.robot import RobotModel
 
 
 @numba.njit(cache=True, nogil=True, parallel=True)
-def _cover(cover, cand_id, near, stamp, win_origin, voxel, k, R, t, lut_data, lut_offset,
+def _cover(cover, cand_id, near, stamp, union, win_origin, voxel, k, R, t, lut_data, lut_offset,
            lut_shape, lut_origin, lut_pitch, box_lo, box_hi):
     """``cover[s, cand_id[c]] = True`` for every candidate c whose cube U(c) (half-width k
     voxels) holds a voxel centre inside a link of configuration s (window grid). ``near`` and
     ``stamp`` are padded by k: voxels with no candidate around them are skipped, and so are
-    voxels another link of the same configuration already did. Configurations run in parallel
-    (rows of ``cover`` are independent; a voxel's stamp only ever skips work its own
-    configuration did, so a race costs a repeated, idempotent write, never a missed one)."""
+    voxels another link of the same configuration already did. With ``union``, ``cover`` is
+    not written: ``stamp >= 0`` marks the voxels inside a link at some configuration (the union
+    of the bodies), and a voxel one configuration filled is not tested again. Configurations
+    run in parallel (rows of ``cover`` are independent; a voxel's stamp only ever skips work
+    already done, so a race costs a repeated, idempotent write, never a missed one)."""
     nx, ny, nz = cand_id.shape
     lo_limit = np.full(3, -k, np.int64)
     hi_limit = np.array([nx - 1 + k, ny - 1 + k, nz - 1 + k], np.int64)
@@ -45,13 +47,16 @@ def _cover(cover, cand_id, near, stamp, win_origin, voxel, k, R, t, lut_data, lu
                 for j in range(lo[1], hi[1] + 1):
                     py = win_origin[1] + (j + 0.5) * voxel - tl[1]
                     for kk in range(lo[2], hi[2] + 1):
-                        if not near[i + k, j + k, kk + k] or stamp[i + k, j + k, kk + k] == s:
+                        done = stamp[i + k, j + k, kk + k]
+                        if not near[i + k, j + k, kk + k] or done == s or (union and done >= 0):
                             continue
                         pz = win_origin[2] + (kk + 0.5) * voxel - tl[2]
                         if not in_link(r, px, py, pz, lut_data, offset_l, shape_l, origin_l,
                                        inv):
                             continue
                         stamp[i + k, j + k, kk + k] = s
+                        if union:
+                            continue
                         for a0 in range(max(i - k, 0), min(i + k, nx - 1) + 1):
                             for a1 in range(max(j - k, 0), min(j + k, ny - 1) + 1):
                                 for a2 in range(max(kk - k, 0), min(kk + k, nz - 1) + 1):
@@ -61,40 +66,10 @@ def _cover(cover, cand_id, near, stamp, win_origin, voxel, k, R, t, lut_data, lu
     return cover
 
 
-@numba.njit(cache=True, nogil=True, parallel=True)
-def _occupy(occ, near, win_origin, voxel, k, R, t, lut_data, lut_offset, lut_shape, lut_origin,
-            lut_pitch, box_lo, box_hi):
-    """``occ[v] = True`` for every voxel v (window grid, padded by k like ``near``) near a
-    candidate whose centre is inside a link at some configuration s: the union of the bodies,
-    each voxel tested until one configuration fills it. Configurations run in parallel (a race
-    costs a repeated test and an idempotent write)."""
-    nx, ny, nz = near.shape
-    lo_limit = np.full(3, -k, np.int64)
-    hi_limit = np.array([nx - 1 - k, ny - 1 - k, nz - 1 - k], np.int64)
-    inv = 1.0 / lut_pitch
-    for s in numba.prange(R.shape[0]):
-        for li in range(R.shape[1]):
-            r, tl = R[s, li], t[s, li]
-            lo, hi = link_voxel_box(r, tl, box_lo[li], box_hi[li], win_origin, voxel,
-                                    lo_limit, hi_limit)
-            for i in range(lo[0], hi[0] + 1):
-                px = win_origin[0] + (i + 0.5) * voxel - tl[0]
-                for j in range(lo[1], hi[1] + 1):
-                    py = win_origin[1] + (j + 0.5) * voxel - tl[1]
-                    for kk in range(lo[2], hi[2] + 1):
-                        if not near[i + k, j + k, kk + k] or occ[i + k, j + k, kk + k]:
-                            continue
-                        pz = win_origin[2] + (kk + 0.5) * voxel - tl[2]
-                        if in_link(r, px, py, pz, lut_data, lut_offset[li], lut_shape[li],
-                                   lut_origin[li], inv):
-                            occ[i + k, j + k, kk + k] = True
-    return occ
-
-
 class _Lattice:
-    """What both kernels take for configurations ``Q`` in ``region``'s window: the packed link
-    tables, the links' placements, the window's origin, the cube half-width k and the
-    k-padded mask of voxels with a candidate within k."""
+    """What the kernel takes for configurations ``Q`` in ``region``'s window: the candidates'
+    ids, the packed link tables, the links' placements, the window's origin, the cube
+    half-width k, the k-padded mask of voxels with a candidate within k and a fresh stamp."""
 
     def __init__(self, robot: RobotModel, world: CollisionWorld, Q: np.ndarray,
                  region: SearchRegion, shrink: int, placements):
@@ -105,12 +80,17 @@ class _Lattice:
         self.voxel_m = grid.voxel_m
         self.k = max(region.k - shrink, 0)
         self.near = np.pad(box_sum(region.candidates.astype(np.float64), self.k) > 0, self.k)
+        self.cand = np.argwhere(region.candidates)
+        self.cand_id = np.full(region.candidates.shape, -1, dtype=np.int64)
+        self.cand_id[tuple(self.cand.T)] = np.arange(len(self.cand))
+        self.stamp = np.full(self.near.shape, -1, dtype=np.int64)
 
-    def args(self) -> tuple:
-        """The kernels' arguments after their output: window, placements and tables."""
+    def scan(self, cover: np.ndarray, union: bool) -> None:
+        """Run ``_cover`` (its docstring) into ``cover`` and ``self.stamp``."""
         tb = self.tables
-        return (self.origin_m, self.voxel_m, self.k, self.R, self.t, tb.data, tb.offset,
-                tb.shape, tb.origin, tb.pitch, tb.box_lo, tb.box_hi)
+        _cover(cover, self.cand_id, self.near, self.stamp, union, self.origin_m, self.voxel_m,
+               self.k, self.R, self.t, tb.data, tb.offset, tb.shape, tb.origin, tb.pitch,
+               tb.box_lo, tb.box_hi)
 
 
 def cover_matrix(robot: RobotModel, world: CollisionWorld, Q: np.ndarray,
@@ -119,15 +99,11 @@ def cover_matrix(robot: RobotModel, world: CollisionWorld, Q: np.ndarray,
     """(len(Q), n_candidates) sparse 0/1: box at candidate j covers configuration i;
     ``shrink`` voxels off the box's half-width ask for a deeper contact. ``placements``:
     ``placement_arrays(world, Q)`` if the caller has them already."""
-    cand = np.argwhere(region.candidates)
-    if not len(Q) or not len(cand):
-        return sparse.csr_matrix((len(Q), len(cand)))
-    cand_id = np.full(region.candidates.shape, -1, dtype=np.int64)
-    cand_id[tuple(cand.T)] = np.arange(len(cand))
-    dense = np.zeros((len(Q), len(cand)), dtype=np.bool_)
-    lattice = _Lattice(robot, world, Q, region, shrink, placements)
-    stamp = np.full(lattice.near.shape, -1, dtype=np.int64)
-    _cover(dense, cand_id, lattice.near, stamp, *lattice.args())
+    n_cand = int(region.candidates.sum())
+    if not len(Q) or not n_cand:
+        return sparse.csr_matrix((len(Q), n_cand))
+    dense = np.zeros((len(Q), n_cand), dtype=np.bool_)
+    _Lattice(robot, world, Q, region, shrink, placements).scan(dense, union=False)
     indptr, indices = _dense_to_csr(dense)
     return sparse.csr_matrix((np.ones(len(indices)), indices, indptr), shape=dense.shape)
 
@@ -141,9 +117,9 @@ def touching_mask(robot: RobotModel, world: CollisionWorld, Q: np.ndarray,
     if not len(Q) or not region.candidates.any():
         return mask
     lattice = _Lattice(robot, world, Q, region, 0, None)
-    occ = _occupy(np.zeros(lattice.near.shape, dtype=np.bool_), lattice.near, *lattice.args())
+    lattice.scan(np.zeros((0, 0), dtype=np.bool_), union=True)
     k = lattice.k
-    reach = box_sum(occ.astype(np.float64), k) > 0
+    reach = box_sum((lattice.stamp >= 0).astype(np.float64), k) > 0
     inner = reach[k:reach.shape[0] - k, k:reach.shape[1] - k, k:reach.shape[2] - k]
     return inner & region.candidates
 
