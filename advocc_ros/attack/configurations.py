@@ -108,6 +108,21 @@ def cover_matrix(robot: RobotModel, world: CollisionWorld, Q: np.ndarray,
     return sparse.csr_matrix((np.ones(len(indices)), indices, indptr), shape=dense.shape)
 
 
+def goal_cover(robot: RobotModel, world: CollisionWorld, Q_goal: np.ndarray,
+               region: SearchRegion, placements: tuple[np.ndarray, np.ndarray] | None = None
+               ) -> sparse.csr_matrix:
+    """``cover_matrix`` of the task's goal sample ``Q_goal``, computed once per region: the
+    witness choice and the task's objective both need it, and a region pruned in between (the
+    witness guard) gets the columns of the candidates it kept, which are the same entries."""
+    if region.goal_cover is not None:
+        Q_then, then, cover = region.goal_cover
+        if Q_then is Q_goal and not (region.candidates & ~then).any():
+            return cover[:, region.candidates[then]]
+    cover = cover_matrix(robot, world, Q_goal, region, placements=placements)
+    region.goal_cover = (Q_goal, region.candidates.copy(), cover)
+    return cover
+
+
 def touching_mask(robot: RobotModel, world: CollisionWorld, Q: np.ndarray,
                   region: SearchRegion) -> np.ndarray:
     """Mask of ``region``'s candidates that cover at least one configuration of ``Q`` (the
@@ -191,4 +206,4 @@ def greedy_configurations(cover: sparse.spmatrix | np.ndarray, weights: np.ndarr
     return picks, rejected
 
 
-__all__ = ['cover_matrix', 'greedy_configurations', 'touching_mask']
+__all__ = ['cover_matrix', 'goal_cover', 'greedy_configurations', 'touching_mask']

@@ -81,6 +81,9 @@ class SearchRegion:
     prunes the region's candidates first); None under ``paper``."""
     weight_config: HeatmapConfig = HeatmapConfig()
     """w(q)'s parameters, the heatmap's own (methods that weigh configurations use them)."""
+    goal_cover: tuple | None = None
+    """(goal sample, candidates then, cover matrix): the cover of the task's goal sample, kept
+    by ``attack.configurations.goal_cover`` so that it is computed once per region."""
 
     def center_m(self, c: np.ndarray) -> np.ndarray:
         return self.grid.centers(np.asarray(c) + self.lo)

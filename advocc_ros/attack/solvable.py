@@ -39,7 +39,7 @@ from scipy import ndimage
 
 from advocc_ros.attack.bodies import LinkBoxes
 from advocc_ros.model.cache import BoundedCache
-from advocc_ros.attack.configurations import cover_matrix, touching_mask
+from advocc_ros.attack.configurations import goal_cover, touching_mask
 from advocc_ros.model.collision import CollisionWorld
 from advocc_ros.kinematics.ik import GoalSampler, IkConfig
 from advocc_ros.model.robot import RobotModel
@@ -224,7 +224,7 @@ def choose_witness(robot: RobotModel, world: CollisionWorld, region, witnesses, 
     count per candidate, the kept one's ``touching`` mask or None when there was no choice)."""
     if len(witnesses) == 1 or not len(Q_goal) or not region.candidates.any():
         return 0, [], None
-    cover = cover_matrix(robot, world, Q_goal, region).tocsc()
+    cover = goal_cover(robot, world, Q_goal, region).tocsc()
     cand = tuple(np.argwhere(region.candidates).T)
     shielded, masks = [], []
     for witness in witnesses:

@@ -39,7 +39,7 @@ from typing import Any, Mapping
 import numpy as np
 from scipy import sparse
 
-from advocc_ros.attack.configurations import cover_matrix, greedy_configurations
+from advocc_ros.attack.configurations import cover_matrix, goal_cover, greedy_configurations
 from advocc_ros.attack.goals import GoalGuard
 from advocc_ros.attack.methods import MethodContext, register_method
 from advocc_ros.attack.region import SearchRegion
@@ -227,7 +227,10 @@ def _objective(robot, world: CollisionWorld, region: SearchRegion, Q_goal: np.nd
     Q = np.concatenate([Q_goal, Q_app])
     n_goal = len(Q_goal)
     R, t = placement_arrays(world, Q)
-    cover = cover_matrix(robot, world, Q, region, placements=(R, t))
+    cover = sparse.vstack([
+        goal_cover(robot, world, Q_goal, region, (R[:n_goal], t[:n_goal])),
+        cover_matrix(robot, world, Q_app, region, placements=(R[n_goal:], t[n_goal:]))],
+        format='csr')
     w_goal = np.ones(n_goal)
     if isinstance(region.guard, GoalGuard):
         weights = np.concatenate([np.zeros(n_goal), w_app])
