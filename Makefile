@@ -21,7 +21,11 @@ ARENA_STAMP := $(ARENA_VENV)/.advocc-arena-installed
 
 .PHONY: install demo test test-fast fuzz perf clean
 
-install: $(STAMP) $(MPLIB_STAMP) $(OMPL2_STAMP)
+# The venvs are independent: they install side by side (mostly downloads and unpacking).
+ENVS_JOBS ?= 4
+
+install:
+	$(MAKE) --no-print-directory -j$(ENVS_JOBS) $(STAMP) $(MPLIB_STAMP) $(OMPL2_STAMP)
 
 $(PY):
 	@$(PYTHON) -c 'import sys; assert sys.version_info[:2] == (3, 11), \
@@ -69,7 +73,8 @@ $(ARENA_STAMP): Makefile
 demo: $(STAMP)
 	$(VENV)/bin/advocc demo --out $(OUT)
 
-test: $(STAMP) $(MPLIB_STAMP) $(OMPL2_STAMP) $(ARENA_STAMP)
+test:
+	$(MAKE) --no-print-directory -j$(ENVS_JOBS) $(STAMP) $(MPLIB_STAMP) $(OMPL2_STAMP) $(ARENA_STAMP)
 	$(PY) -m pytest $(PYTEST_ARGS)
 
 # The core tests without processes (no nodes, planning workers or CLI runs) and without the

@@ -8,8 +8,8 @@ three things holds for its boxes (``Verdict``):
   every self and scene pair more than half the clearance floor apart (conservative advancement,
   ``advocc_ros.planning.certificate``) and it ends in the goal region. A solution exists.
 - ``goal blocked``: among at least ``GOAL_PROBE_CONVERGED`` goal-region IK solutions from random
-  seeds that converged, none is collision-free. Strong evidence (not a proof) that no solution
-  exists, with the counts to judge it.
+  seeds that converged (in ``GOAL_PROBE_MAX_ATTEMPTS`` attempts), none is collision-free.
+  Strong evidence (not a proof) that no solution exists, with the counts to judge it.
 - ``unknown``: neither (e.g. the witness is blocked but a free goal configuration exists).
 
 The ``solvable`` goal policy keeps the witness valid by construction: a candidate box is
@@ -41,7 +41,7 @@ from advocc_ros.attack.bodies import LinkBoxes
 from advocc_ros.model.cache import BoundedCache
 from advocc_ros.attack.configurations import goal_cover, touching_mask
 from advocc_ros.model.collision import CollisionWorld
-from advocc_ros.kinematics.ik import GoalSampler, IkConfig
+from advocc_ros.kinematics.goal_batch import THREADS, planner_goals
 from advocc_ros.model.robot import RobotModel
 from advocc_ros.model.goal import GoalRegion
 from advocc_ros.model.scene import SceneObject
@@ -62,7 +62,7 @@ VERDICTS = tuple(v.value for v in Verdict)
 GOAL_PROBE_CONVERGED = 500
 """Converged goal IK solutions a ``goal blocked`` verdict needs, all in collision."""
 GOAL_PROBE_MAX_ATTEMPTS = 5000
-"""IK attempts the probe may spend before it answers ``unknown``."""
+"""IK attempts the probe spends unless it finds a collision-free solution first."""
 GOAL_PROBE_SEED = 9_100_001
 CERTIFICATE = CertificateConfig()
 """The certificate's and the guard's settings (floor, guard margin)."""
@@ -94,20 +94,17 @@ class Solvability:
 
 
 def probe_goal(robot: RobotModel, world: CollisionWorld, goal: GoalRegion,
-               converged: int = GOAL_PROBE_CONVERGED,
                max_attempts: int = GOAL_PROBE_MAX_ATTEMPTS) -> dict:
-    """Random-seed goal IK until a collision-free solution, ``converged`` colliding ones, or
-    ``max_attempts``; the counts. Seeded and iteration-bounded: the same answer on any
+    """Goal IK from random seeds (the planners' attempts, in batches:
+    ``kinematics.goal_batch.planner_goals``) until a batch holds a collision-free solution or
+    ``max_attempts`` are spent; the counts (``converged``: attempts that reached the region,
+    ``colliding``: those in collision). Seeded and iteration-bounded: the same answer on any
     machine."""
-    sampler = GoalSampler(robot, world.in_collision, goal,
-                          np.random.default_rng(GOAL_PROBE_SEED), IkConfig())
-    free = 0
-    while sampler.attempts < max_attempts and sampler.converged < converged:
-        if sampler.attempt() is not None:
-            free = 1
-            break
-    return {'attempts': sampler.attempts, 'converged': sampler.converged,
-            'colliding': sampler.colliding, 'free': free}
+    draw = planner_goals(robot, goal, lambda Q: world.collisions_batch(Q, THREADS),
+                         max_attempts, GOAL_PROBE_SEED, attempts_per_sample=1, enough=1)
+    free = len(draw.Q)
+    return {'attempts': draw.attempts, 'converged': draw.converged,
+            'colliding': draw.converged - free, 'free': int(free > 0)}
 
 
 def witness_candidates(witness) -> tuple:
