@@ -200,6 +200,7 @@ def test_build_on_embedded_ray(built):
     assert float(rows[1]['psr']) == attacked['victims']['rrtconnect']['psr']
 
 
+@pytest.mark.processes  # the `built` fixture runs a build
 def test_summary_rewrites_a_build_folders_summary(built, tmp_path, capsys):
     """``advocc dataset summary`` summarises what a folder holds (a stopped build's too); a
     folder without a build record is a clear error."""
