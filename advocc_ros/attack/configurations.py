@@ -80,9 +80,9 @@ class _Lattice:
         self.voxel_m = grid.voxel_m
         self.k = max(region.k - shrink, 0)
         self.near = np.pad(box_sum(region.candidates.astype(np.float64), self.k) > 0, self.k)
-        self.cand = np.argwhere(region.candidates)
+        cand = np.argwhere(region.candidates)
         self.cand_id = np.full(region.candidates.shape, -1, dtype=np.int64)
-        self.cand_id[tuple(self.cand.T)] = np.arange(len(self.cand))
+        self.cand_id[tuple(cand.T)] = np.arange(len(cand))
         self.stamp = np.full(self.near.shape, -1, dtype=np.int64)
 
     def scan(self, cover: np.ndarray, union: bool) -> None:
