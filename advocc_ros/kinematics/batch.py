@@ -9,7 +9,8 @@ read once from the pinocchio model into arrays, and the IK runs every attempt's 
 (aligned or not) are supported, which covers the serial arms the tool loads;
 ``ChainKinematics.supports`` tells. The kinematics agree with pinocchio's
 ``framesForwardKinematics`` and ``computeFrameJacobian`` (LOCAL) to round-off, and the
-compiled IK with the same loop in numpy (test/test_batch_ik.py).
+compiled IK takes the steps of pinocchio's one-at-a-time ``kinematics.ik.dls_ik``
+(test/test_batch_ik.py).
 """
 
 from __future__ import annotations
