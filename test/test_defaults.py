@@ -4,6 +4,7 @@ heatmap's own parameters weigh the attack's configurations."""
 import dataclasses
 
 import numpy as np
+import pytest
 
 from advocc_ros.heatmap import HeatmapConfig, build_heatmap
 from advocc_ros.heatmap.build import weight_config
@@ -156,3 +157,23 @@ def test_call_attack_waits_long_enough_for_a_first_solvable_attack():
     assert attack_timeout_s(args.timeout, args.policy) == SOLVABLE_TIMEOUT_S >= 120
     assert attack_timeout_s(None, 'paper') == TIMEOUT_S
     assert attack_timeout_s(30.0, 'solvable') == 30.0  # a given --timeout wins
+
+
+@pytest.mark.processes
+def test_a_named_command_loads_only_its_own_module():
+    """``advocc attack`` does not import the other commands (ROS, the bench, the heatmap build's
+    mesh tools): a warm attack is dominated by imports otherwise. ``advocc --help`` lists all."""
+    import subprocess
+    import sys
+    code = ('import sys; from advocc_ros.cli import build_parser; '
+            "build_parser(['-v', 'attack']); "
+            "print(sorted(m for m in sys.modules if m.startswith('advocc_ros.commands.')), "
+            "'trimesh' in sys.modules, 'rclpy' in sys.modules)")
+    out = subprocess.run([sys.executable, '-c', code], capture_output=True, text=True,
+                         check=True).stdout.strip()
+    assert out == "['advocc_ros.commands.attack', 'advocc_ros.commands.common'] False False"
+    from advocc_ros.cli import COMMANDS, build_parser
+    for argv in (None, ['--help'], ['no-such-command']):
+        choices = next(a.choices for a in build_parser(argv)._actions if isinstance(
+            getattr(a, 'choices', None), dict))
+        assert list(choices) == COMMANDS

@@ -68,6 +68,43 @@ def test_convex_lut_is_the_half_space_test_of_every_cell(panda, solid):
     assert inside.sum() > 100 and (~inside).sum() > 100
 
 
+def test_link_bounds_are_the_link_meshes_bounds(panda):
+    """``link_bounds_m`` (coal's local boxes, no mesh loading) equals the bounds trimesh gives."""
+    lo, hi = panda.link_bounds_m
+    np.testing.assert_array_equal(lo, [m.bounds[0] for m in panda.link_meshes])
+    np.testing.assert_array_equal(hi, [m.bounds[1] for m in panda.link_meshes])
+
+
+def test_link_tables_are_kept_on_disk_and_checked_when_read(panda, tmp_path, monkeypatch,
+                                                            caplog):
+    """A second process reads the tables the first one built; a damaged file is built again,
+    and ``off`` keeps nothing on disk."""
+    from advocc_ros.heatmap import LinkTables, build
+    from advocc_ros.model.cache import CACHE_ENV
+    monkeypatch.setenv(CACHE_ENV, str(tmp_path))
+    monkeypatch.setattr(build, '_TABLES', build.BoundedCache('link look-up tables', 8))
+    built = build.link_tables(panda, 0.005)
+    [path] = (tmp_path / 'link_tables').iterdir()
+    read = LinkTables.read(path, len(panda.link_names), 0.005)
+    for name in LinkTables.ARRAYS:
+        np.testing.assert_array_equal(getattr(read, name), getattr(built, name))
+    with pytest.raises(ValueError, match='another robot or pitch'):
+        LinkTables.read(path, len(panda.link_names), 0.01)
+
+    path.write_bytes(b'not a zip file')
+    build._TABLES.clear()
+    again = build.link_tables(panda, 0.005)
+    assert 'building them again' in caplog.text
+    np.testing.assert_array_equal(again.data, built.data)
+    assert LinkTables.read(path, len(panda.link_names), 0.005).data.sum() == built.data.sum()
+
+    monkeypatch.setenv(CACHE_ENV, 'off')
+    build._TABLES.clear()
+    path.unlink()
+    build.link_tables(panda, 0.005)
+    assert not path.exists()
+
+
 def test_h_is_zero_inside_scene_objects(small_table_heatmap, table_scene):
     heatmap = small_table_heatmap
     expected_blocked = occupied_mask(heatmap.grid, table_scene.shapes)

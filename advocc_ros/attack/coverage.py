@@ -57,7 +57,9 @@ def box_sum(values: np.ndarray, k: int) -> np.ndarray:
     """
     out = np.asarray(values, dtype=np.float64)
     for axis in range(3):
-        out = np.moveaxis(_line_sums(np.moveaxis(out, axis, -1), k), -1, axis)
+        # contiguous lines: one compiled signature (each loads from the cache in ~30 ms)
+        out = np.moveaxis(_line_sums(np.ascontiguousarray(np.moveaxis(out, axis, -1)), k),
+                          -1, axis)
     return np.ascontiguousarray(out)
 
 
@@ -109,7 +111,8 @@ def box_distance(mask: np.ndarray, voxel_m: float, half_m: float, max_m: float,
         dst.append(slice(start - rows[a][0], stop - rows[a][0]))
     out = np.where(mask[block], np.float32(0), np.float32(np.inf))
     for axis in range(3):
-        line = _min_plus(np.moveaxis(out, axis, -1), costs, *out_rows[axis])
+        line = _min_plus(np.ascontiguousarray(np.moveaxis(out, axis, -1)), costs,
+                         *out_rows[axis])
         out = np.moveaxis(line, -1, axis)
     result[tuple(dst)] = np.sqrt(out, dtype=np.float64)
     return result

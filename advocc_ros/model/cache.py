@@ -29,7 +29,8 @@ def user_cache_root() -> pathlib.Path:
 
 
 def disk_cache_dir() -> pathlib.Path | None:
-    """Where a task's witness and goal sample are kept between processes:
+    """Where a task's witness and goal sample, and a robot's link tables, are kept between
+    processes:
     ``$ADVOCC_WITNESS_CACHE`` (``off``: nowhere), by default
     ``$XDG_CACHE_HOME/advocc_ros/witness`` (``~/.cache/advocc_ros/witness``). What is read back
     is checked again before it is used."""

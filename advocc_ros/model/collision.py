@@ -32,7 +32,6 @@ import warnings
 import coal
 import numpy as np
 import pinocchio as pin
-from scipy.spatial import ConvexHull
 
 from advocc_ros.model.cache import BoundedCache
 from advocc_ros.model.cloud import cloud_octree
@@ -61,7 +60,7 @@ def coal_geometry(shape: Shape) -> coal.CollisionGeometry:
 
 
 def convex_hull(mesh: coal.BVHModelBase) -> coal.Convex:
-    """The convex hull of a link mesh, built from its extreme vertices only.
+    """The convex hull of a link mesh, keeping its extreme vertices only (coal runs qhull).
 
     coal's ``buildConvexRepresentation`` keeps every mesh vertex, including those inside the
     hull's faces (UR5: 283 points for 96 extreme ones). coal's support function climbs the
@@ -71,7 +70,7 @@ def convex_hull(mesh: coal.BVHModelBase) -> coal.Convex:
     Panda's meshes are already convex, so their hull is the same point set as before.
     """
     points = np.asarray(mesh.vertices(), dtype=float)
-    hull = coal.Convex.convexHull(list(points[ConvexHull(points).vertices]), True, 'Qt')
+    hull = coal.Convex.convexHull(list(points), True, 'Qt')
     hull.computeLocalAABB()
     return hull
 
@@ -293,8 +292,7 @@ class CollisionWorld:
         if not self._primitives_only:
             return np.array([self.scene_distance(q, upto_m) for q in Q])
         H = self.link_transforms(Q)
-        lo, hi = (np.array([m.bounds[b] for m in self.robot.link_meshes[:self.n_links]])
-                  for b in (0, 1))
+        lo, hi = (b[:self.n_links] for b in self.robot.link_bounds_m)
         center = H[:, :, :3, 3] + np.einsum('nlij,lj->nli', H[:, :, :3, :3], (lo + hi) / 2)
         half = np.einsum('nlij,lj->nli', np.abs(H[:, :, :3, :3]), (hi - lo) / 2)
         s_lo, s_hi = (np.array([sh.bounds_m()[b] for sh in self.shapes]) for b in (0, 1))

@@ -20,14 +20,17 @@ import hashlib
 import logging
 import pathlib
 import xml.etree.ElementTree as ET
+from typing import TYPE_CHECKING
 
 import coal
 import numpy as np
 import pinocchio as pin
-import trimesh
 
 from advocc_ros.model.coal_state import exact_boxes
 from advocc_ros.model.motion_bound import MotionBound, MotionBoundError, motion_bound
+
+if TYPE_CHECKING:  # trimesh (0.3 s to import) loads only where link solids are voxelized
+    import trimesh
 
 log = logging.getLogger(__name__)
 
@@ -201,6 +204,7 @@ def _resolve_locked(full: pin.Model, q_ref: np.ndarray, lock_ids: list[int],
 
 def _geometry_trimesh(geom: pin.GeometryObject) -> trimesh.Trimesh:
     """Solid of one collision geometry, in the geometry's own frame."""
+    import trimesh
     shape = geom.geometry
     if isinstance(shape, coal.Box):
         return trimesh.creation.box(extents=2.0 * np.asarray(shape.halfSide))
@@ -371,6 +375,17 @@ class RobotModel:
     def link_meshes(self) -> tuple[trimesh.Trimesh, ...]:
         """Solid of each collision geometry in its own frame (used for voxelization)."""
         return tuple(_geometry_trimesh(g) for g in self.collision_model.geometryObjects)
+
+    @functools.cached_property
+    def link_bounds_m(self) -> tuple[np.ndarray, np.ndarray]:
+        """(lo, hi) (L, 3): each collision geometry's bounding box in its own frame [m] (coal's
+        local AABB: the bounds of ``link_meshes`` without loading them)."""
+        boxes = []
+        for g in self.collision_model.geometryObjects:
+            g.geometry.computeLocalAABB()
+            boxes.append((np.asarray(g.geometry.aabb_local.min_),
+                          np.asarray(g.geometry.aabb_local.max_)))
+        return np.array([b[0] for b in boxes]), np.array([b[1] for b in boxes])
 
 
 @functools.lru_cache(maxsize=4)

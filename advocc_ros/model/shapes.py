@@ -9,12 +9,15 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 import pathlib
+from typing import TYPE_CHECKING
 
 import numpy as np
-import trimesh
 
 from advocc_ros.limits import MAX_FILE_BYTES, MAX_MESH_TRIANGLES, MAX_MESH_VERTICES
 from advocc_ros.model.pose import Pose, SceneError, finite_array
+
+if TYPE_CHECKING:  # trimesh (0.3 s to import) loads only where a mesh is made or read
+    import trimesh
 
 SHAPES = ('box', 'sphere', 'cylinder', 'mesh', 'cloud')
 
@@ -40,6 +43,7 @@ class Shape:
 
     def trimesh(self) -> trimesh.Trimesh:
         """Solid of the shape in the base frame (a cloud: its occupied octree cells)."""
+        import trimesh
         if self.kind == 'box':
             mesh = trimesh.creation.box(extents=self.dims)
         elif self.kind == 'sphere':
@@ -95,6 +99,7 @@ def mesh_shape_from_data(entry: dict, where: str, base_dir: pathlib.Path | None,
         if path.stat().st_size > MAX_FILE_BYTES:
             raise SceneError(f'{where}.file: {path} is {path.stat().st_size} bytes, limit '
                              f'{MAX_FILE_BYTES} (MAX_FILE_BYTES)')
+        import trimesh
         try:
             mesh = trimesh.load_mesh(str(path), force='mesh')
         except Exception as exc:  # trimesh raises many types on bad files
@@ -141,6 +146,7 @@ def cloud_cells(points_local: np.ndarray, resolution_m: float) -> np.ndarray:
 
 def _cells_mesh(cells: np.ndarray, resolution_m: float) -> trimesh.Trimesh:
     """One cube per cell, in the cloud's frame."""
+    import trimesh
     cube = trimesh.creation.box(extents=(resolution_m,) * 3)
     centers = (cells + 0.5) * resolution_m
     vertices = (cube.vertices[None] + centers[:, None]).reshape(-1, 3)

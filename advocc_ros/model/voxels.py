@@ -11,12 +11,15 @@ occupies the centres that fall in one of its octree leaves.
 from __future__ import annotations
 
 import dataclasses
+from typing import TYPE_CHECKING
 
 import numpy as np
-import trimesh
 
 from advocc_ros.model.cloud import points_in_cloud
 from advocc_ros.model.shapes import Shape
+
+if TYPE_CHECKING:  # trimesh (0.3 s to import) loads only where a mesh is voxelized
+    import trimesh
 
 
 @dataclasses.dataclass(frozen=True)
@@ -145,6 +148,7 @@ def points_in_shape(shape: Shape, points_m: np.ndarray, lut_pitch_m: float = 0.0
             (np.linalg.norm(local[..., :2], axis=-1) <= radius)
     if shape.kind == 'cloud':
         return points_in_cloud(shape, points_m)
+    import trimesh
     mesh = trimesh.Trimesh(shape.vertices, shape.faces, process=False)
     return SolidLUT.from_mesh(mesh, lut_pitch_m).contains(local)
 
