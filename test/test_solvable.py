@@ -132,8 +132,8 @@ def test_a_damaged_cache_file_costs_a_search_not_a_wrong_verdict(task, tmp_path,
 
 
 def test_attack_cli_reuses_the_witness_of_an_earlier_run(task, tmp_path):
-    """Two ``advocc attack`` processes: the second reads the first one's witness and goal
-    sample (a file each), writes nothing again, and certifies the same path."""
+    """Two ``advocc attack`` processes: the second reads the first one's witness, goal sample
+    and link tables (a file each), writes nothing again, and certifies the same path."""
     scene, robot, q0, heatmap = task
     save_heatmap(heatmap, tmp_path / 'h.npz')
     cache = tmp_path / 'cache'
@@ -146,8 +146,9 @@ def test_attack_cli_reuses_the_witness_of_an_earlier_run(task, tmp_path):
                                '1', '--policy', 'solvable', '--json', '--no-progress', '--out',
                                str(out)], capture_output=True, text=True, timeout=180, env=env)
         assert proc.returncode == 0, proc.stderr[-2000:]
-        files = sorted(cache.iterdir())
-        assert sorted(f.suffix for f in files) == ['.npz', '.yaml'], files
+        files = sorted(f for f in cache.rglob('*') if f.is_file())
+        assert sorted(f.suffix for f in files) == ['.npz', '.npz', '.yaml'], files
+        assert sum(f.parent.name == 'link_tables' for f in files) == 1, files
         runs.append((json.loads(proc.stdout), [f.stat().st_mtime_ns for f in files],
                      load_witness(witness_file(out)).waypoints))
     assert runs[0][1] == runs[1][1], 'the second run searched and wrote the cache again'
