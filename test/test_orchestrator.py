@@ -270,3 +270,17 @@ def test_external_shim_is_discovered_and_used(tmp_path, heatmap_file, ros_env):
     assert len(records) == 12
     shims = {r['shim'] for r in records}
     assert shims == {'/advocc_shim_table_pick_0', '/remote_shim'}, shims
+
+
+def test_the_bench_server_may_read_the_heatmap_file_the_user_gave(tmp_path):
+    """``advocc bench --heatmap /data/hm.npz``: the heatmap server it starts may read that file
+    (not only the run folder, the working directory and the temporary directory), and no more
+    of the disk than its folder."""
+    from advocc_ros.orchestrator.sources import server_allowed_dirs
+    from advocc_ros.paths import PathError, allowed_dirs, confine
+    given = pathlib.Path('/advocc-test-data/heatmaps/table_pick.npz')
+    dirs = allowed_dirs(server_allowed_dirs(tmp_path / 'run', given))
+    assert confine(given, dirs, 'heatmap_file') == given
+    assert confine(tmp_path / 'run' / 'heatmaps' / 'box.npz', dirs, 'heatmap_file')
+    with pytest.raises(PathError, match='outside the allowed directories'):
+        confine('/advocc-test-data/other/table_pick.npz', dirs, 'heatmap_file')

@@ -70,6 +70,13 @@ def prepare_heatmaps(cfg, run_dir: pathlib.Path, given: dict[str, list[str]], un
     return out
 
 
+def server_allowed_dirs(run_dir: pathlib.Path, heatmap: pathlib.Path) -> list[str]:
+    """Where the bench's heatmap server may read: the node defaults, the run folder (merged and
+    built heatmaps, wherever --out put it) and the folder of the heatmap file the user gave."""
+    return [str(d) for d in default_allowed_dirs()] + [
+        str(pathlib.Path(run_dir).resolve()), str(pathlib.Path(heatmap).resolve().parent)]
+
+
 @dataclasses.dataclass(frozen=True)
 class SceneTask:
     """The scene a benchmark is running and its task."""
@@ -124,8 +131,7 @@ class AttackSources:
 
     def _start_server(self, heatmap: pathlib.Path) -> None:
         stem = node_name(self.task.scene_file.stem)
-        # The heatmap lives in the run folder, wherever --out put it: allow that folder too.
-        dirs = [str(d) for d in default_allowed_dirs()] + [str(self.run_dir.resolve())]
+        dirs = server_allowed_dirs(self.run_dir, heatmap)
         # search_witness: the tables count certified attacks, so every attack gets the task's
         # witness (found once per scene in the server, cached), not only solvable ones.
         from advocc_ros.nodes.heatmap_server import task_parameters
