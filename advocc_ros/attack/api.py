@@ -56,7 +56,7 @@ from advocc_ros.attack.region import search_region
 from advocc_ros.attack.types import (BOX_ID, DEFAULT_METHOD, POLICIES, AttackConfig,
                                      AttackError, AttackResult, AttackStatus, box_id)
 from advocc_ros.heatmap import Heatmap, link_tables
-from advocc_ros.kinematics.goal_batch import task_goals
+from advocc_ros.kinematics.goal_batch import goal_pocket, task_goals
 from advocc_ros.model.collision import shared_world
 from advocc_ros.model.robot import RobotError, RobotModel
 from advocc_ros.model.goal import GoalRegion
@@ -68,7 +68,8 @@ log = logging.getLogger(__name__)
 
 _TASK_STATUS = {TaskProblem.START_INVALID: AttackStatus.INVALID_START,
                 TaskProblem.START_IN_COLLISION: AttackStatus.START_IN_COLLISION,
-                TaskProblem.GOAL_INVALID: AttackStatus.INVALID_LINK}
+                TaskProblem.GOAL_INVALID: AttackStatus.INVALID_LINK,
+                TaskProblem.GOAL_IN_COLLISION: AttackStatus.INVALID_GOAL}
 
 
 # --------------------------------------------------------------------------------------------
@@ -228,7 +229,11 @@ def _kept_witness(robot: RobotModel, objects, goal: GoalRegion, region, witnesse
     ``region.stats``."""
     if len(witnesses) == 1:
         return witnesses[0], None
-    Q_goal = task_goals(robot, objects, goal).Q
+    if goal.is_joint:  # the goal is kept: what the witness shields is the goal's pocket
+        Q_goal = goal_pocket(robot, shared_world(robot, [sh for o in objects for sh in o.shapes]),
+                             goal)
+    else:
+        Q_goal = task_goals(robot, objects, goal).Q
     kept, shielded, touching = choose_witness(robot, shared_world(robot), region, witnesses,
                                               Q_goal)
     region.stats.update(witness_candidates=len(witnesses), witness_kept=kept,

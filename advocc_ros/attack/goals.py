@@ -78,6 +78,9 @@ def goal_samples(robot: RobotModel, objects: tuple[SceneObject, ...], goal: Goal
     if cached is not None:
         return cached
     world = world or CollisionWorld(robot, [sh for o in objects for sh in o.shapes])
+    if goal.is_joint:  # the goal is its configuration: the one sample, when it is free
+        q_goal = goal.configuration(robot.joint_names)[None]
+        return _GOAL_SAMPLES.put(key, GoalSamples(world, q_goal[~world.collisions_batch(q_goal)]))
     sampling: dict = {}
     Q = goal_set(robot, world.collisions_batch, world.in_collision, goal, n, VALIDATION_SEED,
                  stats=sampling)

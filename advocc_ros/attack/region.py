@@ -190,43 +190,66 @@ def search_region(heatmap: Heatmap, robot: RobotModel, objects: tuple[SceneObjec
     protected = robot_occupancy(robot, placements, grid, lo, hi, heatmap.lut_pitch_m)
     checks = [(g.geometry, _tf(T), cfg.d_safe_m, f'robot link {g.name} at q_init')
               for g, T in zip(world.geom_model.geometryObjects[:world.n_links], placements)]
-    q_goal = goal_configuration(robot, goal, q_init) if cfg.protect_goal_hand else None
-    stats['goal_ik'] = None if not cfg.protect_goal_hand else q_goal is not None
-    if q_goal is not None:
-        joint = robot.model.frames[robot.model.getFrameId(goal.link)].parentJoint
-        hand = [i for i, g in enumerate(world.geom_model.geometryObjects[:world.n_links])
-                if g.parentJoint == joint]
-        goal_placements = [pin.SE3(T) for T in world.link_placements(q_goal)]
-        protected |= robot_occupancy(robot, goal_placements, grid, lo, hi,
-                                     heatmap.lut_pitch_m, hand)
-        checks += [(world.geom_model.geometryObjects[i].geometry, _tf(goal_placements[i]),
-                    cfg.d_safe_m, f'hand {world.geom_model.geometryObjects[i].name} at goal')
-                   for i in hand]
-        stats['q_goal'] = np.round(q_goal, 4).tolist()
-    elif cfg.protect_goal_hand:
-        log.info('goal IK did not converge: only the goal box is kept clear')
     if cfg.d_safe_m > 0:
         cand[crop] &= box_distance(protected, grid.voxel_m, half, cfg.d_safe_m, crop) \
             >= cfg.d_safe_m
     stats['robot_clear'] = int(cand.sum())
+    kept = _goal_body(robot, goal, q_init, cfg)
+    if cfg.protect_goal_hand and not goal.is_joint:
+        stats['goal_ik'] = kept is not None
+    if kept is not None:
+        q_goal, links, clearance_m, what = kept
+        goal_placements = [pin.SE3(T) for T in world.link_placements(q_goal)]
+        body = robot_occupancy(robot, goal_placements, grid, lo, hi, heatmap.lut_pitch_m, links)
+        reach_m = max(clearance_m, _CONTACT_TOL_M)
+        cand[crop] &= box_distance(body, grid.voxel_m, half, reach_m, crop) >= clearance_m
+        checks += [(world.geom_model.geometryObjects[i].geometry, _tf(goal_placements[i]),
+                    clearance_m, f'{what} {world.geom_model.geometryObjects[i].name} at goal')
+                   for i in links]
+        stats['q_goal'] = np.round(q_goal, 4).tolist()
+    stats['goal_body_clear'] = int(cand.sum())
 
-    # Clearance from G's position box: voxel centres within half a voxel diagonal of it mark
-    # it on the lattice, so the lattice distance may exceed the true one by that much at most.
-    T_c = goal.center.to_se3()
-    tol = np.asarray(goal.position_tolerance_m)
-    slack = grid.voxel_m * math.sqrt(3) / 2
-    near_goal = _near_box(sub, T_c, tol, slack)
-    if cfg.d_safe_m > 0:
-        cand[crop] &= (box_distance(near_goal, grid.voxel_m, half, cfg.d_safe_m, crop)
-                       >= cfg.d_safe_m - slack)
-    checks.append((coal.Box(*np.maximum(2 * tol, 1e-9)), _tf(T_c), cfg.d_safe_m,
-                   'goal region'))
+    # Clearance from G's position box (the region form): voxel centres within half a voxel
+    # diagonal of it mark it on the lattice, so the lattice distance may exceed the true one by
+    # that much at most.
+    if not goal.is_joint:
+        T_c = goal.center.to_se3()
+        tol = np.asarray(goal.position_tolerance_m)
+        slack = grid.voxel_m * math.sqrt(3) / 2
+        near_goal = _near_box(sub, T_c, tol, slack)
+        if cfg.d_safe_m > 0:
+            cand[crop] &= (box_distance(near_goal, grid.voxel_m, half, cfg.d_safe_m, crop)
+                           >= cfg.d_safe_m - slack)
+        checks.append((coal.Box(*np.maximum(2 * tol, 1e-9)), _tf(T_c), cfg.d_safe_m,
+                       'goal region'))
     stats['goal_clear'] = int(cand.sum())
     checks += [(coal_geometry(sh), _tf(sh.pose.to_se3()), _CONTACT_TOL_M,
                 f'scene object {o.id}') for o in objects for sh in o.shapes]
     stats['candidates'] = int(cand.sum())
     return SearchRegion(grid, lo, hi, weights, cand, k, s, cfg.d_min_m, checks, stats,
                         heatmap.lut_pitch_m, weight_config=weight_config(heatmap))
+
+
+def _goal_body(robot: RobotModel, goal: GoalRegion, q_init: np.ndarray, cfg: AttackConfig):
+    """(configuration, links, clearance [m], what) of the goal body the boxes keep clear, or
+    None: a ``joint`` goal's whole body at the certificate's guard margin (the goal is that
+    configuration, so a box may come as close as to the witness, never touch it); with
+    ``protect_goal_hand``, the hand at one IK solution for the region's centre, at d_safe."""
+    world = shared_world(robot)
+    geoms = world.geom_model.geometryObjects[:world.n_links]
+    if goal.is_joint:
+        from advocc_ros.planning.certificate import CertificateConfig
+        return (goal.configuration(robot.joint_names), list(range(len(geoms))),
+                CertificateConfig().guard_margin_m, 'robot link')
+    if not cfg.protect_goal_hand:
+        return None
+    q_goal = goal_configuration(robot, goal, q_init)
+    if q_goal is None:
+        log.info('goal IK did not converge: only the goal box is kept clear')
+        return None
+    joint = robot.model.frames[robot.model.getFrameId(goal.link)].parentJoint
+    return q_goal, [i for i, g in enumerate(geoms) if g.parentJoint == joint], cfg.d_safe_m, \
+        'hand'
 
 
 def _near_box(grid: VoxelGrid, T_c: pin.SE3, half_m: np.ndarray, within_m: float

@@ -99,7 +99,10 @@ def probe_goal(robot: RobotModel, world: CollisionWorld, goal: GoalRegion,
     ``kinematics.goal_batch.planner_goals``) until a batch holds a collision-free solution or
     ``max_attempts`` are spent; the counts (``converged``: attempts that reached the region,
     ``colliding``: those in collision). Seeded and iteration-bounded: the same answer on any
-    machine."""
+    machine. A ``joint`` goal is its configuration: one attempt, free or colliding."""
+    if goal.is_joint:
+        free = not world.in_collision(goal.configuration(world.robot.joint_names))
+        return {'attempts': 1, 'converged': 1, 'colliding': int(not free), 'free': int(free)}
     draw = planner_goals(robot, goal, lambda Q: world.collisions_batch(Q, THREADS),
                          max_attempts, GOAL_PROBE_SEED, attempts_per_sample=1, enough=1)
     free = len(draw.Q)
@@ -142,8 +145,9 @@ def assess(robot: RobotModel, objects: tuple[SceneObject, ...], boxes: tuple[Sce
         return Solvability(Verdict.UNKNOWN, f'{why}; a collision-free goal configuration '
                            f'exists (found after {probe["attempts"]} IK attempts)', probe,
                            states, ms)
-    if probe['converged'] >= GOAL_PROBE_CONVERGED:
-        return Solvability(Verdict.GOAL_BLOCKED, f'{why}; all {probe["converged"]} converged '
+    if probe['converged'] >= GOAL_PROBE_CONVERGED or goal.is_joint:
+        return Solvability(Verdict.GOAL_BLOCKED, f'{why}; the joint goal is in collision'
+                           if goal.is_joint else f'{why}; all {probe["converged"]} converged '
                            f'goal IK solutions ({probe["attempts"]} attempts) are in collision',
                            probe, states, ms)
     return Solvability(Verdict.UNKNOWN, f'{why}; the goal probe converged only '

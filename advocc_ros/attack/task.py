@@ -46,7 +46,7 @@ from advocc_ros.attack.region import SearchRegion
 from advocc_ros.attack.solvable import WitnessGuard
 from advocc_ros.attack.types import AttackConfig
 from advocc_ros.heatmap import placement_arrays, sample_weights
-from advocc_ros.kinematics.goal_batch import task_goals
+from advocc_ros.kinematics.goal_batch import GoalDraw, goal_pocket, task_goals
 from advocc_ros.model.collision import CollisionWorld, shared_world
 
 
@@ -183,11 +183,14 @@ def _select_task(region: SearchRegion, budget: int, seed: int, cfg: AttackConfig
     robot = context.robot
     t0 = time.perf_counter()
     world = shared_world(robot, [sh for o in context.objects for sh in o.shapes])
-    goals = task_goals(robot, context.objects, context.goal)
-    Q_goal = goals.Q
     rng = np.random.default_rng(seed)
-    Q_app = approach_samples(world, context.q_init, Q_goal[:opts.approach_goals],
-                             opts.approach_points, opts.detours, opts.detour_rad, rng)
+    if context.goal.is_joint:
+        goals, Q_goal, Q_app = _joint_rows(robot, world, context, opts, rng)
+    else:
+        goals = task_goals(robot, context.objects, context.goal)
+        Q_goal = goals.Q
+        Q_app = approach_samples(world, context.q_init, Q_goal[:opts.approach_goals],
+                                 opts.approach_points, opts.detours, opts.detour_rad, rng)
     if isinstance(region.guard, WitnessGuard):
         Q_app = np.concatenate([Q_app, tube_samples(world, region.guard.bodies.states,
                                                     opts.tube_samples, opts.tube_rad, rng)])
@@ -214,9 +217,23 @@ def _select_task(region: SearchRegion, budget: int, seed: int, cfg: AttackConfig
         region.stats['stop_reason'] = (
             f'{len(picks)} of {budget} boxes: no further box covers a sampled task '
             'configuration' + (' within the goal policy' if region.guard is not None else '')
-            + ('' if n_goal else f' (no collision-free goal configuration in '
-               f'{goals.attempts} IK attempts)'))
+            + ('' if n_goal or context.goal.is_joint else
+               f' (no collision-free goal configuration in {goals.attempts} IK attempts)'))
     return [(cand[j], m) for j, m in zip(picks, masses)], rejected
+
+
+def _joint_rows(robot, world: CollisionWorld, context: MethodContext, opts: TaskOptions,
+                rng: np.random.Generator):
+    """A ``joint`` goal's rows: no goal row (the goal is kept: its body and the witness are
+    protected), and as path rows the goal's pocket (``goal_batch.goal_pocket``) and the
+    approaches to the goal, the straight one and ``approach_goals x detours`` through
+    perturbed midpoints. (draw, goal rows, path rows)."""
+    q_goal = context.goal.configuration(robot.joint_names)[None]
+    Q_app = approach_samples(world, context.q_init, q_goal, opts.approach_points,
+                             opts.detours * max(opts.approach_goals, 1), opts.detour_rad, rng)
+    Q_pocket = goal_pocket(robot, world, context.goal)
+    draw = GoalDraw(np.zeros((0, robot.nq)), 0, 0)
+    return draw, draw.Q, np.concatenate([Q_pocket, Q_app])
 
 
 def _objective(robot, world: CollisionWorld, region: SearchRegion, Q_goal: np.ndarray,

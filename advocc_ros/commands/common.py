@@ -8,6 +8,7 @@ import argparse
 import re
 
 from advocc_ros.cli import UserError
+from advocc_ros.model.goal import GOAL_FORMS
 from advocc_ros.model.scene import Scene
 
 GOAL_TOL_HELP = ('tolerances of the goal region: "pos=X[,Y,Z];rot=R[,P,Y]" (half-extents [m] '
@@ -25,15 +26,21 @@ def describe(doc: str) -> str:
 
 
 def add_scene_args(parser: argparse.ArgumentParser, required: bool = True) -> None:
-    """Add ``--scene``, ``--request`` and ``--goal-tol`` to ``parser``."""
+    """Add ``--scene``, ``--request``, ``--goal-form`` and ``--goal-tol`` to ``parser``."""
     parser.add_argument('--scene', required=required,
                         help='scene: our YAML file, a shipped name (table_pick, '
                              'table_under_pick, bookshelf, box, cage) or a MotionBenchMaker '
                              'scene file (MoveIt PlanningScene YAML, sceneNNNN.yaml)')
     parser.add_argument('--request', metavar='FILE',
                         help='MotionBenchMaker request file (requestNNNN.yaml): its start state '
-                             'and its goal replace the scene\'s (a region around a joint '
-                             'goal\'s end-effector pose, or a pose goal\'s own region)')
+                             'and its goal replace the scene\'s (a joint goal in --goal-form, '
+                             'or a pose goal\'s own region)')
+    parser.add_argument('--goal-form', choices=GOAL_FORMS,
+                        help='how a request\'s joint goal is posed: joint (the configuration '
+                             'itself, as MotionBenchMaker, MoveIt and VAMP plan to it; the '
+                             'default for a joint goal) or region (the paper\'s tolerance '
+                             'region around its end-effector pose, --goal-tol; the default '
+                             'for our scenes and pose goals)')
     parser.add_argument('--goal-tol', metavar='TOL', help=GOAL_TOL_HELP)
 
 
@@ -101,11 +108,12 @@ def scene_from_args(args: argparse.Namespace) -> Scene | None:
     from advocc_ros.formats.mbm_scene import load_any_scene
 
     if args.scene is None:
-        if getattr(args, 'request', None) or getattr(args, 'goal_tol', None):
-            raise ValueError('--request and --goal-tol need a --scene')
+        if getattr(args, 'request', None) or getattr(args, 'goal_tol', None) \
+                or getattr(args, 'goal_form', None):
+            raise ValueError('--request, --goal-form and --goal-tol need a --scene')
         return None
     return load_any_scene(args.scene, getattr(args, 'request', None),
-                          getattr(args, 'goal_tol', None))
+                          getattr(args, 'goal_tol', None), getattr(args, 'goal_form', None))
 
 
 def add_bag_arg(parser: argparse.ArgumentParser) -> None:

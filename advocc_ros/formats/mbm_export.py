@@ -6,14 +6,16 @@ and ``RobotTrajectory`` messages serialised to YAML, in the ROS-message layout t
   values, cylinders ``[height, radius]``; inline meshes), each with ``header.frame_id: world``,
   and a ``robot_state`` of every joint (the locked fingers too) with MoveIt's ``virtual_joint``
   at identity: the robot base is the world;
-- request (``requestNNNN.yaml``): the start state, and the goal region as
-  ``goal_constraints[0]``: a position constraint whose region is one box of the region's full
-  extents posed at its centre (``target_point_offset`` = the tool point) and an orientation
-  constraint with the centre's orientation and the region's per-axis tolerances in
+- request (``requestNNNN.yaml``): the start state and exactly the task's goal. A ``joint``
+  goal is ``goal_constraints[0].joint_constraints``, the configuration itself (as
+  MotionBenchMaker writes it). A goal region is ``goal_constraints[0]``: a position
+  constraint whose region is one box of the region's full extents posed at its centre
+  (``target_point_offset`` = the tool point) and an orientation constraint with the centre's orientation and the region's per-axis tolerances in
   ``ROTATION_VECTOR`` parameterization. Both are exactly our region (MoveIt measures the
   rotation error as the rotation vector of ``R_goal^T R_link``, as we do). The region's seeds
-  (a joint goal it was built around) follow as joint goals in ``goal_constraints[1:]``: for
-  MoveIt an alternative goal inside the region, for our importer the region's seeds;
+  (a joint goal it was built around) that the scene leaves free follow as joint goals in
+  ``goal_constraints[1:]``: for MoveIt an alternative goal inside the region, for our importer
+  the region's seeds; a seed the attack's boxes block is left out (it is no goal there);
 - trajectory (``trajectoryNNNN.yaml``): the witness path's waypoints as
   ``joint_trajectory.points[]`` (linear interpolation in joint space between them is the
   path), timed at the joints' velocity limits (each segment takes as long as its slowest joint
@@ -155,8 +157,19 @@ def _constraints(**kinds) -> dict:
     return out
 
 
-def goal_constraints_data(goal: GoalRegion, frame: str) -> list[dict]:
-    """``goal_constraints`` of the region (see the module doc), then one joint goal a seed."""
+def _joint_goal_data(names: Sequence[str], values: Sequence[float]) -> dict:
+    return _constraints(joint_constraints=[
+        {'joint_name': j, 'position': float(v), 'tolerance_above': JOINT_GOAL_TOLERANCE_RAD,
+         'tolerance_below': JOINT_GOAL_TOLERANCE_RAD, 'weight': 1.0}
+        for j, v in zip(names, values)])
+
+
+def goal_constraints_data(goal: GoalRegion, frame: str, free_seeds: Sequence[bool] | None = None
+                          ) -> list[dict]:
+    """``goal_constraints`` of the goal (see the module doc): a ``joint`` goal's configuration,
+    or the region then one joint goal per seed that ``free_seeds`` (None: all) keeps."""
+    if goal.is_joint:
+        return [_joint_goal_data(goal.seed_joints, goal.seeds[0])]
     region = {'primitives': [{'type': PRIMITIVE_TYPES['box'], 'dimensions': [
         2.0 * float(h) for h in goal.position_tolerance_m]}],
               'primitive_poses': [pose_data(goal.center)], 'meshes': [], 'mesh_poses': []}
@@ -169,12 +182,21 @@ def goal_constraints_data(goal: GoalRegion, frame: str) -> list[dict]:
                    'absolute_y_axis_tolerance': tol[1], 'absolute_z_axis_tolerance': tol[2],
                    'parameterization': ROTATION_VECTOR, 'weight': 1.0}
     out = [_constraints(position_constraints=[position], orientation_constraints=[orientation])]
-    for seed in goal.seeds:
-        out.append(_constraints(joint_constraints=[
-            {'joint_name': j, 'position': float(v), 'tolerance_above': JOINT_GOAL_TOLERANCE_RAD,
-             'tolerance_below': JOINT_GOAL_TOLERANCE_RAD, 'weight': 1.0}
-            for j, v in zip(goal.seed_joints, seed)]))
+    keep = free_seeds if free_seeds is not None else [True] * len(goal.seeds)
+    out += [_joint_goal_data(goal.seed_joints, seed) for seed, ok in zip(goal.seeds, keep) if ok]
     return out
+
+
+def free_seeds(scene: Scene, robot: RobotModel) -> list[bool]:
+    """Whether each seed of ``scene``'s goal region is collision-free in the scene (its objects,
+    the attack's boxes included)."""
+    from advocc_ros.kinematics.ik import seed_configurations
+    from advocc_ros.model.collision import CollisionWorld
+
+    seeds = seed_configurations(robot, scene.goal)
+    if not len(seeds):
+        return [True] * len(scene.goal.seeds)
+    return (~CollisionWorld(robot, scene.shapes).collisions_batch(seeds)).tolist()
 
 
 def request_data(scene: Scene, robot: RobotModel, planning_time_s: float = 5.0,
@@ -184,7 +206,9 @@ def request_data(scene: Scene, robot: RobotModel, planning_time_s: float = 5.0,
         'workspace_parameters': {'header': _header(), 'min_corner': _xyz((-1, -1, -1)),
                                  'max_corner': _xyz((1, 1, 1))},
         'start_state': robot_state_data(task_state(scene, robot)),
-        'goal_constraints': goal_constraints_data(scene.goal, base_frame(robot)),
+        'goal_constraints': goal_constraints_data(
+            scene.goal, base_frame(robot),
+            None if scene.goal.is_joint else free_seeds(scene, robot)),
         'path_constraints': _constraints(),
         'trajectory_constraints': {'constraints': []}, 'reference_trajectories': [],
         'pipeline_id': '', 'planner_id': planner_id, 'group_name': scene.robot.moveit_group,

@@ -5,9 +5,10 @@ joints outside the planning group, docs/design.md) and its first ``goal_constrai
 which is either
 
 - a joint goal (``joint_constraints[]{joint_name, position, ...}`` covering every planned joint):
-  the goal region is built around the goal configuration's end-effector pose with tolerances the
-  user chooses (``--goal-tol``) and carries the configuration as its seed (the planners offer it
-  first, so the joint goal itself is reachable as in MoveIt), or
+  in the ``joint`` goal form (the default) the goal is that configuration, as MoveIt, VAMP and
+  MPlib plan to it; in the ``region`` form (``--goal-form region``) a goal region is built
+  around its end-effector pose with tolerances the user chooses (``--goal-tol``) and carries the
+  configuration as its seed (the planners offer it first), or
 - a pose goal, as MoveIt writes one: ``position_constraints[0]`` (``link_name``,
   ``target_point_offset``, ``constraint_region.primitives[0]`` + ``primitive_poses[0]``) and
   ``orientation_constraints[0]`` (``orientation``, ``absolute_{x,y,z}_axis_tolerance``,
@@ -233,13 +234,16 @@ def load_request(path: str | pathlib.Path, robot: RobotModel,
 
 
 def goal_region_at(robot: RobotModel, q_goal: dict[str, float],
-                   tolerance: GoalTolerance = GoalTolerance()) -> GoalRegion:
-    """Goal region centred on the end-effector pose of ``q_goal`` (forward kinematics), with
-    ``q_goal`` (its planned joints) as the region's seed: planners reach the joint goal itself,
-    as MoveIt does, and any other configuration of the region as well."""
+                   tolerance: GoalTolerance = GoalTolerance(), form: str = 'region'
+                   ) -> GoalRegion:
+    """The goal of a joint goal ``q_goal`` in goal form ``form``: ``joint``, the configuration
+    itself (the region's numbers only place it); ``region``, the region centred on its
+    end-effector pose (forward kinematics) with ``tolerance`` and ``q_goal`` as its seed, so
+    planners reach the joint goal itself, as MoveIt does, and any other configuration of the
+    region as well."""
     q = robot.q_from_names(list(q_goal), list(q_goal.values()), 'goal configuration')
     return GoalRegion(center=Pose.from_se3(robot.ee_pose(q)),
                       position_tolerance_m=tuple(tolerance.position_m),
                       orientation_tolerance_rad=tuple(tolerance.orientation_rad),
                       link=robot.spec.ee_link, seed_joints=tuple(robot.joint_names),
-                      seeds=(tuple(float(v) for v in q),))
+                      seeds=(tuple(float(v) for v in q),), form=form)

@@ -132,24 +132,32 @@ def objects_from_planning_scene(data: Any, where: str, base_frame: str = RobotSp
 
 def apply_request(scene: Scene, request_path: str | pathlib.Path,
                   tolerance: GoalTolerance = GoalTolerance(),
-                  T_world_base: pin.SE3 | None = None) -> Scene:
+                  T_world_base: pin.SE3 | None = None, goal_form: str | None = None) -> Scene:
     """``scene`` with the request's start (if it has one; its joints outside the planning group
-    lock the robot's) and its goal: a pose goal's own region, or a region with ``tolerance``
-    around a joint goal's end-effector pose."""
+    lock the robot's) and its goal: a pose goal's own region; a joint goal in ``goal_form``
+    (None: ``joint``), the configuration itself or a region with ``tolerance`` around its
+    end-effector pose. ``SceneError`` for the ``joint`` form of a pose goal."""
     request = load_request(request_path, load_robot(scene.robot), T_world_base)
     scene = dataclasses.replace(scene, start=request.start or scene.start)
-    goal = request.goal_region or goal_region_at(load_robot(scene.robot), request.goal, tolerance)
+    if request.goal_region is not None:
+        if goal_form == 'joint':
+            raise SceneError(f'{request_path}: the goal is a pose region, not a joint '
+                             'configuration: the joint goal form needs a joint goal (use '
+                             '--goal-form region)')
+        return dataclasses.replace(scene, goal=request.goal_region)
+    goal = goal_region_at(load_robot(scene.robot), request.goal, tolerance,
+                          goal_form or 'joint')
     return dataclasses.replace(scene, goal=goal)
 
 
 def load_mbm_scene(scene_path: str | pathlib.Path,
                    request_path: str | pathlib.Path | None = None,
                    tolerance: GoalTolerance = GoalTolerance(),
-                   robot: RobotSpec = RobotSpec()) -> Scene:
+                   robot: RobotSpec = RobotSpec(), goal_form: str | None = None) -> Scene:
     """Our ``Scene`` from a MotionBenchMaker scene file and (optionally) its request file.
 
-    Start: the request's ``start_state``, else the scene's ``robot_state``, else none. Goal: a
-    region around the request goal's end-effector pose with ``tolerance``, else none.
+    Start: the request's ``start_state``, else the scene's ``robot_state``, else none. Goal: the
+    request's (``apply_request``: ``goal_form``, ``tolerance``), else none.
     """
     path = pathlib.Path(scene_path)
     where = str(path)
@@ -168,18 +176,21 @@ def load_mbm_scene(scene_path: str | pathlib.Path,
         name = path.stem
     scene = Scene(objects=objects, start=start, robot=robot, name=name, frame=frame)
     if request_path is not None:
-        scene = apply_request(scene, request_path, tolerance, T_world_base)
+        scene = apply_request(scene, request_path, tolerance, T_world_base, goal_form)
     return scene
 
 
 def load_any_scene(scene: str | pathlib.Path, request: str | pathlib.Path | None = None,
-                   goal_tol: GoalTolerance | str | None = None) -> Scene:
+                   goal_tol: GoalTolerance | str | None = None, goal_form: str | None = None
+                   ) -> Scene:
     """A scene from our YAML or a MotionBenchMaker scene file, with an optional request.
 
     ``scene`` is a path or a shipped scene name (``table_pick``). The file's format is told by
     its content (``world``/``robot_state`` keys: a ``PlanningScene`` dump). With ``request``,
-    its start (if any) and a goal region around its goal replace the scene's; without one,
-    ``goal_tol`` replaces the tolerances of the scene's own goal region.
+    its start (if any) and its goal replace the scene's: a joint goal in ``goal_form`` (None:
+    ``joint``; ``region``: a region with ``goal_tol`` around its end-effector pose), a pose
+    goal's region; without one, ``goal_tol`` replaces the tolerances of the scene's own goal
+    region, and ``goal_form`` ``joint`` is refused unless the scene's goal is one.
     """
     from advocc_ros.paths import scene_path
     from advocc_ros.model.scene import scene_from_data
@@ -190,15 +201,19 @@ def load_any_scene(scene: str | pathlib.Path, request: str | pathlib.Path | None
         if request is not None:
             if isinstance(goal_tol, str):
                 goal_tol = parse_goal_tolerance(goal_tol)
-            return load_mbm_scene(path, request, goal_tol or GoalTolerance())
+            return load_mbm_scene(path, request, goal_tol or GoalTolerance(),
+                                  goal_form=goal_form)
         out = load_mbm_scene(path, None)
     else:
         out = scene_from_data(data, str(path), path.parent)
     if request is not None:
         if isinstance(goal_tol, str):
             goal_tol = parse_goal_tolerance(goal_tol)
-        out = apply_request(out, request, goal_tol or GoalTolerance())
-    elif goal_tol is not None:
+        return apply_request(out, request, goal_tol or GoalTolerance(), goal_form=goal_form)
+    if goal_form is not None and out.goal is not None and out.goal.form != goal_form:
+        raise SceneError(f'{path}: its goal is in the {out.goal.form} form; the {goal_form} '
+                         'form needs a request with a joint goal (--request)')
+    if goal_tol is not None:
         if out.goal is None:
             raise SceneError(f'{path}: --goal-tol given but the scene has no goal region (give '
                              'a --request with a goal configuration)')

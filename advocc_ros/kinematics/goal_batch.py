@@ -53,6 +53,13 @@ GOALS_FORMAT = 'advocc_goal_sample_1'
 RARITY_NEIGHBOUR = 5
 """The k of the k-NN distance that ranks goal configurations by rarity."""
 
+POCKET_SAMPLES = 256
+"""Size of a ``joint`` goal's pocket sample (:func:`goal_pocket`)."""
+POCKET_RAD = 0.2
+"""Standard deviation of the pocket's perturbation of the goal configuration per joint [rad]."""
+POCKET_SEED = 7_345_003
+"""Seed of the pocket sample: part of the task, not of one attack."""
+
 _TASK_GOALS: BoundedCache = BoundedCache('task goals', 16, per_task=True)
 """Task hash -> GoalDraw (nodes attack from several executor threads)."""
 
@@ -142,6 +149,17 @@ def task_goals(robot: RobotModel, objects, goal: GoalRegion, n: int = TASK_GOALS
     return _TASK_GOALS.get_or_make(key, make)
 
 
+def goal_pocket(robot: RobotModel, world: CollisionWorld, goal: GoalRegion) -> np.ndarray:
+    """(k <= ``POCKET_SAMPLES``, nq) collision-free configurations within the joint limits
+    around a ``joint`` goal (its configuration plus N(0, ``POCKET_RAD``) per joint, fixed seed):
+    where every path to the goal ends, so the boxes that cover them narrow its last passage."""
+    q_goal = goal.configuration(robot.joint_names)
+    rng = np.random.default_rng(POCKET_SEED)
+    Q = q_goal + rng.normal(0.0, POCKET_RAD, (POCKET_SAMPLES, robot.nq))
+    Q = Q[np.all((Q >= robot.lower) & (Q <= robot.upper), axis=1)]
+    return Q[~world.collisions_batch(Q, THREADS)] if len(Q) else Q
+
+
 def _read(path: pathlib.Path, robot: RobotModel, goal: GoalRegion, collisions, n: int
           ) -> GoalDraw | None:
     """The sample kept in ``path`` if it still is one of this task (else None, with a warning
@@ -223,5 +241,5 @@ def _one_at_a_time(robot, goal, collisions_batch, n, seed, attempts_per_sample, 
     return GoalDraw(np.array(found).reshape(-1, robot.nq), sampler.attempts, sampler.converged)
 
 
-__all__ = ['ATTEMPTS_PER_SAMPLE', 'GoalDraw', 'TASK_GOALS', 'planner_goals', 'rarest_first',
-           'task_goals']
+__all__ = ['ATTEMPTS_PER_SAMPLE', 'GoalDraw', 'POCKET_SAMPLES', 'TASK_GOALS', 'goal_pocket',
+           'planner_goals', 'rarest_first', 'task_goals']

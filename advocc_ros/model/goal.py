@@ -13,6 +13,12 @@ from advocc_ros.model.pose import Pose, SceneError, finite_array
 from advocc_ros.model.robot import RobotSpec
 
 
+GOAL_FORMS = ('region', 'joint')
+"""How a task's goal is posed (docs/design.md, "Goal forms"): ``region``, the paper's
+tolerance-aware region (any configuration whose tool pose lies in it); ``joint``, one joint
+configuration (a MotionBenchMaker request's own goal, as MoveIt, VAMP and MPlib plan to it)."""
+
+
 def _rotation_error(R_center: np.ndarray, R: np.ndarray) -> np.ndarray:
     """Rotation vector of ``R`` relative to ``R_center`` (the MoveIt ROTATION_VECTOR form)."""
     return pin.log3(R_center.T @ R)
@@ -39,13 +45,23 @@ class GoalRegion:
     seeds: tuple[tuple[float, ...], ...] = ()
     """Goal configurations [rad | m] by ``seed_joints``, meant to lie in the region (a request's
     joint goal): the planners' goal sampler offers them first and seeds IK near them, the way
-    MoveIt plans to a joint goal itself. The region stays the goal; a seed is only a hint."""
+    MoveIt plans to a joint goal itself. The region stays the goal; a seed is only a hint.
+    In the ``joint`` form the one seed is the goal."""
+    form: str = 'region'
+    """``region``: any configuration with the tool in the box; ``joint``: the configuration
+    ``seeds[0]`` itself (within ``JOINT_TOLERANCE_RAD``); its tool pose is ``center``, which
+    then only places the task (the corridor of C1, drawings)."""
 
     def __post_init__(self):
         finite_array(self.position_tolerance_m, 'goal.position_tolerance', 3, nonneg=True)
         finite_array(self.orientation_tolerance_rad, 'goal.orientation_tolerance', 3, nonneg=True)
         if not self.link:
             raise SceneError('goal.link: empty link name')
+        if self.form not in GOAL_FORMS:
+            raise SceneError(f'goal.form: {self.form!r}; known: {list(GOAL_FORMS)}')
+        if self.form == 'joint' and len(self.seeds) != 1:
+            raise SceneError(f'goal.form joint: the goal configuration is the one seed, got '
+                             f'{len(self.seeds)} seeds')
         if self.seeds and not self.seed_joints:
             raise SceneError('goal.seeds: seeds without joint names')
         for k, seed in enumerate(self.seeds):
@@ -80,7 +96,7 @@ class GoalRegion:
         if not isinstance(data, dict):
             raise SceneError(f'{where}: expected a mapping')
         known = {'link', 'center', 'position_tolerance', 'orientation_tolerance', 'tool_offset',
-                 'seeds'}
+                 'seeds', 'form'}
         unknown = set(data) - known
         if unknown:
             raise SceneError(f'{where}: unknown field(s) {sorted(unknown)}; '
@@ -101,7 +117,7 @@ class GoalRegion:
                     3, nonneg=True).tolist()),
                 link=link,
                 tool_offset=Pose.from_data(data.get('tool_offset'), f'{where}.tool_offset'),
-                seed_joints=seed_joints, seeds=seeds)
+                seed_joints=seed_joints, seeds=seeds, form=data.get('form', 'region'))
         try:
             return cls(**fields)
         except SceneError as exc:  # __post_init__'s checks know no file
@@ -115,7 +131,24 @@ class GoalRegion:
         if self.seeds:  # absent otherwise: seedless goals keep their files and hashes
             data['seeds'] = [{n: float(v) for n, v in zip(self.seed_joints, seed)}
                              for seed in self.seeds]
+        if self.form != 'region':  # absent for regions: their files and hashes stay the same
+            data['form'] = self.form
         return data
+
+    @property
+    def is_joint(self) -> bool:
+        """Whether the goal is one joint configuration (the ``joint`` form)."""
+        return self.form == 'joint'
+
+    def configuration(self, joint_names) -> np.ndarray:
+        """The ``joint`` form's goal configuration in the order of ``joint_names``;
+        ``SceneError`` for a region or when a joint is missing."""
+        if not self.is_joint:
+            raise SceneError('the goal is a region, not a joint configuration')
+        missing = [j for j in joint_names if j not in self.seed_joints]
+        if missing:
+            raise SceneError(f'the joint goal misses joints {missing}')
+        return np.array([self.seeds[0][self.seed_joints.index(j)] for j in joint_names])
 
     def error(self, T_base_tool: pin.SE3) -> tuple[np.ndarray, np.ndarray]:
         """(position error in the centre frame [m], rotation-vector error [rad])."""
@@ -130,4 +163,9 @@ class GoalRegion:
                                + slack))
 
 
-__all__ = ['GoalRegion']
+JOINT_TOLERANCE_RAD = 1e-6
+"""Largest joint difference [rad] at which a configuration reaches a ``joint`` goal (the
+victims end exactly there: their goal is the configuration itself)."""
+
+
+__all__ = ['GOAL_FORMS', 'GoalRegion', 'JOINT_TOLERANCE_RAD']

@@ -9,9 +9,11 @@ pair), instead of scoring "internal errors".
 What is checked (cheap, exact, no planner): the start has the robot's planned joints, finite
 values within the joint limits, no self collision (the SRDF-filtered pairs) and no collision
 with the scene (coal on the same hulls the planners use); the goal region's link is a frame of
-the robot (the region's own numbers are checked when it is built, ``GoalRegion``). Whether the
-goal region can be reached is not decided here: that is what a planner's ``goal not sampled``
-and an attack's ``solvable`` verdict report.
+the robot (the region's own numbers are checked when it is built, ``GoalRegion``); a joint goal
+(the ``joint`` form) is a configuration of the robot within its limits, free of self collision
+and of the scene's objects: a request whose goal configuration touches the scene has no
+solution. Whether a goal region can be reached is not decided here: that is what a planner's
+``goal not sampled`` and an attack's ``solvable`` verdict report.
 """
 
 from __future__ import annotations
@@ -23,6 +25,7 @@ import numpy as np
 
 from advocc_ros.model.collision import shared_world
 from advocc_ros.model.goal import GoalRegion
+from advocc_ros.model.pose import SceneError
 from advocc_ros.model.robot import RobotError, RobotModel
 
 MAX_NAMED_PAIRS = 4
@@ -35,6 +38,7 @@ class TaskProblem(enum.Enum):
     START_INVALID = 'start_invalid'            # wrong joints, non-finite, outside the limits
     START_IN_COLLISION = 'start_in_collision'  # self collision or collision with the scene
     GOAL_INVALID = 'goal_invalid'              # the goal region's link is not the robot's
+    GOAL_IN_COLLISION = 'goal_in_collision'    # a joint goal outside the limits or colliding
 
 
 @dataclasses.dataclass(frozen=True)
@@ -75,7 +79,25 @@ def check_task(robot: RobotModel, objects, q_init, goal: GoalRegion | None) -> T
     if goal is not None and not robot.model.existFrame(goal.link):
         return TaskFault(TaskProblem.GOAL_INVALID,
                          f'goal region link {goal.link!r} is not a frame of the robot')
+    if goal is not None and goal.is_joint:
+        return _joint_goal_fault(robot, tuple(objects), goal)
     return None
+
+
+def _joint_goal_fault(robot: RobotModel, objects: tuple, goal: GoalRegion) -> TaskFault | None:
+    """Why the ``joint`` goal's configuration is no goal of this task, or None."""
+    try:
+        q = goal.configuration(robot.joint_names)
+    except SceneError as exc:
+        return TaskFault(TaskProblem.GOAL_INVALID, f'joint goal: {exc}')
+    outside = np.flatnonzero((q < robot.lower - 1e-9) | (q > robot.upper + 1e-9))
+    if len(outside):
+        return TaskFault(TaskProblem.GOAL_INVALID, 'joint goal outside the joint limits: ' +
+                         '; '.join(f'{robot.joint_names[i]} = {q[i]:.4g}' for i in outside))
+    fault = _collision_fault(robot, objects, q, 'goal configuration')
+    if fault is None:
+        return None
+    return TaskFault(TaskProblem.GOAL_IN_COLLISION, fault.message, fault.pairs)
 
 
 def require_valid_task(robot: RobotModel, objects, q_init, goal: GoalRegion | None) -> None:
@@ -85,7 +107,8 @@ def require_valid_task(robot: RobotModel, objects, q_init, goal: GoalRegion | No
         raise InvalidTask(fault)
 
 
-def _collision_fault(robot: RobotModel, objects: tuple, q: np.ndarray) -> TaskFault | None:
+def _collision_fault(robot: RobotModel, objects: tuple, q: np.ndarray,
+                     what: str = 'start state') -> TaskFault | None:
     world = shared_world(robot, [sh for o in objects for sh in o.shapes])
     if not world.in_collision(q):
         return None
@@ -100,7 +123,7 @@ def _collision_fault(robot: RobotModel, objects: tuple, q: np.ndarray) -> TaskFa
             'in self collision' if own and not scene else
             'in self and scene collision' if pairs else 'in collision')
     return TaskFault(TaskProblem.START_IN_COLLISION,
-                     f'start state is {kind}: ' + '; '.join(parts)
+                     f'{what} is {kind}: ' + '; '.join(parts)
                      + (f' (and {more} more pairs)' if more > 0 else ''), pairs)
 
 

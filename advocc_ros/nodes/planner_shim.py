@@ -85,7 +85,8 @@ _CONFIG_DOC = {
 _CONFIG_PARAMS = tuple(_CONFIG_DOC)
 _TASK_STATUS = {TaskProblem.START_INVALID: PlanStatus.INVALID_ROBOT_STATE,
                 TaskProblem.START_IN_COLLISION: PlanStatus.START_STATE_IN_COLLISION,
-                TaskProblem.GOAL_INVALID: PlanStatus.INVALID_GOAL_CONSTRAINTS}
+                TaskProblem.GOAL_INVALID: PlanStatus.INVALID_GOAL_CONSTRAINTS,
+                TaskProblem.GOAL_IN_COLLISION: PlanStatus.GOAL_IN_COLLISION}
 
 
 def _config_param(name: str) -> Param:

@@ -17,7 +17,7 @@ import numpy as np
 from advocc_ros.model.collision import CollisionWorld
 from advocc_ros.kinematics.ik import GoalSampler
 from advocc_ros.model.robot import RobotModel
-from advocc_ros.model.goal import GoalRegion
+from advocc_ros.model.goal import JOINT_TOLERANCE_RAD, GoalRegion
 from advocc_ros.planning.motion import make_motion_validator
 from advocc_ros.planning.types import (PlanningConfig, PlanResult, PlanStatus, failed,
                                        planner_class_name, validate_request)
@@ -68,15 +68,16 @@ def _make_goal_class(ob):
         """
 
         def __init__(self, si, sampler: GoalSampler, goals: list, nq: int, cap: int,
-                     lazy_deadline: float):
+                     lazy_deadline: float, distance):
             super().__init__(si)
             self.setThreshold(1e-9)
             self.sampler, self.goals, self.nq, self.cap = sampler, goals, nq, cap
+            self.distance = distance
             self.lazy_deadline, self.served = lazy_deadline, 0
             self.first_pair_t: float | None = None
 
         def distanceGoal(self, state):  # noqa: N802 (OMPL API)
-            return self.sampler.region_distance(np.array([state[i] for i in range(self.nq)]))
+            return self.distance(np.array([state[i] for i in range(self.nq)]))
 
         def isStartGoalPairValid(self, start, goal):  # noqa: N802
             if self.first_pair_t is None:
@@ -106,6 +107,20 @@ def _make_goal_class(ob):
     return RegionGoal
 
 
+def goal_distance(robot: RobotModel, goal: GoalRegion, sampler: GoalSampler):
+    """The distance to the goal that OMPL's goal test reads (0: reached): the region's excess
+    pose error, or for a ``joint`` goal the joint-space distance beyond
+    ``JOINT_TOLERANCE_RAD``."""
+    if not goal.is_joint:
+        return sampler.region_distance
+    q_goal = goal.configuration(robot.joint_names)
+
+    def distance(q: np.ndarray) -> float:
+        d = float(np.linalg.norm(q - q_goal))
+        return 0.0 if d <= JOINT_TOLERANCE_RAD else d
+    return distance
+
+
 def joint_space(ob, robot: RobotModel):
     """OMPL's state space over the arm joints, bounded by the joint limits."""
     space = ob.RealVectorStateSpace(robot.nq)
@@ -126,7 +141,9 @@ def solve(robot: RobotModel, world: CollisionWorld, q_start: np.ndarray, goal: G
     ``first_collision`` the states along a motion. A success's ``stats['first_solution_s']`` is
     the time from the request to the first exact solution (before simplification).
     ``goal_configs`` (K, nq): plan to this fixed goal list (the victims' like-for-like option:
-    no IK inside the budget, no lazy goal sampling) instead of sampling the region.
+    no IK inside the budget, no lazy goal sampling) instead of sampling the region. A goal in
+    the ``joint`` form is its configuration alone: the list is that configuration, and a state
+    reaches it within ``JOINT_TOLERANCE_RAD``.
     """
     t0 = time.monotonic()
     nq = robot.nq
@@ -145,7 +162,9 @@ def solve(robot: RobotModel, world: CollisionWorld, q_start: np.ndarray, goal: G
     _seed_ompl(ou, seed)
     rng = np.random.default_rng(int(seed) % 2 ** 64)  # int64 message seeds may be < 0
     sampler = GoalSampler(robot, world.in_collision, goal, rng, config)
-    if sampler.region_distance(q_start) == 0.0:
+    if goal.is_joint:
+        goal_configs = goal.configuration(robot.joint_names)[None]
+    if goal_distance(robot, goal, sampler)(q_start) == 0.0:
         elapsed = time.monotonic() - t0
         return PlanResult(PlanStatus.SUCCESS, 'start state already inside the goal region',
                           np.stack([q_start, q_start]), elapsed,
@@ -189,7 +208,7 @@ def _solve_to(robot, world, q_start, planner_id, time_budget_s, config, t0, samp
     ss = _simple_setup(ob, og, ou, robot, world, q_start, planner_id, config, checks)
     checks.problem = ss.getProblemDefinition()
     goal_obj = _make_goal_class(ob)(ss.getSpaceInformation(), sampler, goals, nq, cap,
-                                    solve_deadline)
+                                    solve_deadline, goal_distance(robot, sampler.goal, sampler))
     ss.setGoal(goal_obj)
     ss.setup()
     solve_time = solve_deadline - time.monotonic()

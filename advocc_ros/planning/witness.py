@@ -48,7 +48,7 @@ import pinocchio as pin
 from advocc_ros.model.cache import CACHE_ENV, BoundedCache, disk_cache_dir
 from advocc_ros.model.collision import CollisionWorld
 from advocc_ros.model.robot import RobotModel
-from advocc_ros.model.goal import GoalRegion
+from advocc_ros.model.goal import JOINT_TOLERANCE_RAD, GoalRegion
 from advocc_ros.model.scene import Scene, SceneObject, read_yaml, save_yaml_atomic, task_hash
 from advocc_ros.model.pose import SceneError
 from advocc_ros.planning.certificate import CertificateConfig, PathCertificate, certify_path
@@ -65,7 +65,8 @@ WITNESS_TRIES = 4
 unattacked scene (a run that finds no path leaves the target)."""
 END_CANDIDATES = 6
 """Rare goal configurations the search aims at before the region (``rare_clear_ends``): each
-reached one is a candidate witness."""
+reached one is a candidate witness. A ``joint`` goal is the one end: the search makes this many
+runs to it, each on its own seeds, and each path found is a candidate."""
 END_CLEARANCE_M = 2e-3
 """Least scene clearance of an aimed-at end [m]: well above the certificate's floor."""
 END_TIME_S = 2.0
@@ -216,7 +217,12 @@ def certify(robot: RobotModel, world: CollisionWorld, goal: GoalRegion, witness:
     proof = certify_path(world, Q, config, shape_names)
     if not proof.proven:
         return Certified(proof.message, proof)
-    if not goal.contains(_tool_pose(robot, robot.create_data(), Q[-1], goal)):
+    if goal.is_joint:
+        gap = float(np.max(np.abs(Q[-1] - goal.configuration(robot.joint_names))))
+        if not gap <= JOINT_TOLERANCE_RAD:
+            return Certified(f'the witness does not end at the joint goal (largest joint '
+                             f'difference {gap:.3g} rad)', proof)
+    elif not goal.contains(_tool_pose(robot, robot.create_data(), Q[-1], goal)):
         return Certified('the witness does not end inside the goal region', proof)
     return Certified(None, proof)
 
@@ -302,8 +308,7 @@ def _search(robot: RobotModel, world: CollisionWorld, objects: tuple[SceneObject
     unproven (pulled taut against an object) once more without simplification."""
     from advocc_ros.planning.worker import Planner
 
-    targets = [(end, END_TIME_S) for end in rare_clear_ends(robot, world, objects, goal)]
-    targets.append((None, time_s))
+    targets = _targets(robot, world, objects, goal, time_s)
     names = object_shape_names(objects)
     scene = Scene(name='witness', robot=robot.spec, objects=objects)
     for simplify in (True, False):
@@ -312,12 +317,12 @@ def _search(robot: RobotModel, world: CollisionWorld, objects: tuple[SceneObject
                                 interpolate=False)
         found, unproven = [], []
         with Planner(scene, config) as planner:
-            for q_end, budget in targets:
+            for q_end, budget, first_seed in targets:
                 budget = END_TIME_S if found else budget
                 why = _proven_path(planner, robot, world, q_init, goal, q_end, budget,
-                                   simplify, names, found)
+                                   simplify, names, found, first_seed)
                 if why == 'unproven':
-                    unproven.append((q_end, budget))
+                    unproven.append((q_end, budget, first_seed))
         if found or not unproven:
             return tuple(found)
         targets = unproven
@@ -326,13 +331,26 @@ def _search(robot: RobotModel, world: CollisionWorld, objects: tuple[SceneObject
     return ()
 
 
+def _targets(robot: RobotModel, world: CollisionWorld, objects: tuple[SceneObject, ...],
+             goal: GoalRegion, time_s: float) -> list[tuple]:
+    """(end or None for the region, budget [s], first seed) of each run of the search: the rare
+    clear ends then the region, or ``END_CANDIDATES`` runs to a ``joint`` goal."""
+    if goal.is_joint:
+        q_goal = goal.configuration(robot.joint_names)
+        return [(q_goal, time_s, WITNESS_SEED + k * WITNESS_TRIES)
+                for k in range(END_CANDIDATES)]
+    targets = [(end, END_TIME_S, WITNESS_SEED)
+               for end in rare_clear_ends(robot, world, objects, goal)]
+    return targets + [(None, time_s, WITNESS_SEED)]
+
+
 def _proven_path(planner, robot: RobotModel, world: CollisionWorld, q_init: np.ndarray,
                  goal: GoalRegion, q_end: np.ndarray | None, budget: float, simplify: bool,
-                 names: list[str], found: list) -> str:
-    """Seeds of one target until a proven path, appended to ``found``: 'proven', 'no path'
-    or 'unproven' (every path found failed the certificate)."""
+                 names: list[str], found: list, first_seed: int = WITNESS_SEED) -> str:
+    """Seeds of one target (from ``first_seed``) until a proven path, appended to ``found``:
+    'proven', 'no path' or 'unproven' (every path found failed the certificate)."""
     outcome = 'no path'
-    for seed in range(WITNESS_SEED, WITNESS_SEED + WITNESS_TRIES):
+    for seed in range(first_seed, first_seed + WITNESS_TRIES):
         witness = _plan(planner, robot, q_init, goal, q_end, budget, seed, simplify)
         if witness is None:
             return outcome
@@ -359,7 +377,8 @@ def _plan(planner, robot: RobotModel, q_init: np.ndarray, goal: GoalRegion,
     waypoints = np.round(np.asarray(result.path, float), WAYPOINT_DECIMALS)
     return Witness(robot.joint_names, waypoints, dict(robot.locked_values), {
         'planner': WITNESS_PLANNER, 'seed': int(seed), 'time_budget_s': float(time_s),
-        'target': 'region' if q_end is None else 'rare goal configuration',
+        'target': ('region' if q_end is None else 'joint goal' if goal.is_joint
+                   else 'rare goal configuration'),
         'simplified': simplify, 'planning_time_s': round(result.planning_time_s, 4),
         'path_length_rad': round(float(result.stats.get('path_length_rad', 0.0)), 6),
         'step_rad': WITNESS_STEP_RAD})

@@ -29,16 +29,21 @@ class Task:
     """Goal region of the end-effector link."""
     goal_configs: np.ndarray | None = None
     """(K, nq) goal configurations to hand to victims that take configurations [rad]; None:
-    the trial's goal list found before the clock (``advocc_ros.planning.goal_list``)."""
+    the goal's configuration (``joint`` form), else the trial's goal list found before the
+    clock (``advocc_ros.planning.goal_list``)."""
 
     def goal_list(self, robot, world, k: int, seed: int):
-        """The ``GoalList`` of a trial: the given configurations, else up to K found before the
-        clock from ``seed`` (our sampler in ``world``, with the boxes; the same for every
-        victim of the trial)."""
+        """The ``GoalList`` of a trial: the given configurations, a ``joint`` goal's
+        configuration (every victim is handed the goal itself: its PSR is path search alone),
+        else up to K found before the clock from ``seed`` (our sampler in ``world``, with the
+        boxes; the same for every victim of the trial)."""
         from advocc_ros.planning.goal_list import GoalList, goal_list
         if self.goal_configs is not None:
             given = np.asarray(self.goal_configs, dtype=float).reshape(-1, robot.nq)
             return GoalList(given, 0, 0, 0.0)
+        if self.goal.is_joint:  # a goal the boxes block is no goal: "no goal found"
+            q_goal = self.goal.configuration(robot.joint_names)[None]
+            return GoalList(q_goal[~world.collisions_batch(q_goal)], 0, 0, 0.0)
         return goal_list(robot, world, self.goal, k, seed, self.scene.objects_hash())
 
     def goals(self, robot, world, k: int, seed: int) -> np.ndarray:

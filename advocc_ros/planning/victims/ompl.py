@@ -50,7 +50,7 @@ class OmplVictim:
     def plan(self, task: Task, time_budget_s: float, seed: int) -> PlanResult:
         planner = self._planner_for(task)
         goals, stats = task.goal_configs, {}
-        if self.config.ompl_goal_list and goals is None:
+        if self.config.ompl_goal_list and goals is None and not task.goal.is_joint:
             found = task.goal_list(planner.robot, self._world_for(task, planner.robot),
                                    self.config.goal_configs, seed)
             goals, stats = found.configs, found.stats()
