@@ -10,8 +10,8 @@ and ``RobotTrajectory`` messages serialised to YAML, in the ROS-message layout t
   goal is ``goal_constraints[0].joint_constraints``, the configuration itself (as
   MotionBenchMaker writes it). A goal region is ``goal_constraints[0]``: a position
   constraint whose region is one box of the region's full extents posed at its centre
-  (``target_point_offset`` = the tool point) and an orientation constraint with the centre's orientation and the region's per-axis tolerances in
-  ``ROTATION_VECTOR`` parameterization. Both are exactly our region (MoveIt measures the
+  (``target_point_offset`` = the tool point) and an orientation constraint with the centre's
+  orientation and the region's per-axis tolerances in ``ROTATION_VECTOR`` parameterization. Both are exactly our region (MoveIt measures the
   rotation error as the rotation vector of ``R_goal^T R_link``, as we do). The region's seeds
   (a joint goal it was built around) that the scene leaves free follow as joint goals in
   ``goal_constraints[1:]``: for MoveIt an alternative goal inside the region, for our importer
