@@ -6,16 +6,16 @@ and ``RobotTrajectory`` messages serialised to YAML, in the ROS-message layout t
   values, cylinders ``[height, radius]``; inline meshes), each with ``header.frame_id: world``,
   and a ``robot_state`` of every joint (the locked fingers too) with MoveIt's ``virtual_joint``
   at identity: the robot base is the world;
-- request (``requestNNNN.yaml``): the start state and exactly the task's goal. A ``joint``
-  goal is ``goal_constraints[0].joint_constraints``, the configuration itself (as
-  MotionBenchMaker writes it). A goal region is ``goal_constraints[0]``: a position
-  constraint whose region is one box of the region's full extents posed at its centre
-  (``target_point_offset`` = the tool point) and an orientation constraint with the centre's
-  orientation and the region's per-axis tolerances in ``ROTATION_VECTOR`` parameterization. Both are exactly our region (MoveIt measures the
-  rotation error as the rotation vector of ``R_goal^T R_link``, as we do). The region's seeds
-  (a joint goal it was built around) that the scene leaves free follow as joint goals in
-  ``goal_constraints[1:]``: for MoveIt an alternative goal inside the region, for our importer
-  the region's seeds; a seed the attack's boxes block is left out (it is no goal there);
+- request (``requestNNNN.yaml``): the start state and exactly the task's goal. A ``joint`` goal is
+  ``goal_constraints[0].joint_constraints``, the configuration itself (as MotionBenchMaker writes
+  it). A goal region is ``goal_constraints[0]``: a position constraint whose region is one box of
+  the region's full extents posed at its centre (``target_point_offset`` = the tool point) and an
+  orientation constraint with the centre's orientation and the region's per-axis tolerances in
+  ``ROTATION_VECTOR`` parameterization. Both are exactly our region (MoveIt measures the rotation
+  error as the rotation vector of ``R_goal^T R_link``, as we do). The region's seeds (a joint goal
+  it was built around) that the scene leaves free follow as joint goals in
+  ``goal_constraints[1:]``: for MoveIt an alternative goal inside the region, for our importer the
+  region's seeds; a seed the attack's boxes block is left out (it is no goal there);
 - trajectory (``trajectoryNNNN.yaml``): the witness path's waypoints as
   ``joint_trajectory.points[]`` (linear interpolation in joint space between them is the
   path), timed at the joints' velocity limits (each segment takes as long as its slowest joint
