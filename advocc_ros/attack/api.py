@@ -155,7 +155,7 @@ def attack(heatmap: Heatmap, robot: RobotModel, objects: tuple[SceneObject, ...]
     s = box_size(cfg, box_size_m)
     policy = goal_policy or cfg.goal_policy
     base = dict(method=method, budget=int(budget) if isinstance(budget, (int, np.integer))
-                else 0, box_size_m=s, goal_policy=policy)
+                else 0, box_size_m=s, goal_policy=policy, goal_form=getattr(goal, 'form', ''))
     objects = tuple(objects)
     try:
         validate_request(heatmap, robot, objects, q_init, goal, budget, method, s, cfg, policy)

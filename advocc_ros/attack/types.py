@@ -114,6 +114,9 @@ class AttackResult:
     stats: dict = dataclasses.field(default_factory=dict)
     """Diagnostics: candidate counts per filter, rejected picks, goal IK outcome."""
     goal_policy: str = ''
+    goal_form: str = ''
+    """``region`` or ``joint`` (``model.goal.GOAL_FORMS``): how the attacked task's goal is
+    posed."""
     goal_valid_fraction: float | None = None
     """Of the task's fixed goal samples valid without the boxes, the fraction still valid with
     them (``attack.goals``); None when the goal region has no IK solution."""
@@ -134,6 +137,7 @@ class AttackResult:
                 'obstacles': objects_to_data(self.obstacles),
                 'masses': [float(m) for m in self.masses], 'total_mass': float(self.total_mass),
                 'compute_ms': round(self.compute_s * 1e3, 3), 'goal_policy': self.goal_policy,
+                'goal_form': self.goal_form,
                 'goal_valid_fraction': self.goal_valid_fraction,
                 'solvable': self.solvable.to_json() if self.solvable is not None else None,
                 'stats': self.stats}

@@ -75,7 +75,7 @@ class GoalRegion:
     @staticmethod
     def _seeds_from_data(data: Any, where: str) -> tuple[tuple[str, ...], tuple]:
         """(joint names, configurations) of ``seeds: [{joint: value, ...}, ...]``."""
-        if data is None:
+        if data is None or data == []:
             return (), ()
         if not isinstance(data, list) or not all(isinstance(d, dict) and d for d in data):
             raise SceneError(f'{where}: expected a list of mappings joint_name: position')

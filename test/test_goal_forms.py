@@ -1,0 +1,156 @@
+"""Goal forms: a MotionBenchMaker joint goal as the configuration itself (``joint``, the default)
+or as the paper's region around its hand pose (``region``), through loading, the task check,
+planning, the attack and the export."""
+
+import pathlib
+
+import numpy as np
+import pytest
+
+from advocc_ros.formats.mbm_export import request_data
+from advocc_ros.formats.mbm_request import load_request
+from advocc_ros.formats.mbm_scene import load_any_scene
+from advocc_ros.kinematics.ik import start_configuration
+from advocc_ros.model.collision import CollisionWorld
+from advocc_ros.model.goal import GoalRegion
+from advocc_ros.model.pose import SceneError
+from advocc_ros.model.robot import load_robot
+from advocc_ros.model.scene import make_box
+from advocc_ros.model.task_check import TaskProblem, check_task
+
+REAL = pathlib.Path(__file__).parent / 'data' / 'mbm_real'
+
+
+def _problem(family: str, form: str | None = None):
+    folder = REAL / f'{family}_panda'
+    scene = load_any_scene(folder / 'scene0001.yaml', folder / 'request0001.yaml',
+                           goal_form=form)
+    robot = load_robot(scene.robot)
+    return scene, robot, start_configuration(scene, robot)
+
+
+def _request_goal(family: str, robot) -> np.ndarray:
+    request = load_request(REAL / f'{family}_panda' / 'request0001.yaml', robot)
+    return np.array([request.goal[j] for j in robot.joint_names])
+
+
+def test_a_joint_goal_request_is_the_configuration_itself_unless_asked_for_a_region():
+    scene, robot, _ = _problem('box')
+    assert scene.goal.form == 'joint' and scene.goal.is_joint
+    q_goal = _request_goal('box', robot)
+    assert np.array_equal(scene.goal.configuration(robot.joint_names), q_goal)
+    region, _, _ = _problem('box', 'region')
+    assert region.goal.form == 'region' and not region.goal.is_joint
+    assert region.goal.position_tolerance_m == (0.02, 0.02, 0.02)
+    with pytest.raises(SceneError, match='region, not a joint'):
+        region.goal.configuration(robot.joint_names)
+
+
+def test_the_form_is_part_of_the_goal_data_and_checked():
+    scene, robot, _ = _problem('box')
+    data = scene.goal.to_data()
+    assert data['form'] == 'joint'
+    assert GoalRegion.from_data(data) == scene.goal
+    assert 'form' not in _problem('box', 'region')[0].goal.to_data()  # region files unchanged
+    with pytest.raises(SceneError, match='goal.form'):
+        GoalRegion.from_data(dict(data, form='pose'))
+    with pytest.raises(SceneError, match='the one seed'):
+        GoalRegion.from_data(dict(data, seeds=[]))
+
+
+def test_the_joint_form_needs_a_joint_goal():
+    with pytest.raises(SceneError, match='joint form needs a request with a joint goal'):
+        load_any_scene('table_pick', goal_form='joint')
+    assert load_any_scene('table_pick', goal_form='region').goal.form == 'region'
+
+
+def test_a_joint_goal_touching_the_scene_is_refused_with_its_pairs():
+    """cage 0001's goal closes the fingers on the cube once they are clipped into the URDF's
+    limits: in the joint form the task has no solution, and the check says why."""
+    scene, robot, q_init = _problem('cage')
+    fault = check_task(robot, scene.objects, q_init, scene.goal)
+    assert fault is not None and fault.problem == TaskProblem.GOAL_IN_COLLISION
+    assert 'goal configuration is in collision with the scene' in fault.message
+    assert any('finger' in a for a, _ in fault.pairs)
+    region, _, _ = _problem('cage', 'region')
+    assert check_task(robot, region.objects, q_init, region.goal) is None
+    box_scene, box_robot, box_start = _problem('box')
+    assert check_task(box_robot, box_scene.objects, box_start, box_scene.goal) is None
+
+
+def test_a_joint_export_holds_exactly_its_goal_and_reads_back_the_same():
+    scene, robot, _ = _problem('box')
+    goals = request_data(scene, robot)['goal_constraints']
+    assert len(goals) == 1 and not goals[0]['position_constraints']
+    values = {c['joint_name']: c['position'] for c in goals[0]['joint_constraints']}
+    q_goal = scene.goal.configuration(robot.joint_names)
+    assert [values[j] for j in robot.joint_names] == q_goal.tolist()
+
+
+def test_a_region_export_leaves_out_a_seed_the_boxes_block(panda):
+    scene, robot, _ = _problem('box', 'region')
+    free = request_data(scene, robot)['goal_constraints']
+    assert len(free) == 2 and free[1]['joint_constraints']  # the region, then its seed
+    seed = np.array(scene.goal.seeds[0])
+    hand = robot.ee_pose(seed).translation
+    blocked = scene.with_objects((make_box('adv_0', hand, (0.05, 0.05, 0.05)),))
+    assert CollisionWorld(robot, blocked.shapes).in_collision(seed)
+    goals = request_data(blocked, robot)['goal_constraints']
+    assert len(goals) == 1 and goals[0]['position_constraints']
+
+
+def test_a_plan_to_a_joint_goal_ends_exactly_there():
+    from advocc_ros.planning.solve import solve
+    from advocc_ros.planning.types import PlanningConfig
+
+    scene, robot, q_init = _problem('box')
+    world = CollisionWorld(robot, scene.shapes)
+    q_goal = scene.goal.configuration(robot.joint_names)
+    result = solve(robot, world, q_init, scene.goal, 'rrtconnect', 10.0, 3,
+                   PlanningConfig(simplify=False))
+    assert result.success, result.message
+    assert np.abs(result.path[-1] - q_goal).max() <= 1e-9
+    assert result.stats['goal_list'] == 1
+
+
+@pytest.fixture(scope='module')
+def box_heatmap():
+    from advocc_ros.heatmap import HeatmapConfig, build_heatmap
+    scene, _, _ = _problem('box')
+    return build_heatmap(scene, HeatmapConfig(samples=400, robot_only=True), seed=1)
+
+
+def test_the_joint_form_attack_keeps_the_goal_configuration_clear(box_heatmap):
+    """No witness (the paper's policy): the boxes still keep the certificate's guard margin from
+    the goal's whole body."""
+    from advocc_ros.attack import AttackConfig, attack
+    from advocc_ros.planning.certificate import CertificateConfig
+
+    scene, robot, q_init = _problem('box')
+    result = attack(box_heatmap, robot, scene.objects, q_init, scene.goal, 8, 'task',
+                    AttackConfig(), certify=False)
+    assert result.status.ok, result.message
+    assert result.goal_form == 'joint' and result.to_json()['goal_form'] == 'joint'
+    assert result.stats['task_goal_samples'] == 0 and result.stats['task_approach_samples'] > 0
+    q_goal = scene.goal.configuration(robot.joint_names)
+    boxes = CollisionWorld(robot, [o.shapes[0] for o in result.obstacles])
+    clearance = boxes.scene_clearances(q_goal[None], 1.0)[0]
+    assert clearance >= CertificateConfig().guard_margin_m - 1e-9
+    assert result.goal_valid_fraction == 1.0
+
+
+def test_only_the_region_form_keeps_boxes_off_the_goal_region(box_heatmap):
+    """The region form's C3 keeps d_safe (10 cm) from the goal region's position box; the joint
+    form keeps the goal's body clear instead, so boxes may close in around the hand."""
+    from advocc_ros.attack import AttackConfig
+    from advocc_ros.attack.region import search_region
+
+    cfg = AttackConfig()
+    near = {}
+    for form in ('joint', 'region'):
+        scene, robot, q_init = _problem('table_pick', form)
+        region = search_region(box_heatmap, robot, scene.objects, q_init, scene.goal, cfg)
+        centers = region.center_m(np.argwhere(region.candidates))
+        hand = np.array(scene.goal.center.position_m)
+        near[form] = int((np.linalg.norm(centers - hand, axis=1) < 0.1).sum())
+    assert near['region'] == 0 and near['joint'] > 0
