@@ -49,8 +49,8 @@ from typing import Any
 import numpy as np
 
 from advocc_ros.attack.goals import GoalGuard, goal_samples
-from advocc_ros.attack.solvable import (WitnessGuard, assess, choose_witness, witness_bodies,
-                                        witness_candidates)
+from advocc_ros.attack.solvable import (CERTIFICATE, WitnessGuard, assess, choose_witness,
+                                        witness_bodies, witness_candidates)
 from advocc_ros.attack.methods import CONTEXT_METHODS, METHODS, MethodContext, load_method
 from advocc_ros.attack.region import search_region
 from advocc_ros.attack.types import (BOX_ID, DEFAULT_METHOD, POLICIES, AttackConfig,
@@ -167,7 +167,8 @@ def attack(heatmap: Heatmap, robot: RobotModel, objects: tuple[SceneObject, ...]
         elif policy == 'solvable':
             witness, touching = _kept_witness(robot, objects, goal, region,
                                               _required(witness))
-            region.guard = WitnessGuard(witness_bodies(robot, shared_world(robot), witness), s)
+            region.guard = WitnessGuard(witness_bodies(robot, shared_world(robot), witness), s,
+                                        CERTIFICATE.guard_margin_m + cfg.victim_margin_m)
             region.guard.prune(region, touching)
         extra = {}
         if method in CONTEXT_METHODS:

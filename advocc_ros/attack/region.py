@@ -232,15 +232,15 @@ def search_region(heatmap: Heatmap, robot: RobotModel, objects: tuple[SceneObjec
 
 def _goal_body(robot: RobotModel, goal: GoalRegion, q_init: np.ndarray, cfg: AttackConfig):
     """(configuration, links, clearance [m], what) of the goal body the boxes keep clear, or
-    None: a ``joint`` goal's whole body at the certificate's guard margin (the goal is that
-    configuration, so a box may come as close as to the witness, never touch it); with
+    None: a ``joint`` goal's whole body at the witness guard's clearance (the goal is that
+    configuration, so a box may come as close as to the witness, never closer); with
     ``protect_goal_hand``, the hand at one IK solution for the region's centre, at d_safe."""
     world = shared_world(robot)
     geoms = world.geom_model.geometryObjects[:world.n_links]
     if goal.is_joint:
         from advocc_ros.planning.certificate import CertificateConfig
         return (goal.configuration(robot.joint_names), list(range(len(geoms))),
-                CertificateConfig().guard_margin_m, 'robot link')
+                CertificateConfig().guard_margin_m + cfg.victim_margin_m, 'robot link')
     if not cfg.protect_goal_hand:
         return None
     q_goal = goal_configuration(robot, goal, q_init)

@@ -50,6 +50,12 @@ class AttackConfig:
     ``solvable`` (the task's witness path stays valid: ``attack.solvable``)."""
     reachable_fraction: float = 0.5
     """Under ``reachable``: share of the fixed goal samples that must stay valid."""
+    victim_margin_m: float = 0.0
+    """Distance every box keeps from the witness's body (and a ``joint`` goal's) on top of the
+    certificate's guard margin [m]: the continuous witness then keeps this much more than the
+    certificate's floor from every box, room for the victims' own collision models, whose link
+    meshes are larger than our hulls (MPlib's FCL calls witnesses 1-4 mm clear under coal
+    colliding)."""
     max_rejections: int = 500
     """Picks that fail the exact coal check before a method gives up (then PARTIAL)."""
     search_witness: bool = False
@@ -63,6 +69,7 @@ class AttackConfig:
         checks = {'box_size_m': 0 < self.box_size_m <= self.max_box_m,
                   'corridor_radius_m': self.corridor_radius_m > 0,
                   'd_safe_m': self.d_safe_m >= 0, 'd_min_m': self.d_min_m >= 0,
+                  'victim_margin_m': 0 <= self.victim_margin_m <= 0.05,
                   'max_budget': self.max_budget >= 1, 'max_box_m': self.max_box_m > 0,
                   'max_rejections': self.max_rejections >= 0,
                   'reachable_fraction': 0 <= self.reachable_fraction <= 1}

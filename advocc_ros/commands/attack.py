@@ -50,6 +50,10 @@ def register(sub: argparse._SubParsersAction) -> None:
                    '%(default)s)')
     p.add_argument('--d-min', type=float, default=defaults.d_min_m,
                    help='minimum distance between box centres [m] (default %(default)s)')
+    p.add_argument('--victim-margin', type=float, default=defaults.victim_margin_m,
+                   help='distance the boxes keep from the witness and a joint goal beyond the '
+                   'certificate\'s guard margin, room for the victims\' own collision models '
+                   '[m] (default %(default)s)')
     g = p.add_argument_group('planner in the loop (pfa, pfa++)')
     g.add_argument('--planner', help='victim planner pfa++ queries: rrtconnect, prmstar, '
                    'bkpiece1 (default rrtconnect); pfa always queries rrtconnect')
@@ -77,7 +81,7 @@ def _attack(args: argparse.Namespace) -> int:
         cfg = AttackConfig(box_size_m=args.size, corridor_radius_m=args.corridor,
                            d_safe_m=args.d_safe, d_min_m=args.d_min, goal_policy=args.policy,
                            reachable_fraction=args.reachable_fraction,
-                           search_witness=args.certify)
+                           victim_margin_m=args.victim_margin, search_witness=args.certify)
     except ValueError as exc:
         raise UserError(str(exc)) from None
     scene, robot, heatmap, q_init = _load_task(args)
