@@ -175,7 +175,7 @@ def test_watchdog_kills_an_overrun_and_recovers(open_scene):
         planner.start()
         pid = planner.worker_pid
         t0 = time.monotonic()
-        r = planner._stall(30.0, watchdog_s=1.0)
+        r = planner.stall(30.0, watchdog_s=1.0)
         assert time.monotonic() - t0 < 3.0
         assert r.status == PlanStatus.TIMED_OUT and r.stats.get('watchdog')
         assert planner.worker_pid is None and planner.restarts == 1

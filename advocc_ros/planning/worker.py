@@ -8,7 +8,7 @@ configurations with damped-least-squares IK inside the region.
 Why a worker process. OMPL's ``solve`` runs in C++ and cannot be interrupted from Python; a
 planner that ignores its termination condition, or a pathological scene (a huge mesh), would hold
 the caller forever. ``Planner`` therefore runs every request in one long-lived child process
-(``python -c 'from advocc_ros.planning.worker import _worker_main; _worker_main()'``) that it
+(``python -c 'from advocc_ros.planning.worker import worker_main; worker_main()'``) that it
 reuses across requests (imports and the robot model load once; the per-request cost is one
 JSON line each way, measured ~1 ms). The parent waits for the answer with a watchdog deadline of
 ``time_budget_s + watchdog_margin_s``; past it, the child is killed (SIGKILL), the request is
@@ -90,7 +90,7 @@ def _inject_fault(seed: int) -> None:
 # --------------------------------------------------------------------------------------------
 # The worker process
 
-def _worker_main() -> None:
+def worker_main() -> None:
     """Serve JSON-line plan requests on stdin; answers go to a private copy of stdout."""
     out = os.fdopen(os.dup(1), 'w', buffering=1)
     os.dup2(2, 1)  # C++ output on fd 1 must not corrupt the protocol
@@ -151,8 +151,8 @@ def _our_worker_argv() -> tuple[list[str], dict]:
     env = dict(os.environ)
     env['PYTHONPATH'] = os.pathsep.join(p for p in (src, env.get('PYTHONPATH')) if p)
     # -P: the working directory must not shadow the parent's code (a checkout's cwd).
-    return [sys.executable, '-P', '-c', 'from advocc_ros.planning.worker import _worker_main; '
-            '_worker_main()'], env
+    return [sys.executable, '-P', '-c', 'from advocc_ros.planning.worker import worker_main; '
+            'worker_main()'], env
 
 
 class WorkerProcess:
@@ -363,8 +363,9 @@ class Planner:
         result.stats['overhead_s'] = round_trip - result.planning_time_s
         return result
 
-    def _stall(self, seconds: float, watchdog_s: float) -> PlanResult:
-        """Diagnostic: send a request that holds the worker ``seconds`` (tests the watchdog)."""
+    def stall(self, seconds: float, watchdog_s: float) -> PlanResult:
+        """Diagnostic: a request that holds the worker ``seconds``, watched for ``watchdog_s``
+        as a plan is (``TIMED_OUT`` with the worker killed past it): tests the watchdog."""
         with self._lock:
             worker = self._ensure_worker()
             worker.send({'op': 'stall', 'seconds': seconds})
