@@ -187,8 +187,9 @@ def non_finite_field(msg, path: str = '') -> str | None:
     return None
 
 
-def _parse_locked(entries) -> tuple[tuple[str, float], ...] | None:
-    """``['joint=value', ...]`` as RobotSpec.locked; None when no entry is given."""
+def parse_locked(entries) -> tuple[tuple[str, float], ...] | None:
+    """The ``robot_locked`` parameter's ``['joint=value', ...]`` as RobotSpec.locked; None
+    when no entry is given; ``RobotError`` for an entry that is not a name and a number."""
     entries = [e for e in entries if e]
     if not entries:
         return None
@@ -233,7 +234,7 @@ class HeatmapServer(Node):
         spec = RobotSpec(**{field: self.get_parameter(param).value
                             for param, field in _ROBOT_PARAMS.items()})
         self.heatmap = load_heatmap(path)
-        locked = _parse_locked(self.get_parameter('robot_locked').value)
+        locked = parse_locked(self.get_parameter('robot_locked').value)
         if locked is None:
             locked = locked_joints(self.heatmap.meta, spec.urdf, spec.srdf, spec.group) or ()
         self._spec = dataclasses.replace(spec, locked=locked)
