@@ -54,7 +54,7 @@ import numpy as np
 from advocc_ros.model.robot import RobotError, load_robot
 from advocc_ros.model.goal import GoalRegion
 from advocc_ros.model.scene import Scene, scene_from_data
-from advocc_ros.planning.solve import ompl_modules, solve
+from advocc_ros.planning.solve import ompl_modules, ompl_version, solve
 from advocc_ros.planning.types import (PlanningConfig, PlanResult, PlanStatus, failed,
                                        validate_request)
 
@@ -105,7 +105,7 @@ def worker_main() -> None:
     def reply(data: dict) -> None:
         out.write(json.dumps(data) + '\n')
 
-    reply({'ready': True, 'pid': os.getpid()})
+    reply({'ready': True, 'pid': os.getpid(), 'ompl': ompl_version()})
     for line in sys.stdin:
         try:
             req = json.loads(line)
@@ -177,6 +177,8 @@ class WorkerProcess:
             self.kill()
             raise WorkerDied(f'{what} did not start within {timeout_s:g} s')
         self.pid = int(hello['pid'])
+        self.ompl_version: str | None = hello.get('ompl')
+        """The OMPL version the worker's interpreter imports (None: it reported none)."""
 
     def send(self, data: dict) -> None:
         try:
@@ -277,6 +279,8 @@ class Planner:
         self._slot = WorkerSlot()
         self.set_scene(scene)
         self.requests = 0
+        self.ompl_version: str | None = None
+        """The OMPL version the last worker started reported (None before the first)."""
 
     def set_scene(self, scene: Scene) -> None:
         """Scene for the next requests (objects may change; the robot may not)."""
@@ -311,6 +315,7 @@ class Planner:
             self.config.worker_start_timeout_s, *(self.command() if self.command else ())))
         if fresh:
             log.debug('planning worker %d started', worker.pid)
+            self.ompl_version = worker.ompl_version
         return worker
 
     def plan(self, q_start, goal: GoalRegion, planner_id: str = 'rrtconnect',

@@ -82,7 +82,7 @@ class Ompl2Victim(OmplVictim):
 
     def plan(self, task: Task, time_budget_s: float, seed: int) -> PlanResult:
         result = super().plan(task, time_budget_s, seed)
-        result.stats['ompl'] = '2.0.1'
+        result.stats['ompl'] = self.planner.ompl_version
         return self._recheck(task, result) if result.success else result
 
     def _recheck(self, task: Task, result: PlanResult) -> PlanResult:
