@@ -1,9 +1,11 @@
 """``cells.csv``, the bench's one row per cell that a study's results file copies (no ROS)."""
 
 import csv
+import json
 
-from advocc_ros.bench import BASELINE, BenchConfig, RecordStore, trial_key, write_report
+from advocc_ros.bench import BASELINE, BenchConfig, RecordStore, trial_key
 from advocc_ros.bench.tables import CELL_COLUMNS
+from advocc_ros.cli import main
 
 
 def _rec(method, budget, trial, status, first=None, goal_found=None, unix=1_795_700_000.0):
@@ -20,7 +22,9 @@ def _rec(method, budget, trial, status, first=None, goal_found=None, unix=1_795_
 
 def test_cells_csv_holds_each_cell_of_the_run(tmp_path):
     """PSR, PSR given goals and the trials without a goal, failure modes, the attacks' goal
-    share and verdicts, median first solution, PT ratio and trial times, one row per cell."""
+    share and verdicts, median first solution, PT ratio and trial times, one row per cell;
+    ``advocc bench --report-only`` writes it under the run's own settings (its config.json),
+    whatever the profile."""
     run = tmp_path / 'grid_seed7'
     cfg = BenchConfig(scenes=('table_pick',), planners=('rrtconnect',), methods=('task',),
                       budgets=(10,), trials=4, time_budget_s=5.0, seed=7)
@@ -38,7 +42,8 @@ def test_cells_csv_holds_each_cell_of_the_run(tmp_path):
         (attacks / f'task_b10_v{i}.yaml').write_text(
             f'method: task\nbudget: 10\ngoal_valid_fraction: {share}\n'
             f'solvable: {{verdict: {verdict}}}\nobjects: []\n')
-    write_report(run, cfg)
+    (run / 'config.json').write_text(json.dumps({'config': cfg.to_data()}))
+    assert main(['bench', '--profile', 'quick', '--report-only', '--out', str(run)]) == 0
     with open(run / 'cells.csv', newline='') as handle:
         rows = list(csv.DictReader(handle))
     assert tuple(rows[0]) == CELL_COLUMNS and len(rows) == 2
