@@ -24,7 +24,7 @@ def test_cells_csv_holds_each_cell_of_the_run(tmp_path):
     """PSR, PSR given goals and the trials without a goal, failure modes, the attacks' goal
     share and verdicts, median first solution, PT ratio and trial times, one row per cell;
     ``advocc bench --report-only`` writes it under the run's own settings (its config.json),
-    whatever the profile."""
+    whatever the profile, with every cell of the records."""
     run = tmp_path / 'grid_seed7'
     cfg = BenchConfig(scenes=('table_pick',), planners=('rrtconnect',), methods=('task',),
                       budgets=(10,), trials=4, time_budget_s=5.0, seed=7)
@@ -36,6 +36,7 @@ def test_cells_csv_holds_each_cell_of_the_run(tmp_path):
                                                 ('TIMED_OUT', None, True),
                                                 ('GOAL_IN_COLLISION', None, False))):
         store.append(_rec('task', 10, k, status, first, found))
+    store.append(_rec('task', 3, 0, 'SUCCESS', 0.5, True))  # a budget the settings dropped
     attacks = run / 'attacks' / 'table_pick'
     attacks.mkdir(parents=True)
     for i, (share, verdict) in enumerate(((0.25, 'certified'), (0.5, 'unknown'))):
@@ -46,8 +47,9 @@ def test_cells_csv_holds_each_cell_of_the_run(tmp_path):
     assert main(['bench', '--profile', 'quick', '--report-only', '--out', str(run)]) == 0
     with open(run / 'cells.csv', newline='') as handle:
         rows = list(csv.DictReader(handle))
-    assert tuple(rows[0]) == CELL_COLUMNS and len(rows) == 2
-    base, task = rows
+    assert tuple(rows[0]) == CELL_COLUMNS and len(rows) == 3
+    base, dropped, task = rows
+    assert (dropped['budget'], dropped['psr_percent'], dropped['pt_ratio']) == ('3', '100', '1.66667')
     assert (base['run'], base['seed'], base['method'], base['budget']) == \
         ('grid_seed7', '7', BASELINE, '0')
     assert (base['psr_percent'], base['first_solution_median_s'], base['pt_ratio'],

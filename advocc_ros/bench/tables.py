@@ -369,13 +369,14 @@ CELL_COLUMNS = ('run', 'seed', 'scene', 'planner', 'method', 'budget', 'trials',
 
 def cell_table(rows: dict[tuple, dict], attacks: list[dict], records: Iterable[dict],
                cfg: BenchConfig, stems: dict[str, str], run: str) -> str:
-    """``cells.csv``: one row per measured cell, everything a study's results file holds
-    (docs/results), so that file is this one copied, never put together by hand: the run (its
-    folder's name) and seed, the cell, its trials, PSR and PSR given goals (the trials whose goal
-    search before the clock found one) with the trials where it found none, the failure modes,
-    the internal errors, the attacks' mean ``goal_valid_fraction`` and their ``solvable``
-    verdicts, the median time to first solution (failures at the budget), the PT ratio, and
-    when the cell's first and last trials were recorded (UTC)."""
+    """``cells.csv``: one row per cell of the records (budgets a resumed run no longer lists
+    included), everything a study's results file holds (docs/results), so that file is this
+    one copied, never put together by hand: the run (its folder's name) and seed, the cell, its
+    trials, PSR and PSR given goals (the trials whose goal search before the clock found one)
+    with the trials where it found none, the failure modes, the internal errors, the attacks'
+    mean ``goal_valid_fraction`` and their ``solvable`` verdicts, the median time to first
+    solution (failures at the budget), the PT ratio, and when the cell's first and last trials
+    were recorded (UTC)."""
     gvf = _attack_values(attacks, 'goal_valid_fraction')
     verdicts = _attack_values(attacks, 'solvable')
     times: dict[tuple, list[float]] = {}
@@ -386,7 +387,8 @@ def cell_table(rows: dict[tuple, dict], attacks: list[dict], records: Iterable[d
     out = io.StringIO()
     writer = csv.writer(out, lineterminator='\n')
     writer.writerow(CELL_COLUMNS)
-    for cell, row in _measured_cells(rows, cfg):
+    for cell in sorted(rows, key=lambda c: _cell_order(c, cfg)):
+        row = rows[cell]
         scene, planner, method, budget = cell
         stem = stems.get(scene, scene)
         values = [float(v) for v in gvf.get((stem, method, budget), [])]
@@ -403,6 +405,18 @@ def cell_table(rows: dict[tuple, dict], attacks: list[dict], records: Iterable[d
             *(counts or ('', '', '')),
             *[_utc(f(times[cell])) if cell in times else '' for f in (min, max)]])
     return out.getvalue()
+
+
+def _cell_order(cell: tuple, cfg: BenchConfig) -> tuple:
+    """Table order of a cell, those of settings a resumed run no longer lists included:
+    scene, planner, the baseline first, then the methods by budget."""
+    scene, planner, method, budget = cell
+    methods = [BASELINE, *cfg.methods]
+
+    def index(items, item) -> tuple:
+        items = list(items)
+        return (items.index(item), '') if item in items else (len(items), str(item))
+    return index(cfg.scenes, scene), index(cfg.planners, planner), index(methods, method), budget
 
 
 def _csv_percent(share: float | None) -> str:
