@@ -47,18 +47,11 @@ def pytest_sessionstart(session):
 # --------------------------------------------------------------------------------------------
 # Two workers on two cores: what runs together
 #
-# Tests run in groups, one module each unless marked ``xdist_group(name)``: a group's tests run
-# in one worker, in order, so module fixtures are made once and a fuzz module's case counts see
-# all its tests. A test marked ``timing`` (it measures time or plans against a budget it must
-# meet) runs while no other test runs: the other worker waits (a readers-writer lock on a file
-# in the run's temporary folder, writers first).
-
-@pytest.hookimpl(tryfirst=True)  # before xdist reads the groups
-def pytest_collection_modifyitems(config, items):
-    for item in items:
-        if item.get_closest_marker('xdist_group') is None:
-            item.add_marker(pytest.mark.xdist_group(item.nodeid.split('::')[0]))
-
+# pytest-xdist sends each worker a test module at a time (``--dist=loadfile``: module fixtures
+# are made once, a fuzz module's case counts see all its tests, and a module's nodes, Ray
+# clusters and run folders never meet their twins). A test marked ``timing`` (it measures time
+# or plans against a budget it must meet) runs while no other test runs: the other worker
+# waits (a readers-writer lock on a file in the run's temporary folder, writers first).
 
 @contextlib.contextmanager
 def _cpu_turn(config, alone: bool):
