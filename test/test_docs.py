@@ -38,8 +38,8 @@ def test_every_relative_link_resolves():
 # unattacked -> attacked chains (100 -> 15 -> 0), ranges (0-0.2 %, 3.05-4.02 s), ratios (x43)
 # and counts (70 of 70); each value must be a numeric cell of a cited file, rounded as written
 # (a percentage may be a fraction cell: 86 % is 0.857), the values of a group, chain or range
-# all cells of one column (JSON: one key), a count's two numbers cells of one record (a CSV
-# row; a JSON object in a list). Bounds (PSR <= 20 %) are claims, not figures.
+# all cells of one column (JSON: one key, or one object's members), a count's two numbers cells
+# of one record (a CSV row; a JSON object in a list). Bounds (PSR <= 20 %) are claims, not figures.
 RESULTS_SECTIONS = ('What the results say', 'Does it transfer?', 'A data set of hard problems')
 DATA_SUFFIXES = ('.csv', '.json')
 _STUDY_LINK = re.compile(r'\]\((docs/results/[^)#\s]+)\)')
@@ -85,8 +85,9 @@ def _section_blocks(readme: str, titles: tuple[str, ...]) -> list[str]:
 
 
 class DataCells:
-    """The numeric cells of a data file: per column (CSV) or key (JSON), and per record (a CSV
-    row, or a JSON object that is an element of a list, with all it holds)."""
+    """The numeric cells of a data file: per column (a CSV column; in JSON a key, and the
+    members of one object), and per record (a CSV row; a JSON object that is an element of a
+    list, with all it holds)."""
 
     def __init__(self):
         self.columns: dict[str, list[float]] = {}
@@ -94,39 +95,41 @@ class DataCells:
 
     def read(self, path: str, text: str) -> None:
         if path.endswith('.json'):
-            self._walk(path, json.loads(text), None)
+            self._walk(path, (), json.loads(text), None)
             return
         for row in csv.DictReader(io.StringIO(text)):
             record: list[float] = []
             for column, value in row.items():
-                self._add(f'{path}:{column}', value, record)
+                self._add([f'{path}:{column}'], value, record)
             self.records.append(record)
 
-    def _add(self, column: str, value, record: list[float] | None) -> None:
+    def _add(self, columns: list[str], value, record: list[float] | None) -> None:
         if isinstance(value, bool):
             return
         try:
             number = float(value)
         except (TypeError, ValueError):
             return
-        self.columns.setdefault(column, []).append(number)
+        for column in columns:
+            self.columns.setdefault(column, []).append(number)
         if record is not None:
             record.append(number)
 
-    def _walk(self, key: str, node, record: list[float] | None) -> None:
+    def _walk(self, path: str, trail: tuple, node, record: list[float] | None) -> None:
         if isinstance(node, dict):
-            for k, v in node.items():
-                self._walk(f'{key.partition(":")[0]}:{k}', v, record)
+            for key, value in node.items():
+                self._walk(path, (*trail, str(key)), value, record)
         elif isinstance(node, list):
-            for v in node:
-                element = [] if isinstance(v, dict) else None
-                self._walk(key, v, element if element is not None else record)
+            for value in node:
+                element = [] if isinstance(value, dict) else None
+                self._walk(path, (*trail, '[]'), value, record if element is None else element)
                 if element is not None:
                     self.records.append(element)
                     if record is not None:
                         record.extend(element)
         else:
-            self._add(key, node, record)
+            key = trail[-1] if trail else ''
+            self._add([f'{path}:{key}', f'{path}:{"/".join(trail[:-1])}/'], node, record)
 
 
 def _matches(written: str, cell: float, percent: bool) -> bool:
@@ -192,11 +195,12 @@ def test_figure_checker_wants_cells_of_cited_data_files():
     files = {'docs/results/s/psr.csv': 'scene,planner,psr_percent,pt_ratio,time_s\n'
                                        'a,p1,25,43.2,3.05\na,p2,0,7.94,4.02\na,p3,20,,\n',
              'docs/results/s/summary.json': '{"n": 25, "groups": [{"share": 0.857, "problems": 5, '
-                                            '"out": {"built": 5}}, {"problems": 20}]}',
+                                            '"out": {"built": 5}}, {"problems": 20}], '
+                                            '"fewest": {"p1": 10, "p2": 20, "p3": 15}}',
              'docs/results/s/README.md': 'PSR 25 / 5 / 20 and 18 % on 4 of 5 scenes, x44.'}
     readme = ('## What the results say\n\n- It holds: 25 / 0 / 20 (x43, 3.05-4.02 s)\n'
               '  ([psr.csv](docs/results/s/psr.csv)).\n\n| a | 25 -> 0 -> 20 | x7.9 |\n\n'
-              'On 86 % of 5 of 5 problems, not PSR <= 10 % '
+              'On 86 % of 5 of 5 problems, not PSR <= 10 %, with 10 / 20 / 15 boxes '
               '([summary](docs/results/s/summary.json)).\n')
     assert unbacked_figures(readme, files.get) == []
     wrong = readme.replace('25 / 0 / 20 (x43', '25 / 5 / 20 (x44')
@@ -204,10 +208,12 @@ def test_figure_checker_wants_cells_of_cited_data_files():
         "'25 / 5 / 20' not in ['docs/results/s/psr.csv']",
         "'x44' not in ['docs/results/s/psr.csv']"]
     # A value of another column, a count across records, a figure only in prose: not backed.
-    mixed = readme.replace('3.05-4.02 s', '3.05-43.2 s').replace('5 of 5', '20 of 25')
+    mixed = (readme.replace('3.05-4.02 s', '3.05-43.2 s').replace('5 of 5', '20 of 25')
+             .replace('10 / 20 / 15', '10 / 20 / 5'))
     assert unbacked_figures(mixed, files.get) == [
         "'3.05-43.2 s' not in ['docs/results/s/psr.csv']",
-        "'20 of 25' not in ['docs/results/s/summary.json']"]
+        "'20 of 25' not in ['docs/results/s/summary.json']",
+        "'10 / 20 / 5' not in ['docs/results/s/summary.json']"]
     prose = ('## Does it transfer?\n\nPSR 25 / 5 / 20 and 18 % on 4 of 5 scenes, x44 '
              '([s](docs/results/s/README.md)).\n')
     assert unbacked_figures(prose, files.get) == [
