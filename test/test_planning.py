@@ -16,7 +16,8 @@ from advocc_ros.model.pose import Pose
 from advocc_ros.model.scene import SceneObject, make_box
 from advocc_ros.model.shapes import Shape
 
-pytestmark = pytest.mark.processes  # nodes, workers or CLI runs
+# workers; planners against a 1 s budget, timed: no other test runs meanwhile
+pytestmark = [pytest.mark.processes, pytest.mark.timing]
 
 BUDGET = 1.0
 

@@ -33,6 +33,7 @@ def test_ompl2_victims_are_registered():
 
 
 @pytest.mark.processes
+@pytest.mark.timing  # the first solution well inside the budget
 @pytest.mark.parametrize('name, scene_name', [('aorrtc', 'table_under_pick'),
                                               ('rrtconnect2', 'table_pick')])
 def test_ompl2_victim_plans_and_is_rechecked(name, scene_name, panda):
