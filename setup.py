@@ -59,8 +59,9 @@ BUILD = [
         ('rosidl-typesupport-introspection-cpp', '4.6.6'),
     ]
 ] + ['catkin-pkg==1.1.1']
-# colcon: the workspace test builds this repository with colcon, as a ROS 2 user does.
-TEST = ['pytest==9.2.0', 'hypothesis==6.170.15', 'flake8==7.3.0',
+# colcon: the workspace test builds this repository with colcon, as a ROS 2 user does;
+# pytest-xdist runs the suite on two workers (setup.cfg).
+TEST = ['pytest==9.2.0', 'pytest-xdist==3.8.0', 'hypothesis==6.170.15', 'flake8==7.3.0',
         'mcap-ros2-support==0.6.0', 'colcon-common-extensions==0.3.0']
 # Outside victims in this interpreter: TrajOpt via Tesseract (0.5.1 imports with numpy 2; the
 # nanobind successor needs a newer libstdc++ than Debian 12's). MPlib has its own venv.

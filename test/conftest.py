@@ -1,6 +1,9 @@
 """Shared fixtures: seeded RNGs, the Panda model, a small scene and its heatmap file, a unique
-ROS domain per test and an rclpy client on it."""
+ROS domain per test and an rclpy client on it; and how the suite shares the machine's CPUs when
+pytest-xdist runs it on several workers (``setup.cfg``: ``-n 2 --dist loadgroup``)."""
 
+import contextlib
+import fcntl
 import os
 import pathlib
 import random
@@ -26,9 +29,53 @@ def needs_chromium():
         pytest.skip(reason)
 
 
-def pytest_configure(config):
-    if os.environ.get(FAST_LANE_ENV) == '1':
+def _xdist_controller(config) -> bool:
+    """Whether this process is pytest-xdist's controller: it starts the workers (processes)
+    and runs no test itself."""
+    return bool(getattr(config.option, 'numprocesses', None)) and \
+        not hasattr(config, 'workerinput')
+
+
+@pytest.hookimpl(trylast=True)  # after an xdist worker describes its platform (`uname -p`)
+def pytest_sessionstart(session):
+    # The fast lane refuses processes, from before collection, in every process that runs
+    # tests: the workers under xdist, this one without it (the controller starts the workers).
+    if os.environ.get(FAST_LANE_ENV) == '1' and not _xdist_controller(session.config):
         _refuse_processes()
+
+
+# --------------------------------------------------------------------------------------------
+# Two workers on two cores: what runs together
+#
+# pytest-xdist sends each worker a test module at a time (``--dist=loadfile``: module fixtures
+# are made once, a fuzz module's case counts see all its tests, and a module's nodes, Ray
+# clusters and run folders never meet their twins). A test marked ``timing`` (it measures time
+# or plans against a budget it must meet) runs while no other test runs: the other worker
+# waits (a readers-writer lock on a file in the run's temporary folder, writers first).
+
+@contextlib.contextmanager
+def _cpu_turn(config, alone: bool):
+    """Hold the run's CPU lock: shared for an ordinary test, exclusive for a ``timing`` one."""
+    base = getattr(config.option, 'basetemp', None)
+    if not hasattr(config, 'workerinput') or not base:
+        yield  # one process runs every test: nothing runs beside it
+        return
+    root = pathlib.Path(base).parent  # the workers' folders are popen-gw0, popen-gw1, ...
+    with open(root / 'cpu.turn', 'a') as turn, open(root / 'cpu.lock', 'a') as lock:
+        fcntl.flock(turn, fcntl.LOCK_EX)  # a waiting timing test holds it: no one passes
+        fcntl.flock(lock, fcntl.LOCK_EX if alone else fcntl.LOCK_SH)
+        fcntl.flock(turn, fcntl.LOCK_UN)
+        try:
+            yield
+        finally:
+            fcntl.flock(lock, fcntl.LOCK_UN)
+
+
+@pytest.hookimpl(hookwrapper=True)
+def pytest_runtest_protocol(item, nextitem):
+    """Set-up (module fixtures included), call and tear-down inside the CPU lock."""
+    with _cpu_turn(item.config, item.get_closest_marker('timing') is not None):
+        yield
 
 
 def _refuse_processes():
@@ -47,10 +94,16 @@ def _refuse_processes():
 
 @pytest.fixture(autouse=True, scope='session')
 def _witness_cache(tmp_path_factory):
-    """Witnesses found by one test's processes are reused by later ones, as on a user's
-    machine, but never read from or written to the user's own cache."""
+    """Witnesses found by one test's processes are reused by later ones (those of every
+    worker), as on a user's machine, but never read from or written to the user's own cache."""
     from advocc_ros.planning.witness import CACHE_ENV
-    os.environ[CACHE_ENV] = str(tmp_path_factory.mktemp('witness_cache'))
+    base = tmp_path_factory.getbasetemp()
+    if 'PYTEST_XDIST_WORKER' in os.environ:  # base is popen-gwN: its parent is the run's
+        folder = base.parent / 'witness_cache'
+        folder.mkdir(exist_ok=True)
+    else:
+        folder = tmp_path_factory.mktemp('witness_cache')
+    os.environ[CACHE_ENV] = str(folder)
     yield
 
 
@@ -72,15 +125,26 @@ def table_scene():
     return load_scene(REPO / 'config' / 'scenes' / 'table_pick.yaml')
 
 
-_domain = [100 + os.getpid() % 50]
+ROS_DOMAINS = range(100, 230)
+"""The ROS_DOMAIN_IDs tests use; each xdist worker draws from its own slice of them."""
+_domain: list[int] = []
+
+
+def fresh_domain() -> int:
+    """A ROS_DOMAIN_ID no other test of this run uses meanwhile: the next of this worker's
+    slice of ``ROS_DOMAINS``, from an offset set by the pid (another run on the machine
+    likely starts elsewhere)."""
+    index = int(os.environ.get('PYTEST_XDIST_WORKER', 'gw0')[2:])
+    size = len(ROS_DOMAINS) // int(os.environ.get('PYTEST_XDIST_WORKER_COUNT', '1'))
+    _domain[:] = [(_domain[0] + 1) % size if _domain else os.getpid() % size]
+    return ROS_DOMAINS[0] + index * size + _domain[0]
 
 
 @pytest.fixture
 def ros_env():
     """Environment for child ROS processes, isolated on a ROS_DOMAIN_ID of its own."""
-    _domain[0] = 100 + (_domain[0] - 99) % 130
     env = dict(os.environ)
-    env['ROS_DOMAIN_ID'] = str(_domain[0])
+    env['ROS_DOMAIN_ID'] = str(fresh_domain())
     env['ROS_LOCALHOST_ONLY'] = '1'
     env['PYTHONUNBUFFERED'] = '1'
     return env

@@ -73,14 +73,14 @@ def test_robot_locked_parameter_overrides_the_file(ros_env, tmp_path, table_scen
 
 @pytest.mark.parametrize('entries, expected', [
     ([''], None), (['a=0.5', 'b = 1'], (('a', 0.5), ('b', 1.0)))])
-def test_parse_locked(entries, expected):
-    from advocc_ros.nodes.heatmap_server import _parse_locked
-    assert _parse_locked(entries) == expected
+def testparse_locked(entries, expected):
+    from advocc_ros.nodes.heatmap_server import parse_locked
+    assert parse_locked(entries) == expected
 
 
 @pytest.mark.parametrize('bad', [['a'], ['=1'], ['a=x'], ['a=nan']])
-def test_parse_locked_refuses(bad):
+def testparse_locked_refuses(bad):
     from advocc_ros.model.robot import RobotError
-    from advocc_ros.nodes.heatmap_server import _parse_locked
+    from advocc_ros.nodes.heatmap_server import parse_locked
     with pytest.raises(RobotError):
-        _parse_locked(bad)
+        parse_locked(bad)

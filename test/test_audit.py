@@ -346,10 +346,12 @@ def test_audit_figure_dots_the_lines_across_unevaluated_budgets():
     """With a grid of prefixes, the curve between evaluated m was not measured: dotted there."""
     import matplotlib.pyplot as plt
 
-    from advocc_ros.evaluation.figures import _join
+    from advocc_ros.evaluation.figures import audit_psr_figure
 
-    fig, ax = plt.subplots()
-    _join(ax, [1.0, 0.9, None, 0.5, None, None, 0.2], color='C0', ls='-')
-    styles = [(tuple(line.get_xdata()), line.get_linestyle()) for line in ax.get_lines()]
+    fig = audit_psr_figure({'rrtconnect': [1.0, 0.9, None, 0.5, None, None, 0.2]}, [None] * 7)
+    lines = fig.axes[0].get_lines()
+    points = next(line for line in lines if line.get_label() == 'rrtconnect')
+    styles = [(tuple(line.get_xdata()), line.get_linestyle()) for line in lines
+              if line.get_color() == points.get_color() and line.get_linestyle() != 'None']
     plt.close(fig)
     assert styles == [((0, 1), '-'), ((1, 3), ':'), ((3, 6), ':')]

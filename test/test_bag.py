@@ -99,9 +99,9 @@ def test_attack_command_writes_a_bag(tmp_path, table_scene, small_heatmap):
     boxes, _ = load_obstacles(tmp_path / 'obs.yaml')
     header, records = read_bag(bag)
     expected = attack_messages(table_scene, boxes, small_heatmap)
-    from advocc_ros.ros.bag import _stamp
+    from advocc_ros.ros.bag import stamp_message
     for (_, _, _, message), (_, msg) in zip(records, expected):
-        _stamp(msg, message.log_time)  # the command stamped them with the time of writing
+        stamp_message(msg, message.log_time)  # the command stamped them with the time of writing
     check_round_trip(bag, expected)
     assert advocc(['attack', '--heatmap', str(tmp_path / 'h.npz'), '--scene', 'table_pick',
                    '--budget', '2', '--method', 'random', '--out', str(tmp_path / 'obs.yaml'),

@@ -122,10 +122,10 @@ def test_clear_task_caches_forgets_what_a_new_task_computes_again():
     kept.put('a', 1)
     clear_task_caches()
     assert 'a' not in mine and 'a' in kept
-    from advocc_ros.model.cache import _PER_TASK
+    from advocc_ros.model.cache import task_caches
     for cache in (goals._GOAL_SAMPLES, goal_batch._TASK_GOALS, solvable._BODIES):
-        assert cache in _PER_TASK, cache.name
-    assert collision._WORLDS not in _PER_TASK
+        assert cache in task_caches(), cache.name
+    assert collision.SHARED_WORLDS not in task_caches()
 
 
 def test_a_collision_world_is_freed_when_dropped(panda, table_scene):

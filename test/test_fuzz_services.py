@@ -21,7 +21,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings, strategies as st
 
 from case_counts import report_cases, whole_module_ran
-from conftest import REPO
+from conftest import REPO, fresh_domain
 
 pytestmark = pytest.mark.processes  # nodes, workers or CLI runs
 
@@ -62,7 +62,7 @@ def ros_module(tmp_path_factory, table_scene):
     tmp = tmp_path_factory.mktemp('fuzz_services')
     heatmap = tmp / 'h.npz'
     save_heatmap(build_heatmap(table_scene, HeatmapConfig(samples=300), seed=4), heatmap)
-    env = dict(os.environ, ROS_DOMAIN_ID=str(150 + os.getpid() % 70), ROS_LOCALHOST_ONLY='1',
+    env = dict(os.environ, ROS_DOMAIN_ID=str(fresh_domain()), ROS_LOCALHOST_ONLY='1',
                PYTHONUNBUFFERED='1')
     old = {k: os.environ.get(k) for k in ('ROS_DOMAIN_ID', 'ROS_LOCALHOST_ONLY')}
     os.environ.update({k: env[k] for k in old})

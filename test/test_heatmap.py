@@ -82,7 +82,7 @@ def test_link_tables_are_kept_on_disk_and_checked_when_read(panda, tmp_path, mon
     from advocc_ros.heatmap import LinkTables, build
     from advocc_ros.model.cache import CACHE_ENV
     monkeypatch.setenv(CACHE_ENV, str(tmp_path))
-    monkeypatch.setattr(build, '_TABLES', build.BoundedCache('link look-up tables', 8))
+    monkeypatch.setattr(build, 'LINK_TABLES', build.BoundedCache('link look-up tables', 8))
     built = build.link_tables(panda, 0.005)
     [path] = (tmp_path / 'link_tables').iterdir()
     read = LinkTables.read(path, len(panda.link_names), 0.005)
@@ -92,14 +92,14 @@ def test_link_tables_are_kept_on_disk_and_checked_when_read(panda, tmp_path, mon
         LinkTables.read(path, len(panda.link_names), 0.01)
 
     path.write_bytes(b'not a zip file')
-    build._TABLES.clear()
+    build.LINK_TABLES.clear()
     again = build.link_tables(panda, 0.005)
     assert 'building them again' in caplog.text
     np.testing.assert_array_equal(again.data, built.data)
     assert LinkTables.read(path, len(panda.link_names), 0.005).data.sum() == built.data.sum()
 
     monkeypatch.setenv(CACHE_ENV, 'off')
-    build._TABLES.clear()
+    build.LINK_TABLES.clear()
     path.unlink()
     build.link_tables(panda, 0.005)
     assert not path.exists()

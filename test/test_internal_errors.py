@@ -86,7 +86,7 @@ def test_a_worker_sigkilled_from_outside_mid_plan():
         worker = None
         deadline = time.monotonic() + 120
         while worker is None and time.monotonic() < deadline:
-            out = subprocess.run(['pgrep', '-P', str(proc.pid), '-f', '_worker_main'],
+            out = subprocess.run(['pgrep', '-P', str(proc.pid), '-f', 'import worker_main'],
                                  capture_output=True, text=True).stdout.split()
             worker = int(out[0]) if out else None
             time.sleep(0.1)

@@ -66,14 +66,21 @@ def test_optimiser_is_reproducible_and_respects_the_budget():
 def test_decoder_keeps_d_min_and_the_exact_check():
     centers = _lattice(8, 0.02)
     vetoed = {i for i in range(len(centers)) if i % 3 == 0}
-    dec = Decoder(centers, 0.05, lambda row: row not in vetoed)
+    asked = []
+
+    def accept(row: int) -> bool:
+        asked.append(row)
+        return row not in vetoed
+
+    dec = Decoder(centers, 0.05, accept)
     rng = np.random.default_rng(0)
     for _ in range(50):
         p = dec.decode(rng.random(9))
         assert len(p) == 3 and not set(p) & vetoed
         for a, b in itertools.combinations(p, 2):
             assert np.linalg.norm(centers[a] - centers[b]) >= 0.05 - 1e-9
-    assert dec.rejected == len([r for r in dec._checked if r in vetoed])
+    assert len(asked) == len(set(asked))  # each candidate checked once, then remembered
+    assert dec.rejected == len([r for r in asked if r in vetoed])
 
 
 def test_pfa_config_checks_its_values():

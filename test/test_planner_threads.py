@@ -5,7 +5,7 @@ import time
 
 import pytest
 
-pytestmark = pytest.mark.processes  # nodes, workers or CLI runs
+pytestmark = [pytest.mark.processes, pytest.mark.timing]  # a worker; PRM* timed against a sleep
 
 
 def test_set_scene_waits_for_the_request_in_flight(table_scene):

@@ -16,7 +16,8 @@ from advocc_ros.model.pose import Pose
 from advocc_ros.model.scene import SceneObject, make_box
 from advocc_ros.model.shapes import Shape
 
-pytestmark = pytest.mark.processes  # nodes, workers or CLI runs
+# workers; planners against a 1 s budget, timed: no other test runs meanwhile
+pytestmark = [pytest.mark.processes, pytest.mark.timing]
 
 BUDGET = 1.0
 
@@ -175,7 +176,7 @@ def test_watchdog_kills_an_overrun_and_recovers(open_scene):
         planner.start()
         pid = planner.worker_pid
         t0 = time.monotonic()
-        r = planner._stall(30.0, watchdog_s=1.0)
+        r = planner.stall(30.0, watchdog_s=1.0)
         assert time.monotonic() - t0 < 3.0
         assert r.status == PlanStatus.TIMED_OUT and r.stats.get('watchdog')
         assert planner.worker_pid is None and planner.restarts == 1

@@ -16,7 +16,7 @@ from advocc_ros.planning.types import PlanStatus
 from advocc_ros.planning.victims import (Task, VictimConfig, first_collision_along,
                                          goal_configurations, make_victim)
 from advocc_ros.planning.victims.trajopt import (OptimOutcome, TrajOptConfig, TrajOptSolver,
-                                                 _guess)
+                                                 initial_guess, snap_ends)
 
 READY = np.array([0.0, -0.785, 0.0, -2.356, 0.0, 1.571, 0.785])
 
@@ -52,21 +52,22 @@ def test_loading_the_robot_leaves_no_files_behind(panda, table_scene, tmp_path, 
 
 def test_guess_runs_through_the_via_point():
     q0, q1, via = np.zeros(7), np.ones(7), np.full(7, 3.0)
-    straight = _guess(q0, q1, None, 30)
+    straight = initial_guess(q0, q1, None, 30)
     assert straight.shape == (30, 7) and np.allclose(straight[[0, -1]], [q0, q1])
-    bent = _guess(q0, q1, via, 30)
+    bent = initial_guess(q0, q1, via, 30)
     assert bent.shape == (30, 7) and np.allclose(bent[[0, 15, -1]], [q0, via, q1])
 
 
-def test_path_ends_snap_to_start_and_goal_within_tolerance(solver):
+def test_path_ends_snap_to_start_and_goal_within_tolerance():
     """TrajOpt stops 1e-3 rad inside a joint limit: a goal at the limit is reached exactly."""
     q0, q1 = np.zeros(7), np.full(7, 0.5)
-    path = _guess(q0, q1, None, 5)
+    path = initial_guess(q0, q1, None, 5)
     path[-1, 4] -= 1e-3
-    snapped = solver._snap_ends(path, q0, q1)
+    tol = TrajOptConfig().endpoint_tol_rad
+    snapped = snap_ends(path, q0, q1, tol)
     assert np.array_equal(snapped[-1], q1) and np.array_equal(snapped[1:-1], path[1:-1])
     path[-1, 4] -= 0.01
-    assert solver._snap_ends(path, q0, q1) is None
+    assert snap_ends(path, q0, q1, tol) is None
 
 
 def test_every_goal_configuration_blocked_is_its_own_outcome(panda, solver):

@@ -1,6 +1,8 @@
 """OMPL 2.0.1's planners as victims (``aorrtc``, ``rrtconnect2``): our planning worker in the
 OMPL 2 venv, watched like ours, every path re-checked in our model."""
 
+import subprocess
+
 import numpy as np
 import pytest
 
@@ -12,8 +14,17 @@ from advocc_ros.paths import scene_path
 from advocc_ros.planning.types import PlanStatus
 from advocc_ros.planning.victims import (Task, first_collision_along, is_outside, is_victim,
                                          make_victim)
+from advocc_ros.planning.victims.ompl2 import ompl2_python
 
 BUDGET_S = 2.0
+
+
+def venv_ompl_version() -> str:
+    """What the OMPL 2 venv's own interpreter reports as the version of the OMPL it imports."""
+    return subprocess.run(
+        [str(ompl2_python()), '-c', 'import ompl, importlib.metadata as m; '
+         'print(m.version(ompl.__name__))'],
+        capture_output=True, text=True, check=True, timeout=60).stdout.strip()
 
 
 def test_ompl2_victims_are_registered():
@@ -22,6 +33,7 @@ def test_ompl2_victims_are_registered():
 
 
 @pytest.mark.processes
+@pytest.mark.timing  # the first solution well inside the budget
 @pytest.mark.parametrize('name, scene_name', [('aorrtc', 'table_under_pick'),
                                               ('rrtconnect2', 'table_pick')])
 def test_ompl2_victim_plans_and_is_rechecked(name, scene_name, panda):
@@ -34,7 +46,9 @@ def test_ompl2_victim_plans_and_is_rechecked(name, scene_name, panda):
         results = [victim.plan(task, BUDGET_S, seed) for seed in range(3)]
     finally:
         victim.close()
-    assert all(r.stats.get('ompl') == '2.0.1' for r in results)
+    version = venv_ompl_version()
+    assert version.startswith('2.')
+    assert all(r.stats.get('ompl') == version for r in results)
     assert sum(r.success for r in results) >= 2, [r.message for r in results]
     # AORRTC optimizes to its budget; its first solution is marked when OMPL's problem
     # definition first holds one (it never calls isStartGoalPairValid), long before the end.

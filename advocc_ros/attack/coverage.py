@@ -164,7 +164,7 @@ def _ball_offsets(radius_vox: float) -> np.ndarray:
 # Coverage selection on arrays (shared by every method; tested against brute force)
 
 @dataclasses.dataclass
-class _Coverage:
+class Coverage:
     """Uncovered mass, its box sums and the live candidate mask over one window."""
 
     weights: np.ndarray
@@ -222,7 +222,7 @@ def greedy_cover(weights: np.ndarray, candidates: np.ndarray, k: int, budget: in
     # picks and masses as on the whole window, with less to sum and to search.
     block = _padded_bounds(candidates, 3 * k)
     shift = np.array([b.start for b in block])
-    cov = _Coverage(weights[block], candidates[block], k, d_min_vox)
+    cov = Coverage(weights[block], candidates[block], k, d_min_vox)
     picks, rejected = [], 0
     score = np.where(cov.candidates, cov.sums, -np.inf)
     while len(picks) < budget:
@@ -250,7 +250,7 @@ def random_cover(weights: np.ndarray, candidates: np.ndarray, k: int, budget: in
                  ) -> tuple[list[tuple[np.ndarray, float]], int]:
     """Random baseline: candidates uniformly at random (without replacement) under the same
     constraints as :func:`greedy_cover`; masses are the marginal coverage, as for greedy."""
-    cov = _Coverage(weights, candidates, k, d_min_vox)
+    cov = Coverage(weights, candidates, k, d_min_vox)
     order = rng.permutation(np.flatnonzero(cov.candidates))
     picks, rejected = [], 0
     for flat in order:

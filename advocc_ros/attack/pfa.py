@@ -76,7 +76,7 @@ from typing import Callable, Protocol
 
 import numpy as np
 
-from advocc_ros.attack.coverage import _Coverage
+from advocc_ros.attack.coverage import Coverage
 from advocc_ros.attack.methods import MethodContext, register_method
 from advocc_ros.attack.pfa_search import Decoder, Placement, optimise
 from advocc_ros.attack.region import SearchRegion
@@ -310,8 +310,8 @@ def _select(region: SearchRegion, budget: int, seed: int, cfg: AttackConfig,
                     pcfg.query_time_s)
     log.info('%s: %d queries, %d placements, best failure rate %s, %.1f s', name,
              objective.used, result.scored, best_fail, time.perf_counter() - t0)
-    coverage = _Coverage(region.weights, region.candidates, region.k,
-                         region.d_min_m / region.grid.voxel_m)
+    coverage = Coverage(region.weights, region.candidates, region.k,
+                        region.d_min_m / region.grid.voxel_m)
     return [(cand[row], coverage.cover(cand[row])) for row in result.best], decoder.rejected
 
 

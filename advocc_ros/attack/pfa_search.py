@@ -129,59 +129,87 @@ def optimise(decoder: Decoder, objective: Objective, budget: int, seed: int,
         return OptimiseResult((), -math.inf, 0, 0, 'no candidates', [])
     scores: dict[tuple[int, ...], float] = {}
     history: list[tuple[Placement, float]] = []
-
-    def key(p: Placement) -> tuple[int, ...]:
-        return tuple(sorted(p))
-
     # A start with fewer than M boxes (few candidates): optimise the boxes that fit.
     opt = CMA(mean=np.clip(decoder.normalise(start), 1e-6, 1 - 1e-6), sigma=sigma0,
               bounds=np.tile([0.0, 1.0], (3 * m, 1)), seed=int(seed) % (2 ** 31),
               population_size=population_size)
     rescore_top = min(rescore_top, objective.affordable() // 3)
+    generations, stopped = _generations(opt, decoder, objective, scores, history, m,
+                                        rescore_top, max_idle_generations)
+    if rescore_top and history:
+        _rescore(objective, scores, history, rescore_top)
+    # Ties go to the latest: later generations are better informed, and an early tie is more
+    # likely a lucky draw of a noisy score (K queries) than a real blocker.
+    best, best_score = max(reversed(history), key=lambda h: scores[_key(h[0])]) if history \
+        else (start, -math.inf)
+    best_score = scores.get(_key(best), best_score)
+    return OptimiseResult(best, best_score, len(scores), generations, stopped, history)
+
+
+def _key(p: Placement) -> tuple[int, ...]:
+    """A placement's rows sorted: the same boxes in another order score the same."""
+    return tuple(sorted(p))
+
+
+def _generations(opt: CMA, decoder: Decoder, objective: Objective, scores: dict,
+                 history: list, m: int, rescore_top: int,
+                 max_idle_generations: int) -> tuple[int, str]:
+    """Ask, score the new placements, tell, until the budget (less ``rescore_top``) is spent,
+    CMA-ES converges or ``max_idle_generations`` bring nothing new; fills ``scores`` and
+    ``history`` and returns the generations told and why they stopped."""
     generations = idle = 0
-    stopped = 'budget'
     while True:
         xs = [opt.ask() for _ in range(opt.population_size)]
         placements = [decoder.decode(x) for x in xs]
-        new = list(dict.fromkeys(key(p) for p in placements if key(p) not in scores))
-        affordable = max(objective.affordable() - rescore_top, 0)
-        todo = [next(p for p in placements if key(p) == k) for k in new[:affordable]]
-        if todo:
-            for p, s in zip(todo, objective(todo)):
-                scores[key(p)] = s
-                history.append((p, s))
-        if len(new) > affordable:
-            break  # budget exhausted inside a generation: the partial one is not told
+        new, complete = _score_new(placements, objective, scores, history, rescore_top)
+        if not complete:
+            return generations, 'budget'  # exhausted inside a generation: it is not told
         idle = 0 if new else idle + 1
-        told = []
-        for p in placements:
-            x = decoder.normalise(p)
-            if len(x) < 3 * m:  # fewer boxes fit than the start had: pad with the mean
-                x = np.concatenate([x, opt.mean[len(x):]])
-            told.append((x, -scores[key(p)]))
-        opt.tell(told)
+        opt.tell(_told(opt, decoder, placements, scores, m))
         generations += 1
         if opt.should_stop():
-            stopped = 'converged'
-            break
+            return generations, 'converged'
         if idle >= max_idle_generations:
-            stopped = 'idle'
-            break
+            return generations, 'idle'
         if objective.affordable() <= rescore_top:
-            break
-    if rescore_top and history:
-        top = sorted(scores, key=scores.get,
-                     reverse=True)[:min(rescore_top, objective.affordable())]
-        placement = {key(p): p for p, _ in history}
-        for k, s in zip(top, objective([placement[k] for k in top])):
-            scores[k] = (scores[k] + s) / 2
-            history.append((placement[k], scores[k]))
-    # Ties go to the latest: later generations are better informed, and an early tie is more
-    # likely a lucky draw of a noisy score (K queries) than a real blocker.
-    best, best_score = max(reversed(history), key=lambda h: scores[key(h[0])]) if history \
-        else (start, -math.inf)
-    best_score = scores.get(key(best), best_score)
-    return OptimiseResult(best, best_score, len(scores), generations, stopped, history)
+            return generations, 'budget'
+
+
+def _score_new(placements: list[Placement], objective: Objective, scores: dict, history: list,
+               rescore_top: int) -> tuple[int, bool]:
+    """Score the generation's placements not scored before, as many as the budget (less
+    ``rescore_top``) affords; returns how many were new and whether all of them were scored."""
+    new = list(dict.fromkeys(_key(p) for p in placements if _key(p) not in scores))
+    affordable = max(objective.affordable() - rescore_top, 0)
+    todo = [next(p for p in placements if _key(p) == k) for k in new[:affordable]]
+    if todo:
+        for p, s in zip(todo, objective(todo)):
+            scores[_key(p)] = s
+            history.append((p, s))
+    return len(new), len(new) <= affordable
+
+
+def _told(opt: CMA, decoder: Decoder, placements: list[Placement], scores: dict,
+          m: int) -> list[tuple[np.ndarray, float]]:
+    """The generation as CMA-ES takes it: each placement re-encoded (Lamarckian repair) with its
+    negated score (CMA-ES minimises)."""
+    told = []
+    for p in placements:
+        x = decoder.normalise(p)
+        if len(x) < 3 * m:  # fewer boxes fit than the start had: pad with the mean
+            x = np.concatenate([x, opt.mean[len(x):]])
+        told.append((x, -scores[_key(p)]))
+    return told
+
+
+def _rescore(objective: Objective, scores: dict, history: list, rescore_top: int) -> None:
+    """Score the best-scored placements again (as many as ``rescore_top`` and the budget allow)
+    and keep the mean of their two scores, appended to ``history``."""
+    top = sorted(scores, key=scores.get, reverse=True)[:min(rescore_top, objective.affordable())]
+    placement = {_key(p): p for p, _ in history}
+    for k, s in zip(top, objective([placement[k] for k in top])):
+        scores[k] = (scores[k] + s) / 2
+        history.append((placement[k], scores[k]))
 
 
 __all__ = ['Decoder', 'Objective', 'OptimiseResult', 'Placement', 'optimise']

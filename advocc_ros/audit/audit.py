@@ -37,11 +37,13 @@ ANSWER_THRESHOLD = 0.2
 audit has a ``target_psr``: then that)."""
 AUDIT_FORMAT = 'advocc_audit'
 AUDIT_VERSION = 4
-"""4: an entry of ``budgets`` whose prefix is an attack of its own (a ``task`` attack under
-``solvable``, module docstring) holds its ``attack``, ``boxes`` and ``witness``. 3: ``budgets``
-holds the evaluated prefixes only (``--prefixes``), a planner's row there is None once it
-reached ``target_psr``, ``psr`` curves are None where not evaluated. Versions 2 (every prefix,
-every planner) and 3 read the same way."""
+"""4: the keys of 3; every prefix m is the first m boxes (``boxes``) of the one attack at the
+largest budget, under every goal policy. Version 4 files written while a ``solvable`` prefix
+could be an attack of its own may hold, in an entry of ``budgets``, that attack's ``attack``,
+``boxes`` and ``witness`` (``report.prefix_boxes`` reads them).
+3: ``budgets`` holds the evaluated prefixes only (``--prefixes``), a planner's row there is None
+once it reached ``target_psr``, ``psr`` curves are None where not evaluated. Versions 2 (every
+prefix, every planner) and 3 read the same way."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -137,24 +139,12 @@ def run_audit(scene, heatmap, cfg: AuditConfig = AuditConfig(),
     themselves query none.
     """
     from advocc_ros.attack import AttackConfig
-    from advocc_ros.attack.edges import task_witness
-    from advocc_ros.attack.methods import REGISTRY
-    from advocc_ros.model.task_check import require_valid_task
     from advocc_ros.evaluation.perf import machine
-    from advocc_ros.model.robot import load_robot
-    from advocc_ros.kinematics.ik import start_configuration
 
-    if scene.goal is None or scene.start is None:
-        raise ValueError(f'scene {scene.name!r} needs a start and a goal to be audited')
-    if cfg.method not in REGISTRY:
-        raise ValueError(f'unknown attack method {cfg.method!r}; known: {list(REGISTRY)}')
+    _check_request(scene, cfg)
     attack_cfg = attack_cfg or AttackConfig()
     t_start = time.perf_counter()
-    robot = load_robot(scene.robot)
-    q_init = start_configuration(scene, robot)
-    require_valid_task(robot, scene.objects, q_init, scene.goal)
-    search = task_witness(robot, scene.objects, q_init, scene.goal)
-    task = _Task(scene, robot, q_init, search.witnesses)
+    task, search = _task_under_audit(scene)
     result = _attack(task, heatmap, cfg, cfg.policy, attack_cfg)
     log.info('audit %s: %d boxes (%s), evaluating prefixes', scene.name,
              len(result.obstacles), result.status.value)
@@ -163,9 +153,51 @@ def run_audit(scene, heatmap, cfg: AuditConfig = AuditConfig(),
     if cfg.policy != 'paper':
         paper = _attack(task, heatmap, cfg, 'paper', attack_cfg)
     known = {b['m']: b['solvability'] for b in budgets} if paper is result else {}
-    verdicts = {b['m']: b['solvable'] for b in budgets}
-    certified = {p: [v if verdicts.get(m) == 'certified' else None for m, v in enumerate(curve)]
-                 for p, curve in psr.items()}
+    return {
+        **_header(scene, heatmap, cfg, result),
+        'witness': None if result.witness is None else result.witness.to_data(),
+        'witness_search_s': round(search.search_s, 3),
+        'boxes': _boxes_json(result),
+        'budgets': budgets,
+        'psr': psr,
+        **_minimal_budgets(cfg, budgets, psr),
+        'stopped': stop_reason,
+        'impossible': _impossible(task, paper, same_attack=paper is result, known=known),
+        'wall_s': round(time.perf_counter() - t_start, 2),
+        'machine': machine(),
+    }
+
+
+def _check_request(scene, cfg: AuditConfig) -> None:
+    """Refuse, before any work, a scene without a start or a goal and an unknown method."""
+    from advocc_ros.attack.methods import REGISTRY
+
+    if scene.goal is None or scene.start is None:
+        raise ValueError(f'scene {scene.name!r} needs a start and a goal to be audited')
+    if cfg.method not in REGISTRY:
+        raise ValueError(f'unknown attack method {cfg.method!r}; known: {list(REGISTRY)}')
+
+
+def _task_under_audit(scene):
+    """``scene``'s task, refused when invalid (``model.task_check``), with its witnesses, and
+    the witness search that found them (one RRTConnect run on the unattacked scene, cached)."""
+    from advocc_ros.attack.edges import task_witness
+    from advocc_ros.kinematics.ik import start_configuration
+    from advocc_ros.model.robot import load_robot
+    from advocc_ros.model.task_check import require_valid_task
+
+    robot = load_robot(scene.robot)
+    q_init = start_configuration(scene, robot)
+    require_valid_task(robot, scene.objects, q_init, scene.goal)
+    search = task_witness(robot, scene.objects, q_init, scene.goal)
+    return _Task(scene, robot, q_init, search.witnesses), search
+
+
+def _header(scene, heatmap, cfg: AuditConfig, result) -> dict:
+    """The audit's first keys: format, scene, method, settings (with the heatmap's summary) and
+    the attack at the largest budget."""
+    from advocc_ros.attack.methods import REGISTRY
+
     return {
         'format': AUDIT_FORMAT, 'version': AUDIT_VERSION,
         'scene': scene.name, 'scene_hash': scene.objects_hash(),
@@ -176,18 +208,18 @@ def run_audit(scene, heatmap, cfg: AuditConfig = AuditConfig(),
                          heatmap={k: heatmap.meta.get(k) for k in
                                   ('valid_samples', 'scene_name', 'build_s')}),
         'attack': _attack_json(result),
-        'witness': None if result.witness is None else result.witness.to_data(),
-        'witness_search_s': round(search.search_s, 3),
-        'boxes': _boxes_json(result),
-        'budgets': budgets,
-        'psr': psr,
-        'min_budget': minimal_budgets(psr, cfg.thresholds()),
-        'min_budget_solvable': minimal_budgets(certified, cfg.thresholds()),
-        'stopped': stop_reason,
-        'impossible': _impossible(task, paper, same_attack=paper is result, known=known),
-        'wall_s': round(time.perf_counter() - t_start, 2),
-        'machine': machine(),
     }
+
+
+def _minimal_budgets(cfg: AuditConfig, budgets: list[dict],
+                     psr: dict[str, list[float | None]]) -> dict:
+    """``min_budget`` over every evaluated prefix and ``min_budget_solvable`` over the certified
+    ones only, both at ``cfg.thresholds()``."""
+    verdicts = {b['m']: b['solvable'] for b in budgets}
+    certified = {p: [v if verdicts.get(m) == 'certified' else None for m, v in enumerate(curve)]
+                 for p, curve in psr.items()}
+    return {'min_budget': minimal_budgets(psr, cfg.thresholds()),
+            'min_budget_solvable': minimal_budgets(certified, cfg.thresholds())}
 
 
 @dataclasses.dataclass(frozen=True)
@@ -209,15 +241,14 @@ class _Task:
                       attack.witness, self.q_init).to_json()
 
 
-def _attack(task: _Task, heatmap, cfg: AuditConfig, policy: str, attack_cfg,
-            budget: int | None = None):
-    """The audit's attack at ``budget`` boxes (None: ``cfg.max_budget``) under goal policy
-    ``policy``, with the task's witness or witnesses (found once by ``run_audit``)."""
+def _attack(task: _Task, heatmap, cfg: AuditConfig, policy: str, attack_cfg):
+    """The audit's attack at ``cfg.max_budget`` boxes under goal policy ``policy``, with the
+    task's witnesses (found once by ``run_audit``)."""
     from advocc_ros.attack import AttackStatus, attack
     from advocc_ros.attack.edges import no_witness_message
 
     result = attack(heatmap, task.robot, task.scene.objects, task.q_init, task.scene.goal,
-                    budget or cfg.max_budget, cfg.method, attack_cfg, seed=cfg.seed,
+                    cfg.max_budget, cfg.method, attack_cfg, seed=cfg.seed,
                     goal_policy=policy, witness=task.witness, method_options=cfg.task_options)
     if not result.status.ok:
         why = (no_witness_message() if result.status == AttackStatus.NO_WITNESS

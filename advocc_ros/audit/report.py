@@ -53,8 +53,8 @@ def _last_m(audit: dict, planner: str | None = None) -> int:
 
 
 def prefix_boxes(audit: dict, m: int) -> list[dict]:
-    """The boxes of prefix m: its own attack's (an entry holding ``boxes``, version 4) or the
-    first m of the audit's attack."""
+    """The boxes of prefix m: the first m of the audit's attack, or those its entry holds (an
+    early version 4 file, written while a prefix could be an attack of its own)."""
     entry = _entry(audit, m)
     return entry['boxes'] if entry is not None and 'boxes' in entry else audit['boxes'][:m]
 

@@ -16,7 +16,7 @@ import logging
 import math
 import pathlib
 import re
-from typing import Iterable
+from typing import Iterable, NoReturn
 
 import yaml
 
@@ -42,6 +42,11 @@ IDENTITY_FIELDS = ('time_budget_s', 'seed', 'box_size_m', 'heatmap_samples',
 
 class BenchError(ValueError):
     """A protocol, profile or run folder that cannot be used; the message says why."""
+
+
+def _fail(what: str) -> NoReturn:
+    """Refuse a setting: ``BenchError`` naming it and why."""
+    raise BenchError(f'bench setting {what}')
 
 
 @dataclasses.dataclass(frozen=True)
@@ -105,68 +110,86 @@ class BenchConfig:
     others keep their defaults."""
 
     def __post_init__(self):
-        def fail(what: str) -> None:
-            raise BenchError(f'bench setting {what}')
+        self._check_names()
+        self._check_budgets()
+        self._check_counts()
+        self._check_times()
+        self._check_attacks()
 
+    def _check_names(self) -> None:
+        """Scenes, planners and methods: non-empty lists of distinct names, known victims, and
+        no outside victim in the loop of a planner-specific attack."""
         for name in ('scenes', 'planners', 'methods'):
             value = getattr(self, name)
             if not value or not all(isinstance(v, str) and v for v in value):
-                fail(f'{name}: expected a non-empty list of names, got {value!r}')
+                _fail(f'{name}: expected a non-empty list of names, got {value!r}')
             if len(set(value)) != len(value):
-                fail(f'{name}: duplicates in {list(value)}')
+                _fail(f'{name}: duplicates in {list(value)}')
         from advocc_ros.planning.victims import is_outside, is_victim
         unknown = [p for p in self.planners if not is_victim(p)]
         if unknown:
-            fail(f'planners: unknown {unknown}; OMPL planner ids or outside victims '
-                 '(advocc_ros.planning.victims)')
+            _fail(f'planners: unknown {unknown}; OMPL planner ids or outside victims '
+                  '(advocc_ros.planning.victims)')
         in_loop = [f'{m}:{p}' for m in self.planner_specific if m in self.methods
                    for p in self.planners if is_outside(p) and f'{m}:{p}' not in self.skip]
         if in_loop:
-            fail(f'planners: {in_loop} would put an outside victim in the loop of a '
-                 'planner-specific attack, which queries our OMPL planners only; add them to '
-                 'skip')
+            _fail(f'planners: {in_loop} would put an outside victim in the loop of a '
+                  'planner-specific attack, which queries our OMPL planners only; add them to '
+                  'skip')
+
+    def _check_budgets(self) -> None:
+        """Budgets in 1..MAX_BUDGET, and something to run."""
         for name in ('budgets', 'sweep_budgets'):
             for b in getattr(self, name):
                 if isinstance(b, bool) or not isinstance(b, int) or not 1 <= b <= MAX_BUDGET:
-                    fail(f'{name}: budgets must be integers in 1..{MAX_BUDGET}, got {b!r}')
+                    _fail(f'{name}: budgets must be integers in 1..{MAX_BUDGET}, got {b!r}')
         if not self.budgets and not self.sweep_budgets and not self.baseline:
-            fail('budgets: nothing to run')
+            _fail('budgets: nothing to run')
+
+    def _check_counts(self) -> None:
+        """Trials, processes, samples and variations: integers in range; someone plans."""
         for name in ('trials', 'shims', 'heatmap_samples', 'heatmap_workers', 'variations'):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, int) or value < (
                     0 if name in ('shims', 'variations') else 1):
-                fail(f'{name}={value!r} is out of range')
+                _fail(f'{name}={value!r} is out of range')
         if self.trials > MAX_TRIALS:
-            fail(f'trials={self.trials} exceeds the limit {MAX_TRIALS} (limits.MAX_TRIALS)')
+            _fail(f'trials={self.trials} exceeds the limit {MAX_TRIALS} (limits.MAX_TRIALS)')
         if self.sweep_trials is not None and (not isinstance(self.sweep_trials, int)
                                               or not 1 <= self.sweep_trials <= MAX_TRIALS):
-            fail(f'sweep_trials={self.sweep_trials!r} must be an integer in 1..{MAX_TRIALS}')
+            _fail(f'sweep_trials={self.sweep_trials!r} must be an integer in 1..{MAX_TRIALS}')
         if self.shims == 0 and not self.external_shims:
-            fail('shims=0 needs external_shims: nobody would plan')
+            _fail('shims=0 needs external_shims: nobody would plan')
+
+    def _check_times(self) -> None:
+        """The planning budget and the timeouts: finite and > 0 [s]."""
         for name in ('time_budget_s', 'attack_timeout_s', 'start_timeout_s',
                      'plan_timeout_margin_s'):
             value = getattr(self, name)
             if not isinstance(value, (int, float)) or not math.isfinite(value) or value <= 0:
-                fail(f'{name}={value!r} must be a finite number > 0')
+                _fail(f'{name}={value!r} must be a finite number > 0')
+
+    def _check_attacks(self) -> None:
+        """The attacks' settings: box size, PFA and task options, variants, goal policy, skip."""
         if not (isinstance(self.box_size_m, (int, float)) and 0 <= self.box_size_m <= 0.5):
-            fail(f'box_size_m={self.box_size_m!r} must be in [0, 0.5] (0: server default)')
+            _fail(f'box_size_m={self.box_size_m!r} must be in [0, 0.5] (0: server default)')
         if not isinstance(self.pfa, dict) or 'planner_id' in self.pfa:
-            fail(f'pfa: expected a mapping of PfaConfig settings (the planner is the cell\'s), '
-                 f'got {self.pfa!r}')
+            _fail(f'pfa: expected a mapping of PfaConfig settings (the planner is the cell\'s), '
+                  f'got {self.pfa!r}')
         from advocc_ros.attack.task import task_options
         try:
             task_options(self.task)
         except ValueError as exc:
-            fail(f'task: {exc}')
+            _fail(f'task: {exc}')
         if not isinstance(self.variants, dict) or not all(
                 isinstance(v, int) and not isinstance(v, bool) and v >= 1
                 for v in self.variants.values()):
-            fail(f'variants: expected method: count >= 1, got {self.variants!r}')
+            _fail(f'variants: expected method: count >= 1, got {self.variants!r}')
         if self.goal_policy not in POLICIES:
-            fail(f'goal_policy={self.goal_policy!r}: expected one of {list(POLICIES)}')
+            _fail(f'goal_policy={self.goal_policy!r}: expected one of {list(POLICIES)}')
         for pair in self.skip:
             if not isinstance(pair, str) or pair.count(':') != 1:
-                fail(f'skip: expected "method:planner" entries, got {pair!r}')
+                _fail(f'skip: expected "method:planner" entries, got {pair!r}')
 
     @property
     def all_budgets(self) -> tuple[int, ...]:

@@ -10,8 +10,8 @@ from typing import Any
 from advocc_ros.attack.obstacles import obstacles_meta
 from advocc_ros.bench.protocol import BASELINE, BenchConfig, variation_scenes
 from advocc_ros.bench.records import RecordStore
-from advocc_ros.bench.tables import (baseline_table, cell_rows, failure_table, hardness_table,
-                                     table1, table2, table4)
+from advocc_ros.bench.tables import (baseline_table, cell_rows, cell_table, failure_table,
+                                     hardness_table, table1, table2, table4)
 from advocc_ros.evaluation.hardness import solution_times
 from advocc_ros.evaluation.outcomes import MAX_INTERNAL_ERROR_FRACTION, too_many_internal_errors
 from advocc_ros.fileio import atomic_write_text
@@ -77,6 +77,9 @@ def write_report(run_dir: str | pathlib.Path, cfg: BenchConfig, summary: dict | 
     metas = _attack_metas(run_dir)
     _write_tables(files, rows, cfg, metas, {s: h.meta for s, h in heatmaps.items()},
                   (summary or {}).get('notes', []))
+    from advocc_ros.paths import scene_path
+    stems = {scene: pathlib.Path(scene_path(scene)).stem for scene in cfg.scenes}
+    files.put('cells.csv', cell_table(rows, metas, records, cfg, stems, run_dir.resolve().name))
     for i, scene in enumerate(cfg.scenes):
         _write_figures(files, rows, cfg, i, scene, heatmaps.get(scene), metas)
         _write_time_figure(files, records, cfg, i, scene)

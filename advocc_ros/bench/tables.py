@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import csv
+import datetime
 import io
 import pathlib
 from typing import Iterable
@@ -356,3 +357,72 @@ def _verdict_counts(values: list) -> tuple[int, int, int] | None:
     found = [v.get('verdict') if isinstance(v, dict) else v for v in values]
     certified, blocked = found.count('certified'), found.count('goal blocked')
     return certified, blocked, len(found) - certified - blocked
+
+
+CELL_COLUMNS = ('run', 'seed', 'scene', 'planner', 'method', 'budget', 'trials', 'psr_percent',
+                'psr_given_goals_percent', 'no_goal_found',
+                *[m.replace(' ', '_') for m in FAILURE_MODES], 'internal_errors',
+                'goal_valid_fraction', 'first_solution_median_s', 'pt_ratio', 'certified',
+                'goal_blocked', 'unknown', 'first_trial_utc', 'last_trial_utc')
+"""The columns of ``cells.csv``."""
+
+
+def cell_table(rows: dict[tuple, dict], attacks: list[dict], records: Iterable[dict],
+               cfg: BenchConfig, stems: dict[str, str], run: str) -> str:
+    """``cells.csv``: one row per cell of the records (budgets a resumed run no longer lists
+    included), everything a study's results file holds (docs/results), so that file is this
+    one copied, never put together by hand: the run (its folder's name) and seed, the cell, its
+    trials, PSR and PSR given goals (the trials whose goal search before the clock found one)
+    with the trials where it found none, the failure modes, the internal errors, the attacks'
+    mean ``goal_valid_fraction`` and their ``solvable`` verdicts, the median time to first
+    solution (failures at the budget), the PT ratio, and when the cell's first and last trials
+    were recorded (UTC)."""
+    gvf = _attack_values(attacks, 'goal_valid_fraction')
+    verdicts = _attack_values(attacks, 'solvable')
+    times: dict[tuple, list[float]] = {}
+    for rec in records:
+        if rec.get('unix') is not None:
+            cell = (rec['scene'], rec['planner'], rec['method'], int(rec['budget']))
+            times.setdefault(cell, []).append(float(rec['unix']))
+    out = io.StringIO()
+    writer = csv.writer(out, lineterminator='\n')
+    writer.writerow(CELL_COLUMNS)
+    for cell in sorted(rows, key=lambda c: _cell_order(c, cfg)):
+        row = rows[cell]
+        scene, planner, method, budget = cell
+        stem = stems.get(scene, scene)
+        values = [float(v) for v in gvf.get((stem, method, budget), [])]
+        counts = _verdict_counts(verdicts.get((stem, method, budget), []))
+        fails = row.get('failures', {})
+        writer.writerow([
+            run, cfg.seed, *cell, row['trials'], _csv_percent(row['psr']),
+            _csv_percent(row.get('psr_given_goals')), row.get('no_goal_found', 0),
+            *[fails.get(m, 0) for m in FAILURE_MODES], row.get('internal_errors', 0),
+            _csv_num(1.0 if method == BASELINE else
+                     sum(values) / len(values) if values else None),
+            _csv_num(row['first_solution_median_s']),
+            _csv_num(pt_ratio(row, rows.get((scene, planner, BASELINE, 0)))),
+            *(counts or ('', '', '')),
+            *[_utc(f(times[cell])) if cell in times else '' for f in (min, max)]])
+    return out.getvalue()
+
+
+def _cell_order(cell: tuple, cfg: BenchConfig) -> tuple:
+    """Table order of a cell, those of settings a resumed run no longer lists included:
+    scene, planner, the baseline first, then the methods by budget."""
+    scene, planner, method, budget = cell
+    methods = [BASELINE, *cfg.methods]
+
+    def index(items, item) -> tuple:
+        items = list(items)
+        return (items.index(item), '') if item in items else (len(items), str(item))
+    return index(cfg.scenes, scene), index(cfg.planners, planner), index(methods, method), budget
+
+
+def _csv_percent(share: float | None) -> str:
+    return _csv_num(None if share is None else 100 * share)
+
+
+def _utc(unix: float) -> str:
+    return datetime.datetime.fromtimestamp(unix, datetime.timezone.utc).strftime(
+        '%Y-%m-%d %H:%M UTC')

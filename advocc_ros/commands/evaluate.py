@@ -61,23 +61,14 @@ def load_task(args, obstacles: str | None):
 
 
 def run(args: argparse.Namespace) -> int:
+    """``advocc evaluate``: the checked task, the trials with a progress bar, the row."""
     import dataclasses
 
-    from advocc_ros.evaluation.metrics import format_value
     from advocc_ros.evaluation.outcomes import INTERNAL_ERROR, internal_error_warning, outcome
     from advocc_ros.evaluation.runner import evaluate_planner
     from advocc_ros.planning.types import PlanningConfig
-    from advocc_ros.planning.victims import is_victim, victim_names
 
-    from advocc_ros.limits import MAX_TRIALS
-    if not 1 <= args.trials <= MAX_TRIALS:
-        raise UserError(f'--trials must be in 1..{MAX_TRIALS}')
-    if not 0 < args.time <= PlanningConfig().max_time_budget_s:
-        raise UserError(f'--time must be in (0, {PlanningConfig().max_time_budget_s:g}]')
-    if not is_victim(args.planner):
-        raise UserError(f'unknown planner {args.planner!r}; outside victims: {victim_names()}')
-    if args.workers < 1:
-        raise UserError('--workers must be >= 1')
+    _check_args(args)
     scene = load_task(args, args.obstacles)
     refuse_invalid_task(scene, args.scene)
     config = dataclasses.replace(PlanningConfig(), simplify=not args.no_simplify)
@@ -106,11 +97,35 @@ def run(args: argparse.Namespace) -> int:
         print(warning, file=sys.stderr)
     if args.json:
         print(json.dumps(result, indent=1))
-        return 0
-    w = max(14, len(scene.name) + 2)
+    else:
+        _print_row(result, scene.name, args.planner, args.time)
+    return 0
+
+
+def _check_args(args: argparse.Namespace) -> None:
+    """Refuse trials, a time budget or workers out of range and an unknown planner."""
+    from advocc_ros.limits import MAX_TRIALS
+    from advocc_ros.planning.types import PlanningConfig
+    from advocc_ros.planning.victims import is_victim, victim_names
+
+    if not 1 <= args.trials <= MAX_TRIALS:
+        raise UserError(f'--trials must be in 1..{MAX_TRIALS}')
+    if not 0 < args.time <= PlanningConfig().max_time_budget_s:
+        raise UserError(f'--time must be in (0, {PlanningConfig().max_time_budget_s:g}]')
+    if not is_victim(args.planner):
+        raise UserError(f'unknown planner {args.planner!r}; outside victims: {victim_names()}')
+    if args.workers < 1:
+        raise UserError('--workers must be >= 1')
+
+
+def _print_row(result: dict, scene_name: str, planner: str, time_s: float) -> None:
+    """The paper's row with the internal errors, PSR given goals and time to first solution."""
+    from advocc_ros.evaluation.metrics import format_value
+
+    w = max(14, len(scene_name) + 2)
     print(f'{"scene":<{w}}{"planner":<12}{"PSR":>7}{"SMR":>8}{"CMR":>8}{"JDS":>8}{"PT":>8}'
           f'{"errors":>8}')
-    print(f'{scene.name:<{w}}{args.planner:<12}{format_value(result["psr"]):>7}'
+    print(f'{scene_name:<{w}}{planner:<12}{format_value(result["psr"]):>7}'
           f'{format_value(result["smr"]):>8}{format_value(result["cmr"]):>8}'
           f'{format_value(result["jds"]):>8}{format_value(result["pt"]):>8}'
           f'{result["internal_errors"]:>8}')
@@ -118,7 +133,6 @@ def run(args: argparse.Namespace) -> int:
           f'goal found before the clock; no goal found: {result["no_goal_found"]} of '
           f'{result["trials"]} (IK attempts per trial: {result["goal_attempts"]})')
     psr_at = ', '.join(f'PSR@{t} s {format_value(v, 2)}' for t, v in result['psr_at'].items())
-    print(f'time to first solution (failures at {args.time:g} s): median '
+    print(f'time to first solution (failures at {time_s:g} s): median '
           f'{format_value(result["first_solution_median_s"])} s, p90 '
           f'{format_value(result["first_solution_p90_s"])} s' + (f'; {psr_at}' if psr_at else ''))
-    return 0

@@ -150,34 +150,15 @@ def _service(heatmap_path, scene, budgets, method, calls, domain, server_params=
 
 
 def _perf_attack(args: argparse.Namespace) -> int:
+    """``advocc perf attack``: time the core, then (unless ``--no-service``) the round trips to
+    a heatmap_server serving the same heatmap; print the medians or the report as JSON."""
     from advocc_ros.evaluation.perf import machine
-    from advocc_ros.heatmap import (HeatmapConfig, HeatmapError, build_heatmap, load_heatmap,
-                                    save_heatmap)
-    from advocc_ros.commands.common import scene_from_args, task_options_from_args
-    from advocc_ros.model.robot import load_robot
-    from advocc_ros.model.pose import SceneError
+    from advocc_ros.commands.common import task_options_from_args
 
     options = task_options_from_args(args, args.method)
-    try:
-        budgets = [int(b) for b in args.budgets.split(',') if b.strip()]
-        scene = scene_from_args(args)
-    except (ValueError, SceneError) as exc:
-        raise UserError(str(exc)) from None
-    if scene.start is None or scene.goal is None:
-        raise UserError(f'{args.scene}: the scene needs a start and a goal')
-    robot = load_robot(scene.robot)
-    q = robot.q_from_names(list(scene.start), list(scene.start.values()))
+    budgets, scene, robot, q = _task(args)
     with tempfile.TemporaryDirectory(prefix='advocc_perf_') as tmp:
-        if args.heatmap:
-            path = pathlib.Path(args.heatmap)
-            try:
-                heatmap = load_heatmap(path, robot_hash=robot.hash)
-            except HeatmapError as exc:
-                raise UserError(str(exc)) from None
-        else:
-            heatmap = build_heatmap(scene, HeatmapConfig(samples=args.samples), seed=0)
-            path = pathlib.Path(tmp) / 'heatmap.npz'
-            save_heatmap(heatmap, path)
+        heatmap, path = _heatmap(args, scene, robot, pathlib.Path(tmp))
         report = {
             'benchmark': 'online attack', 'scene': scene.name, 'method': args.method,
             'heatmap': str(args.heatmap or f'built: {args.samples} samples'),
@@ -198,17 +179,59 @@ def _perf_attack(args: argparse.Namespace) -> int:
     if args.json:
         print(json.dumps(report, indent=2))
     else:
-        print(f'online attack, {scene.name}, method {args.method}, grid '
-              f'{report["grid_shape"]} x {report["voxel_m"]} m')
-        for budget in budgets:
-            row = report['core'][str(budget)]
-            line = (f'  M={budget}: cold {row["cold"]["median_ms"]:.0f} ms, warm '
-                    f'{row["warm"]["median_ms"]:.0f} ms, core {row["compute"]["median_ms"]:.1f} '
-                    f'ms (medians of {row["compute"]["n"]})')
-            if 'service' in report:
-                rtt = report['service'][str(budget)]['round_trip']
-                line += (f'; service round trip {rtt["median_ms"]:.1f} ms median, '
-                         f'{rtt["p95_ms"]:.1f} ms p95')
-            print(line)
-        print(f'  paper: {PAPER_ONLINE_S * 1e3:.0f} ms')
+        _print_report(report, scene.name, budgets, args.method)
     return 0
+
+
+def _task(args: argparse.Namespace) -> tuple:
+    """The budgets, the scene (which must have a start and a goal), its robot and start
+    configuration named by ``args``; a bad one is a ``UserError``."""
+    from advocc_ros.commands.common import scene_from_args
+    from advocc_ros.model.pose import SceneError
+    from advocc_ros.model.robot import load_robot
+
+    try:
+        budgets = [int(b) for b in args.budgets.split(',') if b.strip()]
+        scene = scene_from_args(args)
+    except (ValueError, SceneError) as exc:
+        raise UserError(str(exc)) from None
+    if scene.start is None or scene.goal is None:
+        raise UserError(f'{args.scene}: the scene needs a start and a goal')
+    robot = load_robot(scene.robot)
+    q = robot.q_from_names(list(scene.start), list(scene.start.values()))
+    return budgets, scene, robot, q
+
+
+def _heatmap(args: argparse.Namespace, scene, robot, tmp: pathlib.Path) -> tuple:
+    """The heatmap timed and its file: ``--heatmap`` loaded, or one of ``--samples`` built and
+    saved in ``tmp`` (for the server to load)."""
+    from advocc_ros.heatmap import (HeatmapConfig, HeatmapError, build_heatmap, load_heatmap,
+                                    save_heatmap)
+
+    if args.heatmap:
+        path = pathlib.Path(args.heatmap)
+        try:
+            return load_heatmap(path, robot_hash=robot.hash), path
+        except HeatmapError as exc:
+            raise UserError(str(exc)) from None
+    heatmap = build_heatmap(scene, HeatmapConfig(samples=args.samples), seed=0)
+    path = tmp / 'heatmap.npz'
+    save_heatmap(heatmap, path)
+    return heatmap, path
+
+
+def _print_report(report: dict, scene_name: str, budgets: list[int], method: str) -> None:
+    """The report's medians per budget, one line each, and the paper's online time."""
+    print(f'online attack, {scene_name}, method {method}, grid '
+          f'{report["grid_shape"]} x {report["voxel_m"]} m')
+    for budget in budgets:
+        row = report['core'][str(budget)]
+        line = (f'  M={budget}: cold {row["cold"]["median_ms"]:.0f} ms, warm '
+                f'{row["warm"]["median_ms"]:.0f} ms, core {row["compute"]["median_ms"]:.1f} '
+                f'ms (medians of {row["compute"]["n"]})')
+        if 'service' in report:
+            rtt = report['service'][str(budget)]['round_trip']
+            line += (f'; service round trip {rtt["median_ms"]:.1f} ms median, '
+                     f'{rtt["p95_ms"]:.1f} ms p95')
+        print(line)
+    print(f'  paper: {PAPER_ONLINE_S * 1e3:.0f} ms')

@@ -113,10 +113,16 @@ def _join(ax, curve: list[float | None], color, ls: str) -> None:
 
 def plot_audit_psr(psr: dict[str, list[float | None]], goal_valid: list[float | None],
                    out: str | pathlib.Path, title: str = '') -> None:
+    """:func:`audit_psr_figure` written as a PNG to ``out``."""
+    save_png(audit_psr_figure(psr, goal_valid, title), out)
+
+
+def audit_psr_figure(psr: dict[str, list[float | None]], goal_valid: list[float | None],
+                     title: str = ''):
     """An audit's curves: PSR [%] of each planner against the budget m (lists indexed by m,
     None where not evaluated), and the share of goal poses the boxes leave valid (dashed).
     Points at adjacent m are joined by a solid line, points across unevaluated m by a dotted
-    one: the curve between them was not measured."""
+    one: the curve between them was not measured. Returns the matplotlib figure."""
     fig, ax = plt.subplots(figsize=(6.5, 4.2), constrained_layout=True)
     for planner, curve in psr.items():
         line, = ax.plot(*_evaluated(curve), marker='o', ls='none', label=planner)
@@ -131,4 +137,4 @@ def plot_audit_psr(psr: dict[str, list[float | None]], goal_valid: list[float | 
     percent_axes(ax)
     if title:
         ax.set_title(title)
-    save_png(fig, out)
+    return fig

@@ -255,15 +255,16 @@ class LinkTables:
         return mask
 
 
-_TABLES: BoundedCache = BoundedCache('link look-up tables', 8)
-"""(robot hash, pitch) -> LinkTables."""
+LINK_TABLES: BoundedCache = BoundedCache('link look-up tables', 8)
+"""(robot hash, pitch) -> LinkTables, this process's copies (cleared, the next call reads the
+disk cache, as another process would)."""
 
 
 def link_tables(robot: RobotModel, pitch_m: float) -> LinkTables:
     """The robot's tables at ``pitch_m``: built once per process (Panda at 5 mm: < 0.1 s, and
     0.3 s to import trimesh), or read from the disk cache where an earlier process left them."""
-    return _TABLES.get_or_make((robot.hash, round(pitch_m, 9)),
-                               lambda: _tables_from_disk_or_built(robot, pitch_m))
+    return LINK_TABLES.get_or_make((robot.hash, round(pitch_m, 9)),
+                                   lambda: _tables_from_disk_or_built(robot, pitch_m))
 
 
 def _tables_from_disk_or_built(robot: RobotModel, pitch_m: float) -> LinkTables:

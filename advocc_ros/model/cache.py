@@ -105,4 +105,9 @@ def clear_task_caches() -> None:
         cache.clear()
 
 
-__all__ = ['BoundedCache', 'clear_task_caches']
+def task_caches() -> tuple[BoundedCache, ...]:
+    """The per-task caches made so far in this process: those ``clear_task_caches`` forgets."""
+    return tuple(_PER_TASK)
+
+
+__all__ = ['BoundedCache', 'clear_task_caches', 'task_caches']

@@ -362,8 +362,9 @@ class CollisionWorld:
         return False
 
 
-_WORLDS: BoundedCache = BoundedCache('collision worlds', 8)
-"""(robot hash, shape fingerprints) -> CollisionWorld, shared by every thread."""
+SHARED_WORLDS: BoundedCache = BoundedCache('collision worlds', 8)
+"""(robot hash, shape fingerprints) -> CollisionWorld, shared by every thread
+(:func:`shared_world`); kept across tasks."""
 
 
 def shared_world(robot: RobotModel, shapes: list[Shape] = ()) -> CollisionWorld:
@@ -372,7 +373,7 @@ def shared_world(robot: RobotModel, shapes: list[Shape] = ()) -> CollisionWorld:
     for 10 shapes, the same every time) need not be paid per request. Threads share it: each
     queries on its own ``CollisionData``."""
     key = (robot.hash, json.dumps([s.fingerprint() for s in shapes]))
-    return _WORLDS.get_or_make(key, lambda: CollisionWorld(robot, shapes))
+    return SHARED_WORLDS.get_or_make(key, lambda: CollisionWorld(robot, shapes))
 
 
 def no_warm_start(requests) -> None:

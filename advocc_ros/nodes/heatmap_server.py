@@ -187,8 +187,9 @@ def non_finite_field(msg, path: str = '') -> str | None:
     return None
 
 
-def _parse_locked(entries) -> tuple[tuple[str, float], ...] | None:
-    """``['joint=value', ...]`` as RobotSpec.locked; None when no entry is given."""
+def parse_locked(entries) -> tuple[tuple[str, float], ...] | None:
+    """The ``robot_locked`` parameter's ``['joint=value', ...]`` as RobotSpec.locked; None
+    when no entry is given; ``RobotError`` for an entry that is not a name and a number."""
     entries = [e for e in entries if e]
     if not entries:
         return None
@@ -233,7 +234,7 @@ class HeatmapServer(Node):
         spec = RobotSpec(**{field: self.get_parameter(param).value
                             for param, field in _ROBOT_PARAMS.items()})
         self.heatmap = load_heatmap(path)
-        locked = _parse_locked(self.get_parameter('robot_locked').value)
+        locked = parse_locked(self.get_parameter('robot_locked').value)
         if locked is None:
             locked = locked_joints(self.heatmap.meta, spec.urdf, spec.srdf, spec.group) or ()
         self._spec = dataclasses.replace(spec, locked=locked)
@@ -318,52 +319,15 @@ class HeatmapServer(Node):
         return f'{message_digest(request)}:{settings}'
 
     def _attack(self, request: Attack.Request, response: Attack.Response) -> Attack.Response:
-        def fail(code: int, message: str) -> Attack.Response:
-            response.error_code.val = code
-            response.message = message
+        """Answer one request: its task checked and turned into core types, then the attack
+        (budget, box size, method and policy are checked by the core: errors are data)."""
+        try:
+            objects, q_init, goal = self._task(request)
+        except _Refused as exc:
+            response.error_code.val = exc.code
+            response.message = str(exc)
             return response
-
-        bad = non_finite_field(request)
-        if bad:
-            return fail(ErrorCodes.INVALID_REQUEST, f'{bad}: non-finite number (NaN or inf)')
         method = request.method or DEFAULT_METHOD
-        base = self.get_parameter('base_frame').value
-        frames = {(o.header.frame_id, f'scene[{i}] {o.id!r}')
-                  for i, o in enumerate(request.scene)}
-        frames.add((request.goal_region.header.frame_id, 'goal_region'))
-        if request.cloud.width * request.cloud.height:
-            frames.add((request.cloud.header.frame_id, 'cloud'))
-        for frame, what in sorted(frames):
-            if frame and frame != base:
-                return fail(ErrorCodes.INVALID_REQUEST if what != 'goal_region'
-                            else ErrorCodes.INVALID_GOAL_CONSTRAINTS,
-                            f'{what}: frame {frame!r} is not the robot base frame {base!r} '
-                            '(no tf here)')
-        try:
-            objects = scene_from_msgs(list(request.scene))
-            if request.cloud.width * request.cloud.height:
-                cloud = cloud_shape_from_msg(request.cloud, request.cloud_resolution
-                                             or DEFAULT_RESOLUTION_M, [-math.inf] * 3,
-                                             [math.inf] * 3)
-                if cloud is not None:
-                    objects = objects + (SceneObject('sensed_cloud', (cloud,)),)
-        except SceneError as exc:
-            return fail(ErrorCodes.INVALID_REQUEST, str(exc))
-        try:
-            q_init = q_from_joint_state(self.robot, request.start_state)
-        except RobotError as exc:
-            return fail(ErrorCodes.INVALID_ROBOT_STATE, str(exc))
-        gmsg = request.goal_region
-        if any(v < 0 for v in [*gmsg.position_tolerance, *gmsg.orientation_tolerance]):
-            return fail(ErrorCodes.INVALID_GOAL_CONSTRAINTS,
-                        'goal_region is inverted: tolerances must be >= 0, got position '
-                        f'{list(gmsg.position_tolerance)}, orientation '
-                        f'{list(gmsg.orientation_tolerance)}')
-        try:
-            goal = goal_region_from_msg(gmsg, self._spec.ee_link)
-        except SceneError as exc:
-            return fail(ErrorCodes.INVALID_GOAL_CONSTRAINTS, str(exc))
-        # Budget, box size, method and policy are checked by the core (errors are data).
         result = attack_task(self.heatmap, self.robot, objects, q_init, goal,
                              int(request.budget), method, self.cfg,
                              box_size_m=request.box_size or None, seed=request.seed,
@@ -373,18 +337,50 @@ class HeatmapServer(Node):
         if 'witness_search_ms' in result.stats:
             self.get_logger().info(f'witness search: {result.stats["witness_search_ms"]:.0f} '
                                    'ms (RRTConnect on the unattacked scene, cached per task)')
-        response.error_code.val = STATUS_CODES.get(result.status, ErrorCodes.FAILURE)
-        response.message = result.message
-        response.obstacles = [obstacle_to_msg(o, m)
-                              for o, m in zip(result.obstacles, result.masses)]
-        response.total_mass = float(result.total_mass)
-        response.compute_time_s = float(result.compute_s)
-        response.goal_valid_fraction = (-1.0 if result.goal_valid_fraction is None
-                                        else float(result.goal_valid_fraction))
-        if result.solvable is not None:
-            response.solvable = result.solvable.verdict
-            response.solvable_message = result.solvable.message
+        _fill_response(response, result)
         return response
+
+    def _task(self, request: Attack.Request) -> tuple:
+        """The request's scene objects, start configuration and goal region; raises
+        ``_Refused`` (the code and message of the first thing wrong) for a bad request."""
+        bad = non_finite_field(request)
+        if bad:
+            raise _Refused(ErrorCodes.INVALID_REQUEST, f'{bad}: non-finite number (NaN or inf)')
+        self._check_frames(request)
+        objects = _scene_objects(request)
+        try:
+            q_init = q_from_joint_state(self.robot, request.start_state)
+        except RobotError as exc:
+            raise _Refused(ErrorCodes.INVALID_ROBOT_STATE, str(exc)) from None
+        return objects, q_init, self._goal(request.goal_region)
+
+    def _check_frames(self, request: Attack.Request) -> None:
+        """Refuse a scene object, goal region or cloud given in a frame other than the robot's
+        base frame (the node has no tf)."""
+        base = self.get_parameter('base_frame').value
+        frames = {(o.header.frame_id, f'scene[{i}] {o.id!r}')
+                  for i, o in enumerate(request.scene)}
+        frames.add((request.goal_region.header.frame_id, 'goal_region'))
+        if request.cloud.width * request.cloud.height:
+            frames.add((request.cloud.header.frame_id, 'cloud'))
+        for frame, what in sorted(frames):
+            if frame and frame != base:
+                raise _Refused(ErrorCodes.INVALID_REQUEST if what != 'goal_region'
+                               else ErrorCodes.INVALID_GOAL_CONSTRAINTS,
+                               f'{what}: frame {frame!r} is not the robot base frame {base!r} '
+                               '(no tf here)')
+
+    def _goal(self, gmsg):
+        """The goal region of ``gmsg``, refused when a tolerance is negative or it is invalid."""
+        if any(v < 0 for v in [*gmsg.position_tolerance, *gmsg.orientation_tolerance]):
+            raise _Refused(ErrorCodes.INVALID_GOAL_CONSTRAINTS,
+                           'goal_region is inverted: tolerances must be >= 0, got position '
+                           f'{list(gmsg.position_tolerance)}, orientation '
+                           f'{list(gmsg.orientation_tolerance)}')
+        try:
+            return goal_region_from_msg(gmsg, self._spec.ee_link)
+        except SceneError as exc:
+            raise _Refused(ErrorCodes.INVALID_GOAL_CONSTRAINTS, str(exc)) from None
 
     def info(self) -> dict:
         return {
@@ -413,6 +409,45 @@ class HeatmapServer(Node):
             self.get_logger().error(f'get_info failed: {exc!r}')
             response.success, response.message = False, f'internal error: {exc}'
         return response
+
+
+class _Refused(Exception):
+    """A bad attack request: the error code and the message it is answered with."""
+
+    def __init__(self, code: int, message: str):
+        super().__init__(message)
+        self.code = code
+
+
+def _scene_objects(request: Attack.Request) -> tuple:
+    """The request's scene objects, its sensed ``cloud`` (if any) one more, an octree of
+    ``cloud_resolution``; a bad object is refused."""
+    try:
+        objects = scene_from_msgs(list(request.scene))
+        if request.cloud.width * request.cloud.height:
+            cloud = cloud_shape_from_msg(request.cloud, request.cloud_resolution
+                                         or DEFAULT_RESOLUTION_M, [-math.inf] * 3,
+                                         [math.inf] * 3)
+            if cloud is not None:
+                objects = objects + (SceneObject('sensed_cloud', (cloud,)),)
+    except SceneError as exc:
+        raise _Refused(ErrorCodes.INVALID_REQUEST, str(exc)) from None
+    return objects
+
+
+def _fill_response(response: Attack.Response, result) -> None:
+    """``response`` from the attack's ``result``: code, message, boxes, mass, time, verdict."""
+    response.error_code.val = STATUS_CODES.get(result.status, ErrorCodes.FAILURE)
+    response.message = result.message
+    response.obstacles = [obstacle_to_msg(o, m)
+                          for o, m in zip(result.obstacles, result.masses)]
+    response.total_mass = float(result.total_mass)
+    response.compute_time_s = float(result.compute_s)
+    response.goal_valid_fraction = (-1.0 if result.goal_valid_fraction is None
+                                    else float(result.goal_valid_fraction))
+    if result.solvable is not None:
+        response.solvable = result.solvable.verdict
+        response.solvable_message = result.solvable.message
 
 
 def main(args=None) -> int:

@@ -76,7 +76,8 @@ def add_bench_args(parser: argparse.ArgumentParser) -> None:
                         'are shards, merged into the run folder')
     n.add_argument('--heatmap-samples', type=int, help='samples of heatmaps built here')
     n.add_argument('--report-only', action='store_true',
-                   help='only rewrite the tables and figures from the run folder\'s records')
+                   help='only rewrite the tables, cells.csv and figures from the run folder\'s '
+                   'records, under the settings it was measured with (its config.json)')
     n.add_argument('--json', action='store_true', help='print the run summary as JSON')
 
 
@@ -111,6 +112,20 @@ def heatmap_args(items: list[str]) -> dict[str, list[str]]:
     return out
 
 
+def _measured_config(run_dir: pathlib.Path, cfg):
+    """The settings a run folder's trials were measured with (its ``config.json``), else
+    ``cfg``: a report of an older run needs no command line to match it."""
+    from advocc_ros.bench import BenchConfig, BenchError
+
+    path = run_dir / 'config.json'
+    if not path.exists():
+        return cfg
+    try:
+        return BenchConfig.from_data(json.loads(path.read_text())['config'], str(path))
+    except (OSError, ValueError, KeyError, TypeError) as exc:
+        raise BenchError(f'{path}: unreadable ({exc})') from None
+
+
 def run(args: argparse.Namespace) -> int:
     from advocc_ros.bench.report import write_report
     from advocc_ros.orchestrator.run import Orchestrator
@@ -118,7 +133,7 @@ def run(args: argparse.Namespace) -> int:
     cfg = bench_config(args)
     out = pathlib.Path(args.out)
     if args.report_only:
-        files = write_report(out, cfg)
+        files = write_report(out, _measured_config(out, cfg))
         for name in files:
             print(out / name)
         return 0

@@ -38,10 +38,15 @@ def ompl_modules():
     return ob, og, ou
 
 
-def _ompl_version() -> str:
-    """The installed OMPL's version (``ompl`` 1.7.0 in our venv, 2.0.1 in ``.venv-ompl2``)."""
-    from importlib.metadata import version
-    return f'ompl {version("ompl")}'
+def ompl_version() -> str | None:
+    """The version of the OMPL this interpreter imports (1.7.0 in our venv, 2.0.1 in
+    ``.venv-ompl2``): its distribution's, since the ``ompl`` module carries no version
+    attribute; None for an OMPL installed without distribution metadata."""
+    from importlib.metadata import PackageNotFoundError, version
+    try:
+        return version('ompl')
+    except PackageNotFoundError:
+        return None
 
 
 def _legacy_api(ob) -> bool:
@@ -157,8 +162,8 @@ def solve(robot: RobotModel, world: CollisionWorld, q_start: np.ndarray, goal: G
     ob, og, ou = ompl_modules()
     if not hasattr(og, planner_class_name(planner_id)):
         return failed(PlanStatus.UNKNOWN_METHOD, f'{planner_class_name(planner_id)} is not in '
-                      f'this OMPL ({_ompl_version()}): it is an OMPL 2 planner, planned by the '
-                      'victim of that name (advocc_ros.planning.victims.ompl2)', nq)
+                      f'this OMPL (ompl {ompl_version()}): it is an OMPL 2 planner, planned by '
+                      'the victim of that name (advocc_ros.planning.victims.ompl2)', nq)
     _seed_ompl(ou, seed)
     rng = np.random.default_rng(int(seed) % 2 ** 64)  # int64 message seeds may be < 0
     sampler = GoalSampler(robot, world.in_collision, goal, rng, config)

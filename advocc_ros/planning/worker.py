@@ -8,7 +8,7 @@ configurations with damped-least-squares IK inside the region.
 Why a worker process. OMPL's ``solve`` runs in C++ and cannot be interrupted from Python; a
 planner that ignores its termination condition, or a pathological scene (a huge mesh), would hold
 the caller forever. ``Planner`` therefore runs every request in one long-lived child process
-(``python -c 'from advocc_ros.planning.worker import _worker_main; _worker_main()'``) that it
+(``python -c 'from advocc_ros.planning.worker import worker_main; worker_main()'``) that it
 reuses across requests (imports and the robot model load once; the per-request cost is one
 JSON line each way, measured ~1 ms). The parent waits for the answer with a watchdog deadline of
 ``time_budget_s + watchdog_margin_s``; past it, the child is killed (SIGKILL), the request is
@@ -54,7 +54,7 @@ import numpy as np
 from advocc_ros.model.robot import RobotError, load_robot
 from advocc_ros.model.goal import GoalRegion
 from advocc_ros.model.scene import Scene, scene_from_data
-from advocc_ros.planning.solve import ompl_modules, solve
+from advocc_ros.planning.solve import ompl_modules, ompl_version, solve
 from advocc_ros.planning.types import (PlanningConfig, PlanResult, PlanStatus, failed,
                                        validate_request)
 
@@ -90,7 +90,7 @@ def _inject_fault(seed: int) -> None:
 # --------------------------------------------------------------------------------------------
 # The worker process
 
-def _worker_main() -> None:
+def worker_main() -> None:
     """Serve JSON-line plan requests on stdin; answers go to a private copy of stdout."""
     out = os.fdopen(os.dup(1), 'w', buffering=1)
     os.dup2(2, 1)  # C++ output on fd 1 must not corrupt the protocol
@@ -105,7 +105,7 @@ def _worker_main() -> None:
     def reply(data: dict) -> None:
         out.write(json.dumps(data) + '\n')
 
-    reply({'ready': True, 'pid': os.getpid()})
+    reply({'ready': True, 'pid': os.getpid(), 'ompl': ompl_version()})
     for line in sys.stdin:
         try:
             req = json.loads(line)
@@ -151,8 +151,8 @@ def _our_worker_argv() -> tuple[list[str], dict]:
     env = dict(os.environ)
     env['PYTHONPATH'] = os.pathsep.join(p for p in (src, env.get('PYTHONPATH')) if p)
     # -P: the working directory must not shadow the parent's code (a checkout's cwd).
-    return [sys.executable, '-P', '-c', 'from advocc_ros.planning.worker import _worker_main; '
-            '_worker_main()'], env
+    return [sys.executable, '-P', '-c', 'from advocc_ros.planning.worker import worker_main; '
+            'worker_main()'], env
 
 
 class WorkerProcess:
@@ -177,6 +177,8 @@ class WorkerProcess:
             self.kill()
             raise WorkerDied(f'{what} did not start within {timeout_s:g} s')
         self.pid = int(hello['pid'])
+        self.ompl_version: str | None = hello.get('ompl')
+        """The OMPL version the worker's interpreter imports (None: it reported none)."""
 
     def send(self, data: dict) -> None:
         try:
@@ -277,6 +279,8 @@ class Planner:
         self._slot = WorkerSlot()
         self.set_scene(scene)
         self.requests = 0
+        self.ompl_version: str | None = None
+        """The OMPL version the last worker started reported (None before the first)."""
 
     def set_scene(self, scene: Scene) -> None:
         """Scene for the next requests (objects may change; the robot may not)."""
@@ -311,6 +315,7 @@ class Planner:
             self.config.worker_start_timeout_s, *(self.command() if self.command else ())))
         if fresh:
             log.debug('planning worker %d started', worker.pid)
+            self.ompl_version = worker.ompl_version
         return worker
 
     def plan(self, q_start, goal: GoalRegion, planner_id: str = 'rrtconnect',
@@ -363,8 +368,9 @@ class Planner:
         result.stats['overhead_s'] = round_trip - result.planning_time_s
         return result
 
-    def _stall(self, seconds: float, watchdog_s: float) -> PlanResult:
-        """Diagnostic: send a request that holds the worker ``seconds`` (tests the watchdog)."""
+    def stall(self, seconds: float, watchdog_s: float) -> PlanResult:
+        """Diagnostic: a request that holds the worker ``seconds``, watched for ``watchdog_s``
+        as a plan is (``TIMED_OUT`` with the worker killed past it): tests the watchdog."""
         with self._lock:
             worker = self._ensure_worker()
             worker.send({'op': 'stall', 'seconds': seconds})

@@ -134,7 +134,7 @@ def write_bag(path: str | pathlib.Path, messages: list[tuple[str, object]],
         schemas, channels = {}, {}
         for k, (topic, msg) in enumerate(messages):
             stamp = start_ns + k * 1_000_000
-            _stamp(msg, stamp)
+            stamp_message(msg, stamp)
             type_name = _type_name(msg)
             if type_name not in schemas:
                 schemas[type_name] = writer.register_schema(
@@ -148,7 +148,7 @@ def write_bag(path: str | pathlib.Path, messages: list[tuple[str, object]],
     return path
 
 
-def _stamp(msg, stamp_ns: int) -> None:
+def stamp_message(msg, stamp_ns: int) -> None:
     """Set the header stamp of ``msg`` and of its markers."""
     for item in [msg] + list(getattr(msg, 'markers', [])):
         header = getattr(item, 'header', None)

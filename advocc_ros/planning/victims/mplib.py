@@ -97,20 +97,20 @@ class MplibVictim(OutsideVictim):
         super().__init__(name, config)
         self._python = mplib_python(config)
 
-    def _command(self) -> tuple[list[str], dict]:
+    def worker_command(self) -> tuple[list[str], dict]:
         env = {k: v for k, v in os.environ.items() if k not in ('PYTHONPATH', 'PYTHONHOME')}
         return [str(self._python), '-P', str(WORKER_SCRIPT)], env
 
-    def _setup(self, task: Task, robot: RobotModel) -> dict:
+    def setup_fields(self, task: Task, robot: RobotModel) -> dict:
         return {'robot': {'urdf': str(mplib_urdf(robot)),
                           'srdf': str(resolve_path(robot.spec.srdf).resolve()),
                           'move_group': robot.spec.ee_link, 'joints': list(robot.joint_names),
                           'locked': robot.locked_values},
                 'objects': objects_data(task, self.config.hidden_object_ids)}
 
-    def _answer(self, answer: dict, robot: RobotModel, world: CollisionWorld,
-                q_start: np.ndarray, goals: np.ndarray, budget: float, stats: dict
-                ) -> PlanResult:
+    def plan_result(self, answer: dict, robot: RobotModel, world: CollisionWorld,
+                    q_start: np.ndarray, goals: np.ndarray, budget: float, stats: dict
+                    ) -> PlanResult:
         """The worker's answer as a ``PlanResult``, the path re-validated in both models."""
         nq = robot.nq
         if answer['status'] == 'start_invalid':
@@ -129,8 +129,8 @@ class MplibVictim(OutsideVictim):
                           **stats)
         path = np.asarray(answer['path'], float).reshape(-1, nq)
         stats.update(first_solution_s=solve_s, path_length_rad=path_length_rad(path))
-        failure = self._checked(path, world, q_start, goals, solve_s, stats,
-                                int(answer['first_collision']))
+        failure = self.checked_path(path, world, q_start, goals, solve_s, stats,
+                                    int(answer['first_collision']))
         if failure is not None:
             return failure
         return PlanResult(PlanStatus.SUCCESS, f'MPlib RRTConnect: solved in {solve_s:.3f} s',
@@ -138,9 +138,9 @@ class MplibVictim(OutsideVictim):
 
     def check(self, task: Task, Q: np.ndarray) -> np.ndarray:
         """MPlib's own collision verdicts for configurations ``Q`` (N, nq) in ``task``'s scene."""
-        robot, _ = self._models(task)
-        answer = self._call({'op': 'check', 'q': np.asarray(Q, float).tolist()}, task, robot,
-                            10.0, {})
+        robot, _ = self.models(task)
+        answer = self.call({'op': 'check', 'q': np.asarray(Q, float).tolist()}, task, robot,
+                           10.0, {})
         if isinstance(answer, PlanResult):
             raise WorkerDied(answer.message)
         return np.array(answer['collides'], bool)

@@ -26,15 +26,22 @@ class OmplVictim:
         self._planner: Planner | None = None
         self._world: tuple[str, CollisionWorld] | None = None
 
-    def _new_planner(self, scene) -> Planner:
-        """A ``Planner`` over our OMPL 1.7 worker (the OMPL 2 victims run theirs elsewhere)."""
+    def new_planner(self, scene) -> Planner:
+        """A ``Planner`` over our OMPL 1.7 worker; a subclass overrides it to run another
+        worker (the OMPL 2 victims run theirs in the OMPL 2 venv)."""
         return Planner(scene, self.config.planning)
+
+    @property
+    def planner(self) -> Planner | None:
+        """The ``Planner`` the last ``start`` or ``plan`` used (None before, and after
+        ``close``): its ``robot`` is the model the victim's paths are checked in."""
+        return self._planner
 
     def _planner_for(self, task: Task) -> Planner:
         if self._planner is None or self._planner.robot.spec != task.scene.robot:
             if self._planner is not None:
                 self._planner.close()
-            self._planner = self._new_planner(task.scene)
+            self._planner = self.new_planner(task.scene)
         else:
             self._planner.set_scene(task.scene)
             self._planner.config = self.config.planning  # the shim may change its settings
@@ -43,7 +50,7 @@ class OmplVictim:
     def start(self, scene) -> 'OmplVictim':
         if self._planner is None or self._planner.robot.spec != scene.robot:
             self.close()
-            self._planner = self._new_planner(scene)
+            self._planner = self.new_planner(scene)
         self._planner.start()
         return self
 
@@ -51,7 +58,7 @@ class OmplVictim:
         planner = self._planner_for(task)
         goals, stats = task.goal_configs, {}
         if self.config.ompl_goal_list and goals is None and not task.goal.is_joint:
-            found = task.goal_list(planner.robot, self._world_for(task, planner.robot),
+            found = task.goal_list(planner.robot, self.world_for(task, planner.robot),
                                    self.config.goal_configs, seed)
             goals, stats = found.configs, found.stats()
         if goals is not None and not len(goals):
@@ -64,7 +71,9 @@ class OmplVictim:
         result.stats.update(stats, victim=self.name)
         return result
 
-    def _world_for(self, task: Task, robot) -> CollisionWorld:
+    def world_for(self, task: Task, robot) -> CollisionWorld:
+        """The collision world of ``task``'s scene for ``robot``, kept while the scene's objects
+        stay the same (the goal list's search and a subclass's path checks share it)."""
         key = task.scene.objects_hash()
         if self._world is None or self._world[0] != key:
             self._world = (key, CollisionWorld(robot, task.scene.shapes))

@@ -62,8 +62,8 @@ def worker_command(python: pathlib.Path) -> tuple[list[str], dict]:
     env = {k: v for k, v in os.environ.items()
            if k not in ('PYTHONPATH', 'PYTHONHOME', 'LD_LIBRARY_PATH', 'VIRTUAL_ENV')}
     env['PYTHONPATH'] = str(source_path())
-    return [str(python), '-P', '-c', 'from advocc_ros.planning.worker import _worker_main; '
-            '_worker_main()'], env
+    return [str(python), '-P', '-c', 'from advocc_ros.planning.worker import worker_main; '
+            'worker_main()'], env
 
 
 class Ompl2Victim(OmplVictim):
@@ -76,12 +76,13 @@ class Ompl2Victim(OmplVictim):
         self.name, self.planner_id = name, PLANNERS[name]
         self._python = ompl2_python(config)
 
-    def _new_planner(self, scene) -> Planner:
+    def new_planner(self, scene) -> Planner:
+        """A ``Planner`` over our planning worker in the OMPL 2 interpreter."""
         return Planner(scene, self.config.planning, lambda: worker_command(self._python))
 
     def plan(self, task: Task, time_budget_s: float, seed: int) -> PlanResult:
         result = super().plan(task, time_budget_s, seed)
-        result.stats['ompl'] = '2.0.1'
+        result.stats['ompl'] = self.planner.ompl_version
         return self._recheck(task, result) if result.success else result
 
     def _recheck(self, task: Task, result: PlanResult) -> PlanResult:
@@ -90,8 +91,8 @@ class Ompl2Victim(OmplVictim):
         motion check stepped over an obstacle: an invalid path, as for ours)."""
         from advocc_ros.kinematics.ik import GoalSampler
 
-        robot = self._planner.robot
-        world = self._world_for(task, robot)
+        robot = self.planner.robot
+        world = self.world_for(task, robot)
         path, step, nq = result.path, self.config.check_step_rad, robot.nq
         region = GoalSampler(robot, world.in_collision, task.goal, np.random.default_rng(0))
         if len(path) < 2 or not np.allclose(path[0], task.q_start, atol=1e-6) \

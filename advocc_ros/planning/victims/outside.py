@@ -8,7 +8,8 @@ K sampled with the boxes from the trial's seed, outside the budget), and our col
 re-validate the answer. A worker that does not answer within budget + margin is killed (the
 trial is ``TIMED_OUT``, as for our planners); one that dies or raises is an ``INTERNAL_ERROR``.
 Subclasses say how to start their worker, what to send it when the robot or scene changes, and
-how to read its answer.
+how to read its answer (``worker_command``, ``setup_fields``, ``plan_result``), with the
+parent's ``models``, ``call``, ``preload`` and ``checked_path`` at hand.
 """
 
 from __future__ import annotations
@@ -61,17 +62,17 @@ class OutsideVictim:
 
     # -- what a subclass provides ------------------------------------------------------------
 
-    def _command(self) -> tuple[list[str], dict]:
+    def worker_command(self) -> tuple[list[str], dict]:
         """argv and environment of the worker process."""
         raise NotImplementedError
 
-    def _setup(self, task: Task, robot: RobotModel) -> dict:
+    def setup_fields(self, task: Task, robot: RobotModel) -> dict:
         """Fields sent with a request when the worker has not seen this robot and scene."""
         raise NotImplementedError
 
-    def _answer(self, answer: dict, robot: RobotModel, world: CollisionWorld,
-                q_start: np.ndarray, goals: np.ndarray, budget: float, stats: dict
-                ) -> PlanResult:
+    def plan_result(self, answer: dict, robot: RobotModel, world: CollisionWorld,
+                    q_start: np.ndarray, goals: np.ndarray, budget: float, stats: dict
+                    ) -> PlanResult:
         """The worker's answer to a plan request as a ``PlanResult`` (re-validated)."""
         raise NotImplementedError
 
@@ -83,7 +84,7 @@ class OutsideVictim:
         return self
 
     def plan(self, task: Task, time_budget_s: float, seed: int) -> PlanResult:
-        robot, world = self._models(task)
+        robot, world = self.models(task)
         nq = robot.nq
         error = validate_request(robot, task.q_start, task.goal, 'rrtconnect', time_budget_s,
                                  self.config.planning)
@@ -103,14 +104,14 @@ class OutsideVictim:
         request = {'op': 'plan', 'q_start': q_start.tolist(), 'goals': goals.tolist(),
                    'time_s': float(time_budget_s), 'seed': int(seed),
                    'check_step_rad': self.config.check_step_rad}
-        answer = self._call(request, task, robot, time_budget_s, stats)
+        answer = self.call(request, task, robot, time_budget_s, stats)
         if isinstance(answer, PlanResult):
             return answer
-        return self._answer(answer, robot, world, q_start, goals, time_budget_s, stats)
+        return self.plan_result(answer, robot, world, q_start, goals, time_budget_s, stats)
 
-    def _checked(self, path: np.ndarray, world: CollisionWorld, q_start: np.ndarray,
-                 goals: np.ndarray, elapsed: float, stats: dict, own_collision: int = -1
-                 ) -> PlanResult | None:
+    def checked_path(self, path: np.ndarray, world: CollisionWorld, q_start: np.ndarray,
+                     goals: np.ndarray, elapsed: float, stats: dict, own_collision: int = -1
+                     ) -> PlanResult | None:
         """None if a solution's ``path`` runs from the start to one of the given goals and is
         free in the victim's model (``own_collision``: its first colliding state every
         ``check_step_rad``, -1: none) and in ours; else the failure, in this order: not from
@@ -153,7 +154,7 @@ class OutsideVictim:
         return worker
 
     def _new_worker(self) -> WorkerProcess:
-        argv, env = self._command()
+        argv, env = self.worker_command()
         return WorkerProcess(self.config.planning.worker_start_timeout_s, argv, env,
                              what=f'{self.label} worker')
 
@@ -162,7 +163,7 @@ class OutsideVictim:
         return task.scene.objects_hash() + repr(task.scene.robot) + repr(
             self.config.hidden_object_ids)
 
-    def _models(self, task: Task) -> tuple[RobotModel, CollisionWorld]:
+    def models(self, task: Task) -> tuple[RobotModel, CollisionWorld]:
         """Our robot and collision model of ``task``'s scene (cached per scene)."""
         key = task.scene.objects_hash() + repr(task.scene.robot)
         if self._model is None or self._model[0] != key:
@@ -170,8 +171,8 @@ class OutsideVictim:
             self._model = (key, robot, CollisionWorld(robot, task.scene.shapes))
         return self._model[1], self._model[2]
 
-    def _exchange(self, request: dict, task: Task, robot: RobotModel, wait_s: float,
-                  stats: dict) -> dict | PlanResult:
+    def exchange(self, request: dict, task: Task, robot: RobotModel, wait_s: float,
+                 stats: dict) -> dict | PlanResult:
         """Send ``request`` (with the robot and scene if the worker lacks them) and wait
         ``wait_s`` for the answer, under the victim's lock. A dead worker is an
         ``INTERNAL_ERROR``, a silent one is killed (``TIMED_OUT``), an error it reports is an
@@ -183,7 +184,7 @@ class OutsideVictim:
             try:
                 worker = self._ensure_worker()
                 if self._sent != key:
-                    request = dict(request, **self._setup(task, robot))
+                    request = dict(request, **self.setup_fields(task, robot))
                 t_sent = time.monotonic()
                 worker.send(request)
                 answer = worker.read(t_sent + wait_s)
@@ -204,8 +205,27 @@ class OutsideVictim:
             self._sent = key
             return answer
 
-    def _call(self, request: dict, task: Task, robot: RobotModel, budget: float, stats: dict):
+    def call(self, request: dict, task: Task, robot: RobotModel, budget: float, stats: dict):
         """The worker's answer to a request with a ``budget`` [s], or the ``PlanResult`` of a
         watchdog kill (after budget + ``watchdog_margin_s``), a dead worker or an error."""
-        return self._exchange(request, task, robot,
-                              budget + self.config.planning.watchdog_margin_s, stats)
+        return self.exchange(request, task, robot,
+                             budget + self.config.planning.watchdog_margin_s, stats)
+
+    def preload(self, task: Task, robot: RobotModel, request: dict,
+                wait_s: float) -> dict | PlanResult | None:
+        """Send ``request`` with the robot and scene, waiting ``wait_s`` for the answer, unless
+        the worker has them already (None): a victim whose loading is slow does it before a
+        plan request's clock starts. A worker that cannot start is an ``INTERNAL_ERROR``."""
+        with self._lock:
+            try:
+                self._ensure_worker()
+            except WorkerDied as exc:
+                self._slot.kill()
+                return failed(PlanStatus.INTERNAL_ERROR, str(exc), robot.nq, worker_died=True)
+            if self._sent == self._scene_key(task):
+                return None
+        return self.exchange(request, task, robot, wait_s, {})
+
+    def kill_worker(self) -> None:
+        """Kill the worker (one that answered nonsense); the next request starts another."""
+        self._slot.kill()

@@ -147,15 +147,30 @@ class TrajOptConfig:
                              'integer >= 3')
 
 
-def _guess(q_start: np.ndarray, q_goal: np.ndarray, via: np.ndarray | None, n: int
-           ) -> np.ndarray:
-    """(n, nq) initial guess: the straight line, or two straight lines through ``via``."""
+def initial_guess(q_start: np.ndarray, q_goal: np.ndarray, via: np.ndarray | None,
+                  n: int) -> np.ndarray:
+    """TrajOpt's (n, nq) initial guess: the straight line, or two straight lines through
+    ``via``."""
     if via is None:
         return q_start + (q_goal - q_start) * np.linspace(0, 1, n)[:, None]
     half = n // 2
     first = q_start + (via - q_start) * np.linspace(0, 1, half + 1)[:, None]
     second = via + (q_goal - via) * np.linspace(0, 1, n - half)[:, None]
     return np.concatenate([first[:-1], second])
+
+
+def snap_ends(path: np.ndarray, q_start: np.ndarray, q_goal: np.ndarray, tol_rad: float
+              ) -> np.ndarray | None:
+    """``path`` with its ends set exactly to the start and the goal, or None when TrajOpt left
+    them further than ``tol_rad`` away. TrajOpt keeps joints 1e-3 rad inside their limits, so a
+    goal configuration at a limit (our sampler clips to the limits) ends 1e-3 rad short: seen
+    in 3 of 20 bookshelf trials."""
+    if len(path) < 2 or np.abs(path[0] - q_start).max() > tol_rad \
+            or np.abs(path[-1] - q_goal).max() > tol_rad:
+        return None
+    path = path.copy()
+    path[0], path[-1] = q_start, q_goal
+    return path
 
 
 class TrajOptSolver:
@@ -263,7 +278,7 @@ class TrajOptSolver:
         """(goal index, via-point or None) of each attempt, in order (module docstring)."""
         n = self.config.waypoints
         distance = np.linalg.norm(goals - q_start, axis=1)
-        blocked = np.array([self._collision_fraction(_guess(q_start, g, None, n))
+        blocked = np.array([self._collision_fraction(initial_guess(q_start, g, None, n))
                             for g in goals])
         for k in np.lexsort((distance, blocked)):
             yield int(k), None
@@ -273,7 +288,7 @@ class TrajOptSolver:
                 0.0, self.config.via_std_rad, (self.config.via_candidates, self.robot.nq)),
                 self.robot.lower, self.robot.upper)
             yield k, min(vias, key=lambda v: self._collision_fraction(
-                _guess(q_start, goals[k], v, n)))
+                initial_guess(q_start, goals[k], v, n)))
 
     def plan(self, q_start, goal_configs, budget_s: float, seed: int) -> PlanResult:
         """Plan from ``q_start`` (nq,) to any of ``goal_configs`` (K, nq) within ``budget_s``."""
@@ -309,13 +324,13 @@ class TrajOptSolver:
 
     def _attempt(self, q_start, q_goal, via, stats) -> tuple[OptimOutcome, np.ndarray | None]:
         t = time.monotonic()
-        guess = _guess(q_start, q_goal, via, self.config.waypoints)
+        guess = initial_guess(q_start, q_goal, via, self.config.waypoints)
         try:
             path, message = self._solve(guess)
         except Exception as exc:  # a SWIG/C++ error in one attempt: try the next one
             path, message = None, f'{type(exc).__name__}: {exc}'
         if path is not None:
-            path = self._snap_ends(path, q_start, q_goal)
+            path = snap_ends(path, q_start, q_goal, self.config.endpoint_tol_rad)
             if path is None:
                 message = f'the path ends more than {self.config.endpoint_tol_rad:g} rad ' \
                     'from its start or goal'
@@ -333,20 +348,6 @@ class TrajOptSolver:
                                   'outcome': kind.value, 'message': message[:120],
                                   'time_s': time.monotonic() - t})
         return kind, path
-
-    def _snap_ends(self, path: np.ndarray, q_start: np.ndarray, q_goal: np.ndarray
-                   ) -> np.ndarray | None:
-        """``path`` with its ends set exactly to the start and the goal, or None when TrajOpt
-        left them further than ``endpoint_tol_rad`` away. TrajOpt keeps joints 1e-3 rad inside
-        their limits, so a goal configuration at a limit (our sampler clips to the limits) ends
-        1e-3 rad short: seen in 3 of 20 bookshelf trials."""
-        tol = self.config.endpoint_tol_rad
-        if len(path) < 2 or np.abs(path[0] - q_start).max() > tol \
-                or np.abs(path[-1] - q_goal).max() > tol:
-            return None
-        path = path.copy()
-        path[0], path[-1] = q_start, q_goal
-        return path
 
     def _accept(self, path: np.ndarray, t0: float, budget_s: float, stats: dict) -> PlanResult:
         first = time.monotonic() - t0

@@ -28,7 +28,6 @@ from advocc_ros.model.robot import RobotModel, load_robot
 from advocc_ros.planning.types import PlanResult, PlanStatus, failed
 from advocc_ros.planning.victims.base import Task, VictimConfig
 from advocc_ros.planning.victims.outside import OutsideVictim
-from advocc_ros.planning.worker import WorkerDied
 
 log = logging.getLogger(__name__)
 
@@ -96,42 +95,35 @@ class TrajOptVictim(OutsideVictim):
         request it would count against the watchdog, and a worker killed by the watchdog would
         pay it again on the next request and be killed again. None, or the error result.
         """
-        robot, _ = self._models(task)
-        with self._lock:
-            try:
-                self._ensure_worker()
-            except WorkerDied as exc:
-                self._slot.kill()
-                return failed(PlanStatus.INTERNAL_ERROR, str(exc), robot.nq, worker_died=True)
-            if self._sent == self._scene_key(task):
-                return None
-        answer = self._exchange({'op': 'load', 'check_step_rad': self.config.check_step_rad},
-                                task, robot, self.config.planning.worker_start_timeout_s, {})
-        if isinstance(answer, PlanResult):
+        robot, _ = self.models(task)
+        answer = self.preload(task, robot, {'op': 'load',
+                                            'check_step_rad': self.config.check_step_rad},
+                              self.config.planning.worker_start_timeout_s)
+        if answer is None or isinstance(answer, PlanResult):
             return answer
         if 'loaded' not in answer:
-            self._slot.kill()
+            self.kill_worker()
             return failed(PlanStatus.INTERNAL_ERROR, f'TrajOpt worker could not load the '
                           f'scene: {answer}', robot.nq)
         return None
 
-    def _command(self) -> tuple[list[str], dict]:
+    def worker_command(self) -> tuple[list[str], dict]:
         src = str(pathlib.Path(__file__).resolve().parents[3])
         env = dict(os.environ)
         env['PYTHONPATH'] = os.pathsep.join(p for p in (src, env.get('PYTHONPATH')) if p)
         return [sys.executable, '-P', '-c', 'from advocc_ros.planning.victims.trajopt_victim '
                 'import _worker_main; _worker_main()'], env
 
-    def _setup(self, task: Task, robot: RobotModel) -> dict:
+    def setup_fields(self, task: Task, robot: RobotModel) -> dict:
         scene = task.scene
         if self.config.hidden_object_ids:
             scene = dataclasses.replace(scene, objects=tuple(
                 o for o in scene.objects if o.id not in self.config.hidden_object_ids))
         return {'scene': scene.to_data(), 'trajopt': dataclasses.asdict(self.trajopt)}
 
-    def _answer(self, answer: dict, robot: RobotModel, world: CollisionWorld,
-                q_start: np.ndarray, goals: np.ndarray, budget: float, stats: dict
-                ) -> PlanResult:
+    def plan_result(self, answer: dict, robot: RobotModel, world: CollisionWorld,
+                    q_start: np.ndarray, goals: np.ndarray, budget: float, stats: dict
+                    ) -> PlanResult:
         """The worker's ``PlanResult``; a success's path re-validated here in our model."""
         result = PlanResult.from_data(answer, robot.nq)
         result.stats.update(stats)
@@ -139,8 +131,8 @@ class TrajOptVictim(OutsideVictim):
             result.stats['goal_configs_valid_victim'] = result.stats['goal_configs_valid']
         if not result.success:
             return result
-        failure = self._checked(result.path, world, q_start, goals, result.planning_time_s,
-                                result.stats)
+        failure = self.checked_path(result.path, world, q_start, goals,
+                                    result.planning_time_s, result.stats)
         return result if failure is None else failure
 
 
