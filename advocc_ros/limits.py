@@ -57,14 +57,21 @@ data set build to the CPUs each of its Ray tasks holds, so that a task does not 
 another (whose victims are being timed)."""
 
 
-def worker_threads() -> int:
-    """Threads this process may run at once: ``$ADVOCC_THREADS`` (a positive integer), else the
-    CPUs it may run on (``provenance.cores``). ``ValueError`` for any other value."""
-    from advocc_ros.provenance import cores
+def available_cpus() -> int:
+    """The CPUs this process may run on (its affinity mask, which ``taskset``, a container or
+    a cluster scheduler narrows; ``os.cpu_count`` counts the machine's)."""
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except AttributeError:  # not Linux
+        return os.cpu_count() or 1
 
+
+def worker_threads() -> int:
+    """Threads this process may run at once: ``$ADVOCC_THREADS`` (a positive integer), else
+    ``available_cpus``. ``ValueError`` for any other value."""
     value = os.environ.get(THREADS_ENV, '').strip()
     if not value:
-        return cores()
+        return available_cpus()
     if not value.isdigit() or int(value) < 1:
         raise ValueError(f'${THREADS_ENV}={value!r}: expected a positive integer')
     return int(value)

@@ -346,8 +346,16 @@ def test_build_on_embedded_ray(built, problems):
     text = (out / 'summary.md').read_text()
     assert '| box_panda | 2 |' in text and f'`{commit[:12]}' in text and 'alone' in text
     assert (out / 'summary.png').read_bytes()[:4] == b'\x89PNG'
-    # problems.csv: per problem, the unattacked row and the attacked one, each naming its
-    # making.
+
+
+@pytest.mark.processes  # the `built` fixture runs a build
+def test_every_table_row_names_its_making(built):
+    """problems.csv: per problem, the unattacked row and the attacked one, each with its
+    problem's provenance."""
+    out, run = built
+    assert run.returncode == 0, run.stderr[-3000:]
+    records = _records(out)
+    commit = records['table_pick_panda/0001']['provenance']['commit']
     rows = list(csv.DictReader((out / 'problems.csv').open()))
     assert [(r['family'], r['budget']) for r in rows] == [
         (k.split('/')[0], b) for k in sorted(records) for b in '01']
@@ -563,7 +571,8 @@ def test_a_hung_problem_times_out_a_killed_worker_is_retried_malformed_ones_refu
     retried = records['table_pick_panda/0001']
     assert retried['outcome'] == 'built' and retried['provenance']['pid'] != killed
     assert _pids(log) == [killed, retried['provenance']['pid']]
-    assert retried['provenance']['victims_cpus_alone'] is False
+    made = retried['provenance']  # 1 CPU held: one thread, numba's pool too
+    assert made['victims_cpus_alone'] is False and made['threads'] == made['numba_threads'] == 1
     for key, words in [('box_panda/0002', 'primitives'), ('box_panda/0003', 'request0003'),
                        ('box_panda/0004', 'scene0004')]:
         assert records[key]['outcome'] == 'refused' and words in records[key]['reason']

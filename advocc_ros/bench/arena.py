@@ -33,7 +33,7 @@ import time
 from advocc_ros import __version__
 from advocc_ros.evaluation.outcomes import FAILURE_MODES, INTERNAL_ERROR, SUCCESS, record_outcome
 from advocc_ros.fileio import atomic_write_text
-from advocc_ros.provenance import cpu_model
+from advocc_ros.evaluation.provenance import cpu_model
 
 STATUS = (SUCCESS, *FAILURE_MODES, INTERNAL_ERROR)
 """The ``status`` enum of the runs: index -> outcome."""

@@ -43,7 +43,8 @@ from advocc_ros.dataset.heatmaps import (file_sha256, heatmap_path, heatmap_sett
 from advocc_ros.dataset.job import (ALONE_CPUS, OUTCOMES, BuildConfig, problem_input,
                                     run_problem)
 from advocc_ros.dataset.problems import DatasetError, Problem, discover, select
-from advocc_ros import provenance
+from advocc_ros.evaluation import provenance
+from advocc_ros.limits import available_cpus
 
 log = logging.getLogger(__name__)
 
@@ -119,7 +120,7 @@ def build(selection: Selection, out: str | pathlib.Path, config: BuildConfig,
         try:
             if todo:
                 heatmaps = robot_heatmaps(scenes, out, run.heatmap_samples, run.heatmap_seed,
-                                          given, workers=provenance.cores(), echo=echo)
+                                          given, workers=available_cpus(), echo=echo)
                 entry['heatmaps'] = {h: settings['heatmap'].get('sha256') or file_sha256(
                     heatmap_path(out, h)) for h in heatmaps}
                 _run(todo, out, config, run, echo, entry, hashes, heatmaps)
@@ -144,9 +145,9 @@ def _checked(selection: Selection, out: pathlib.Path, config: BuildConfig, run: 
     if not problems:
         raise DatasetError(f'{selection.root}: no problems in split {selection.split!r} of '
                            f'families {list(selection.families or []) or "all"}')
-    if run.ray_address is None and run.cpus_per_problem > provenance.cores():
+    if run.ray_address is None and run.cpus_per_problem > available_cpus():
         raise DatasetError(f'--cpus-per-problem {run.cpus_per_problem:g}: this process may use '
-                           f'{provenance.cores()} CPU(s); give at most that (and say so with '
+                           f'{available_cpus()} CPU(s); give at most that (and say so with '
                            'the figures: the victims then share their CPUs)')
     given = load_given(run.heatmap_file) if run.heatmap_file else None
     settings = json.loads(json.dumps({  # as build.json reads back
@@ -234,7 +235,7 @@ def _ray(run: RunConfig):
             raise DatasetError(f'--ray-address {run.ray_address}: cannot connect ({exc})') \
                 from None
         return ray
-    ray.init(address='local', num_cpus=provenance.cores(), include_dashboard=False,
+    ray.init(address='local', num_cpus=available_cpus(), include_dashboard=False,
              log_to_driver=False, namespace='advocc_dataset', _node_ip_address=LOOPBACK)
     addresses = {n.get('NodeManagerAddress') for n in ray.nodes()}
     if addresses != {LOOPBACK}:

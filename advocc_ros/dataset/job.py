@@ -108,12 +108,12 @@ def _ray_context() -> tuple[str | None, float | None]:
 
 
 def provenance(cpus: float | None, node: str | None) -> dict:
-    """What makes this record (``advocc_ros.provenance.record``: commit, dirty flag, host,
+    """What makes this record (``evaluation.provenance.record``: commit, dirty flag, host,
     CPU, cores, load, versions), with the Ray CPUs the task holds (``cpus``), the threads its
     process may run (``limits.worker_threads``; numba's pool too, once numba is loaded),
     whether its victims had their CPUs alone (``ALONE_CPUS``), its node and process."""
     from advocc_ros.limits import worker_threads
-    from advocc_ros.provenance import record
+    from advocc_ros.evaluation.provenance import record
 
     numba = sys.modules.get('numba')
     return dict(record(), cpus=cpus, threads=worker_threads(),
@@ -142,7 +142,7 @@ def task_log(log_to: dict | None, title: str) -> Iterator[dict]:
         fd, name = tempfile.mkstemp(prefix='advocc_task_', suffix='.log')
         os.close(fd)
         path = pathlib.Path(name)
-    from advocc_ros.provenance import now
+    from advocc_ros.evaluation.provenance import now
 
     with open(path, 'ab') as handle:
         handle.write(f'--- {title}: {socket.gethostname()} pid {os.getpid()}, {now()}\n'
@@ -209,7 +209,7 @@ def run_problem(problem: dict, heatmap, config: BuildConfig, log_to: dict | None
     ``provenance``), ``hardness`` (None unless evaluated), ``files`` (relative path -> YAML
     data) and ``log`` (the task's log text when ``task_log`` could not write it where the
     driver reads it, else None). Never raises."""
-    from advocc_ros.provenance import load, now
+    from advocc_ros.evaluation.provenance import load, now
 
     t0 = time.perf_counter()
     key = f'{problem["family"]}/{problem["index"]:04d}'

@@ -14,7 +14,7 @@ from advocc_ros.model.collision import CollisionWorld
 from advocc_ros.model.robot import load_robot
 from advocc_ros.model.scene import Scene
 from advocc_ros.planning.worker import Planner
-from advocc_ros.provenance import cpu_model
+from advocc_ros.evaluation.provenance import cpu_model
 from advocc_ros.planning.types import PlanningConfig
 from advocc_ros.kinematics.ik import start_configuration
 

@@ -18,7 +18,9 @@ import platform
 import socket
 import subprocess
 
-REPO = pathlib.Path(__file__).resolve().parents[1]
+from advocc_ros.limits import available_cpus
+
+REPO = pathlib.Path(__file__).resolve().parents[2]
 """The checkout this package runs from, when it runs from one (not an installed copy)."""
 CODE_PATHS = ('advocc_ros', 'config', 'setup.py')
 """What ``dirty`` looks at: the code and the robot and scene files it loads, not docs or
@@ -43,15 +45,6 @@ def cpu_model() -> str:
     except OSError:
         pass
     return platform.processor() or platform.machine()
-
-
-def cores() -> int:
-    """The CPUs this process may run on (its affinity mask, which ``taskset``, a container or
-    a cluster scheduler narrows; ``os.cpu_count`` counts the machine's)."""
-    try:
-        return max(1, len(os.sched_getaffinity(0)))
-    except AttributeError:  # not Linux
-        return os.cpu_count() or 1
 
 
 def load() -> list[float]:
@@ -111,9 +104,9 @@ def versions() -> dict:
 
 
 def machine() -> dict:
-    """``host``, ``cpu`` (model), ``cores`` (this process may use), ``machine_cores`` and
-    ``load`` (1, 5, 15 min)."""
-    return {'host': socket.gethostname(), 'cpu': cpu_model(), 'cores': cores(),
+    """``host``, ``cpu`` (model), ``cores`` (this process may use: ``limits.available_cpus``),
+    ``machine_cores`` and ``load`` (1, 5, 15 min)."""
+    return {'host': socket.gethostname(), 'cpu': cpu_model(), 'cores': available_cpus(),
             'machine_cores': os.cpu_count(), 'load': load()}
 
 
@@ -122,5 +115,5 @@ def record() -> dict:
     return {**code(), **machine(), 'versions': versions()}
 
 
-__all__ = ['CODE_PATHS', 'DISTRIBUTIONS', 'REPO', 'code', 'cores', 'cpu_model', 'load',
-           'machine', 'now', 'record', 'versions']
+__all__ = ['CODE_PATHS', 'DISTRIBUTIONS', 'REPO', 'code', 'cpu_model', 'load', 'machine', 'now',
+           'record', 'versions']
