@@ -238,8 +238,8 @@ def test_a_tasks_output_and_logs_go_to_its_log(tmp_path, capfd):
 
 
 @pytest.mark.processes  # build.json records the checkout's commit (git)
-def test_a_heatmap_that_does_not_fit_is_refused_before_any_work(tmp_path, heatmap_file,
-                                                                other_heatmap):
+def test_a_heatmap_that_does_not_fit_or_a_locked_folder_is_refused_before_any_work(
+        tmp_path, heatmap_file, other_heatmap):
     from advocc_ros.dataset.driver import RunConfig, Selection, build
     from advocc_ros.dataset.job import BuildConfig
 
@@ -251,6 +251,15 @@ def test_a_heatmap_that_does_not_fit_is_refused_before_any_work(tmp_path, heatma
         build(selection, tmp_path / 'b', BuildConfig(), RunConfig(heatmap_file=str(
             other_heatmap)))
     assert not (tmp_path / 'a').exists() and not (tmp_path / 'b').exists()
+    # A folder another build holds is refused before anything is written to it.
+    from advocc_ros.dataset import store
+
+    out = tmp_path / 'c'
+    out.mkdir()
+    with store.locked(out):
+        with pytest.raises(DatasetError, match='another build is running on this folder'):
+            build(selection, out, BuildConfig(), RunConfig())
+    assert [p.name for p in out.iterdir()] == [store.LOCK_FILE]
 
 
 @pytest.fixture(scope='module')

@@ -320,25 +320,32 @@ def _next_results(ray, pending: dict, run: RunConfig) -> list[dict]:
     """The results that arrive within the next heartbeat (at most until the nearest time
     limit), and a ``timeout`` result for every task past its limit (cancelled: its worker is
     killed). Takes them out of ``pending``."""
-    now = time.monotonic()
     nearest = min(t + run.problem_timeout_s for _, t, _ in pending.values())
     ready, _ = ray.wait(list(pending), num_returns=1,
-                        timeout=max(0.0, min(HEARTBEAT_S, nearest - now)))
-    results = []
-    for ref in ready:
-        p, _, started = pending.pop(ref)
-        try:
-            results.append(ray.get(ref))
-        except ray.exceptions.RayError as exc:
-            results.append(failed(p, *classify(exc, run.max_retries), run, started))
+                        timeout=max(0.0, min(HEARTBEAT_S, nearest - time.monotonic())))
+    results = [_result(ray, ref, pending.pop(ref), run) for ref in ready]
     for ref, (p, t, started) in list(pending.items()):
-        if time.monotonic() - t >= run.problem_timeout_s:
-            ray.cancel(ref, force=True)
-            del pending[ref]
-            results.append(failed(p, 'timeout', f'still running after '
-                                  f'{run.problem_timeout_s:g} s (--problem-timeout): cancelled, '
-                                  'its worker killed', run, started))
+        if time.monotonic() - t < run.problem_timeout_s:
+            continue
+        if ray.wait([ref], timeout=0)[0]:  # it did finish, just now
+            results.append(_result(ray, ref, pending.pop(ref), run))
+            continue
+        ray.cancel(ref, force=True)
+        del pending[ref]
+        results.append(failed(p, 'timeout', f'still running after {run.problem_timeout_s:g} s '
+                              '(--problem-timeout): cancelled, its worker killed', run,
+                              started))
     return results
+
+
+def _result(ray, ref, task: tuple, run: RunConfig) -> dict:
+    """The result of a finished task (``pending``'s ``(problem, clock, started)``), or what the
+    driver records when Ray returned an error instead (``classify``)."""
+    p, _, started = task
+    try:
+        return ray.get(ref)
+    except ray.exceptions.RayError as exc:
+        return failed(p, *classify(exc, run.max_retries), run, started)
 
 
 def _save(out: pathlib.Path, result: dict, counts: dict, bar) -> None:
