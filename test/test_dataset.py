@@ -5,7 +5,7 @@ kill -9 and resumed with a larger ``--limit``; malformed problems, a worker the 
 (SIGSTOP: a real hung worker) and one it kills (SIGKILL: a real worker death), found by the pid
 their problem's log names. Tiny settings (one box, one RRTConnect trial of 1 s) keep each
 problem to seconds; the problems folder holds copies of the same problem under several numbers,
-so the witness cache of the session serves them all."""
+so the witness cache these tests share serves them all."""
 
 import csv
 import hashlib
@@ -447,29 +447,29 @@ def _wait(proc: subprocess.Popen, condition, what: str, timeout: float = 240) ->
 
 
 def _gone(pid: int, timeout: float = 30) -> bool:
-    """Whether every process of the session ``pid`` led ends within ``timeout``."""
+    """Whether every process of the process group ``pid`` led ends within ``timeout``."""
     deadline = time.monotonic() + timeout
-    while _session(pid) and time.monotonic() < deadline:
+    while _group(pid) and time.monotonic() < deadline:
         time.sleep(0.2)
-    return not _session(pid)
+    return not _group(pid)
 
 
-def _session(pid: int) -> list[int]:
-    """The processes of the session ``pid`` leads (a build and its Ray)."""
+def _group(pid: int) -> list[int]:
+    """The live processes of the process group ``pid`` leads (a build and its Ray)."""
     found = []
     for stat in pathlib.Path('/proc').glob('[0-9]*/stat'):
         try:
             fields = stat.read_text().rsplit(')', 1)[1].split()
         except OSError:
             continue
-        if int(fields[3]) == pid and fields[0] != 'Z':
+        if int(fields[2]) == pid and fields[0] != 'Z':
             found.append(int(stat.parent.name))
     return found
 
 
 class _Build:
-    """A CLI build in a session of its own (its Ray too), output in files; on exit every
-    process of the session is killed."""
+    """A CLI build leading a process group of its own (its Ray's processes join it), output in
+    files; on exit every process of the group is killed."""
 
     def __init__(self, args, folder: pathlib.Path, name: str):
         self.stdout, self.stderr = folder / f'{name}.out', folder / f'{name}.err'
@@ -528,7 +528,7 @@ def test_builds_stopped_by_sigint_and_kill_resume_to_a_fresh_builds_summary(
         os.killpg(b.proc.pid, signal.SIGINT)  # Ctrl-C: the whole foreground group
         assert b.wait() == 130, b.text()[-3000:]
         assert 'interrupted' in b.text()
-        assert _gone(b.proc.pid), _session(b.proc.pid)  # Ray stopped with it
+        assert _gone(b.proc.pid), _group(b.proc.pid)  # Ray stopped with it
     assert _records(out) == {}
     assert [r['status'] for r in _build_record(out)['runs']] == ['interrupted']
     with _Build(args + ['--limit', 2], tmp_path, 'kill') as b:
