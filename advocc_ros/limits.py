@@ -3,10 +3,13 @@
 Each limit is enforced where the input enters (file loader or message conversion), before the
 expensive work, and the error names the limit. Per-request budgets that users tune live in the
 node configs instead (``AttackConfig.max_budget``, ``max_box_m``,
-``PlanningConfig.max_time_budget_s``).
+``PlanningConfig.max_time_budget_s``). ``worker_threads`` bounds what one process may use of the
+machine's CPUs.
 """
 
 from __future__ import annotations
+
+import os
 
 import numpy as np
 
@@ -46,6 +49,32 @@ MAX_GOAL_DISTANCE_M = 100.0
 towards 1e308 m spends every budget it has (a minute per attack request) on overflow."""
 MAX_PLANNER_QUERIES = 10_000
 """Planner queries of one planner-in-the-loop attack (PFA, PFA++)."""
+
+
+THREADS_ENV = 'ADVOCC_THREADS'
+"""Threads one process may run at once (its C++ thread pools, numba's parallel loops): set by the
+data set build to the CPUs each of its Ray tasks holds, so that a task does not take the CPUs of
+another (whose victims are being timed)."""
+
+
+def available_cpus() -> int:
+    """The CPUs this process may run on (its affinity mask, which ``taskset``, a container or
+    a cluster scheduler narrows; ``os.cpu_count`` counts the machine's)."""
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except AttributeError:  # not Linux
+        return os.cpu_count() or 1
+
+
+def worker_threads() -> int:
+    """Threads this process may run at once: ``$ADVOCC_THREADS`` (a positive integer), else
+    ``available_cpus``. ``ValueError`` for any other value."""
+    value = os.environ.get(THREADS_ENV, '').strip()
+    if not value:
+        return available_cpus()
+    if not value.isdigit() or int(value) < 1:
+        raise ValueError(f'${THREADS_ENV}={value!r}: expected a positive integer')
+    return int(value)
 
 
 def yaml_flow_depth(raw: bytes, limit: int = MAX_YAML_FLOW_DEPTH) -> None:

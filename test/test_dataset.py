@@ -1,14 +1,18 @@
-"""``advocc dataset build`` on real MotionBenchMaker problems (test/data/mbm_real): problem
-selection and bad input in-process, then real builds as the CLI runs them, on an embedded Ray,
-on a two-node Ray cluster of separate ``ray start`` processes, with a worker killed mid-problem,
-with malformed problems, and resumed. Tiny settings (one box, one RRTConnect trial of 1 s)
-keep each build to seconds of CPU; the witness cache of the session is shared, so a problem's
-witness is searched once for all tests."""
+"""``advocc dataset build`` on real MotionBenchMaker problems (test/data/mbm_real): selection,
+records and bad input in-process, then real builds as the CLI runs them, on an embedded Ray and
+on a two-node Ray cluster of separate ``ray start`` processes; builds stopped by SIGINT and by
+kill -9 and resumed with a larger ``--limit``; malformed problems, a worker the test stops
+(SIGSTOP: a real hung worker) and one it kills (SIGKILL: a real worker death), found by the pid
+their problem's log names. Tiny settings (one box, one RRTConnect trial of 1 s) keep each
+problem to seconds; the problems folder holds copies of the same problem under several numbers,
+so the witness cache these tests share serves them all."""
 
 import csv
+import hashlib
 import json
 import os
 import pathlib
+import re
 import secrets
 import shutil
 import signal
@@ -19,7 +23,7 @@ import time
 
 import pytest
 
-from advocc_ros.dataset.problems import DatasetError, discover, select, split_of
+from advocc_ros.dataset.problems import DatasetError, discover, seeded_order, select, split_of
 
 REPO = pathlib.Path(__file__).resolve().parents[1]
 REAL = REPO / 'test' / 'data' / 'mbm_real'
@@ -27,6 +31,8 @@ ADVOCC = [sys.executable, '-m', 'advocc_ros.cli']
 RAY = str(pathlib.Path(sys.executable).with_name('ray'))
 TINY = ['--budgets', '1', '--victims', 'rrtconnect', '--trials', '1', '--time', '1']
 """One box, one RRTConnect trial of 1 s: the smallest build that runs every step."""
+HEATMAP = ['--heatmap-samples', '1000']
+"""A small robot-only heatmap, built by the first build and reused by the later ones."""
 
 
 def _run(args, env=None, timeout=300) -> subprocess.CompletedProcess:
@@ -40,25 +46,35 @@ def _records(out: pathlib.Path) -> dict:
             for p in sorted(out.glob('*/*/outcome.json'))}
 
 
-@pytest.fixture(scope='module')
-def robot_heatmap(tmp_path_factory):
-    """A small robot-only heatmap of the MotionBenchMaker Panda (fingers as its files lock
-    them), shared by the builds that do not test the heatmap's own build."""
-    from advocc_ros.formats.mbm_scene import load_any_scene
-    from advocc_ros.heatmap import HeatmapConfig, build_heatmap, save_heatmap
+def _build_record(out: pathlib.Path) -> dict:
+    return json.loads((out / 'build.json').read_text())
 
-    scene = load_any_scene(REAL / 'box_panda' / 'scene0001.yaml',
-                           REAL / 'box_panda' / 'request0001.yaml')
-    path = tmp_path_factory.mktemp('robot_heatmap') / 'panda_robot_only.npz'
-    save_heatmap(build_heatmap(scene, HeatmapConfig(samples=1000, robot_only=True), seed=0),
-                 path)
-    return path
+
+def _snapshot(folder: pathlib.Path) -> dict:
+    """Every file and folder under ``folder`` with its bytes' hash and its mtime."""
+    return {str(p.relative_to(folder)): (hashlib.sha256(p.read_bytes()).hexdigest()
+                                         if p.is_file() else None, p.stat().st_mtime_ns)
+            for p in sorted(folder.rglob('*'))}
+
+
+@pytest.fixture(scope='module')
+def problems(tmp_path_factory) -> pathlib.Path:
+    """Real problems: box_panda 0001-0003 (copies of MotionBenchMaker's box problem 0001) and
+    table_pick_panda 0001."""
+    root = tmp_path_factory.mktemp('problems')
+    for family, numbers in (('box_panda', (1, 2, 3)), ('table_pick_panda', (1,))):
+        (root / family).mkdir()
+        for n in numbers:
+            for kind in ('scene', 'request'):
+                shutil.copy(REAL / family / f'{kind}0001.yaml',
+                            root / family / f'{kind}{n:04d}.yaml')
+    return root
 
 
 # --------------------------------------------------------------------------------------------
-# Selection and bad input (no process)
+# Selection, records and bad input (no process)
 
-def test_split_and_seeded_selection(tmp_path):
+def test_a_larger_limit_selects_a_superset_in_a_seeded_order(tmp_path):
     for family in ('box_panda', 'cage_panda'):
         (tmp_path / family).mkdir()
         for i in (1, 2, 39, 40, 41, 42, 77, 100):
@@ -66,23 +82,28 @@ def test_split_and_seeded_selection(tmp_path):
     problems = discover(tmp_path)
     assert len(problems) == 16 and [split_of(i) for i in (1, 40, 41, 100)] == [
         'train', 'train', 'test', 'test']
-    train = select(problems, 'train')
-    assert {p.index for p in train} == {1, 2, 39, 40}
-    test = select(problems, 'test', limit=2, seed=3)
-    assert len(test) == 4 and all(p.index > 40 for p in test)
-    assert test == select(problems, 'test', limit=2, seed=3)  # the seed decides, not the order
+    assert {p.index for p in select(problems, 'train')} == {1, 2, 39, 40}
+    for seed in range(6):
+        chosen = [select(problems, 'test', limit=n, seed=seed) for n in (1, 2, 3, 4, 5)]
+        for smaller, larger in zip(chosen, chosen[1:]):
+            assert set(smaller) <= set(larger), (seed, smaller, larger)  # a resume nests
+        assert len(chosen[0]) == 2 and len(chosen[3]) == len(chosen[4]) == 8
+        assert all(p.split == 'test' for p in chosen[4])
     draws = {tuple(p.key for p in select(problems, 'test', limit=2, seed=s)) for s in range(8)}
-    assert len(draws) > 1
-    # One family's choice does not depend on which other families are built.
+    assert len(draws) > 1  # the seed decides
+    # A problem's place depends on the seed, its family and number only: one family's choice
+    # is the same alone, and a folder with fewer problems keeps the order of the rest.
+    test = select(problems, 'test', limit=2, seed=3)
     alone = select(discover(tmp_path, ['cage']), 'test', limit=2, seed=3)
     assert alone == [p for p in test if p.family == 'cage_panda']
+    whole = seeded_order([p for p in problems if p.family == 'box_panda'], seed=3)
+    assert seeded_order(whole[::2], seed=3) == whole[::2]
     # A build takes the families in turn: stopped part-way, it has some of each.
     from advocc_ros.dataset.driver import interleaved
 
+    train = select(problems, 'train')
     order = interleaved(test + [p for p in train if p.family == 'box_panda'])
     assert [p.family[:3] for p in order] == ['box', 'cag'] * 2 + ['box'] * 4
-    assert [p for p in order if p.family == 'box_panda'] == [
-        p for p in test + train if p.family == 'box_panda']
     assert interleaved([]) == []
 
 
@@ -107,187 +128,479 @@ def test_bad_input_is_a_clear_error(tmp_path, capsys):
             (['--problems', REAL, '--budgets', '5,x'], 'comma-separated integers'),
             (['--problems', REAL, '--budgets', '0'], 'each must be in'),
             (['--problems', REAL, '--trials', '0'], '--trials'),
+            (['--problems', REAL, '--problem-timeout', '0'], '--problem-timeout > 0'),
+            (['--problems', REAL, '--cpus-per-problem', '4096'], 'this process may use'),
             (['--problems', REAL, '--split', 'test'], 'no problems in split')]:
         assert main(['dataset', 'build', '--out', str(out)] + [str(a) for a in args]) == 2
         assert message in capsys.readouterr().err
+    assert not out.exists()  # refused before anything is written
     with pytest.raises(SystemExit):
         main(['dataset', 'build', '--problems', str(REAL), '--out', str(out), '--split', 'x'])
 
 
+def test_threads_are_capped_by_the_environment_or_the_affinity(monkeypatch):
+    from advocc_ros.limits import THREADS_ENV, worker_threads
+
+    monkeypatch.setenv(THREADS_ENV, '3')
+    assert worker_threads() == 3
+    for bad in ('0', '-2', 'two', '1.5'):
+        monkeypatch.setenv(THREADS_ENV, bad)
+        with pytest.raises(ValueError, match=THREADS_ENV):
+            worker_threads()
+    monkeypatch.delenv(THREADS_ENV)
+    assert worker_threads() == len(os.sched_getaffinity(0))
+    from advocc_ros.dataset.driver import task_threads
+
+    assert [task_threads(c) for c in (0.5, 1, 2, 3.5)] == [1, 1, 2, 3]
+
+
+def test_ray_failures_are_recorded_as_what_they_are():
+    import ray.exceptions as rx
+
+    from advocc_ros.dataset.driver import classify
+
+    cases = [(rx.OutOfMemoryError('Task was killed due to the node running low on memory.'),
+              'memory', 'memory monitor'),
+             (rx.TaskCancelledError(), 'cancelled', 'cancelled outside this build'),
+             (rx.WorkerCrashedError(), 'crashed', 'died 3 time(s)'),
+             (rx.NodeDiedError('node 1 died'), 'crashed', 'node 1 died'),
+             (rx.RayTaskError('run_problem', 'Traceback ...',
+                              TypeError("cannot pickle '_thread.lock' object")),
+              'error', 'did not serialise (TypeError: cannot pickle'),
+             (rx.RaySystemError('the object store is gone'), 'error',
+              'RaySystemError: System error: the object store is gone')]
+    for exc, outcome, words in cases:
+        got = classify(exc, max_retries=2)
+        assert got[0] == outcome and words in got[1], (exc, got)
+
+
+def test_a_version_1_build_record_reads_as_its_first_run(tmp_path):
+    """The published splits' ``build.json`` (version 1: one run, its heatmap named by path)
+    reads as a version 2 record with that run as its first entry; the heatmap becomes its
+    content's hash when the file is there, and a resume that cannot compare says why."""
+    from advocc_ros.dataset import store
+    from advocc_ros.dataset.heatmaps import file_sha256
+
+    published = json.loads((REPO / 'docs/results/mbm_dataset_train/build.json').read_text())
+    assert published['version'] == 1 and 'file' in published['settings']['heatmap']
+    heatmap = tmp_path / 'robot.npz'
+    heatmap.write_bytes(b'heatmap bytes')
+    for path, expected in ((heatmap, {'sha256': file_sha256(heatmap)}),
+                           (tmp_path / 'gone.npz', {'file': str(tmp_path / 'gone.npz')})):
+        old = json.loads(json.dumps(published))
+        old['settings']['heatmap'] = {'file': str(path)}
+        out = tmp_path / path.stem
+        out.mkdir()
+        store.write_json(out / 'build.json', old)
+        record = store.read_build(out)
+        assert record['version'] == 2 and len(record['runs']) == 1
+        assert record['settings']['heatmap'] == expected
+        run = record['runs'][0]
+        assert run['selection'] == published['selection'] and run['status'] == 'finished'
+        assert run['migrated'] == {'from_version': 1, 'settings': old['settings']}
+    with pytest.raises(DatasetError, match='no longer there to compare'):
+        store.check_settings(tmp_path / 'gone', dict(record['settings'], heatmap={'sha256': 'x'}))
+    (tmp_path / 'gone' / 'build.json').write_text('{"format": "other"}')
+    with pytest.raises(DatasetError, match='not a build record'):
+        store.read_build(tmp_path / 'gone')
+
+
+@pytest.mark.processes  # the child writes to the captured descriptors; git names the commit
+def test_a_tasks_output_and_logs_go_to_its_log(tmp_path, capfd):
+    import logging
+
+    from advocc_ros.dataset.job import problem_input, run_problem, task_log
+    from advocc_ros.dataset.job import BuildConfig
+
+    with task_log({'path': str(tmp_path / 'x.log'), 'node': None}, 'a/0001') as got:
+        subprocess.run(['echo', 'a child process writes this'], check=True)
+        logging.getLogger('advocc_ros.test').info('an INFO record')
+        print('and this process', flush=True)
+    assert not (tmp_path / 'x.log').exists()  # not on the driver's node: the text comes back
+    for words in ('--- a/0001: ', 'a child process writes this', 'INFO advocc_ros.test: an '
+                  'INFO record', 'and this process', '--- a/0001: ended'):
+        assert words in got['text']
+    print('after the task', flush=True)
+    assert capfd.readouterr().out == 'after the task\n'  # the descriptors are restored
+    # A problem that does not load: refused, with its provenance and its log.
+    problem = discover(REAL, ['box'])[0]
+    data = dict(problem_input(problem), scene=b'world: [unclosed\n')
+    result = run_problem(data, None, BuildConfig(), {'path': str(tmp_path / 'y.log'),
+                                                     'node': None})
+    record = result['record']
+    assert record['outcome'] == 'refused' and 'malformed problem' in record['reason']
+    made = record['provenance']
+    assert re.fullmatch('[0-9a-f]{40}', made['commit']) and isinstance(made['dirty'], bool)
+    assert made['host'] == socket.gethostname() and made['cpus'] is None
+    assert made['threads'] >= 1 and len(made['load']) == 3 and made['versions']['numpy']
+    assert made['started'] <= made['finished']
+    assert 'box_panda/0001: refused malformed problem' in result['log']
+
+
 @pytest.mark.processes  # build.json records the checkout's commit (git)
-def test_a_heatmap_that_does_not_fit_is_refused_before_any_work(tmp_path, heatmap_file):
+def test_a_heatmap_that_does_not_fit_or_a_locked_folder_is_refused_before_any_work(
+        tmp_path, heatmap_file, other_heatmap):
     from advocc_ros.dataset.driver import RunConfig, Selection, build
     from advocc_ros.dataset.job import BuildConfig
-    from advocc_ros.heatmap import HeatmapConfig, build_heatmap, save_heatmap
-    from advocc_ros.model.scene import load_scene
 
     selection = Selection(str(REAL), ('box',))
     with pytest.raises(DatasetError, match='scene-conditioned heatmap fits one scene'):
         build(selection, tmp_path / 'a', BuildConfig(), RunConfig(heatmap_file=str(
             heatmap_file)))
-    # The problems' Panda locks its fingers at 0.04, the shipped box scene's robot does not.
-    other = tmp_path / 'srdf_fingers.npz'
-    save_heatmap(build_heatmap(load_scene(REPO / 'config' / 'scenes' / 'box.yaml'),
-                               HeatmapConfig(samples=200, robot_only=True)), other)
     with pytest.raises(DatasetError, match='not the robot of box_panda/0001'):
-        build(selection, tmp_path / 'b', BuildConfig(), RunConfig(heatmap_file=str(other)))
-    assert not list((tmp_path / 'b').glob('*/*/outcome.json'))
+        build(selection, tmp_path / 'b', BuildConfig(), RunConfig(heatmap_file=str(
+            other_heatmap)))
+    assert not (tmp_path / 'a').exists() and not (tmp_path / 'b').exists()
+    # A folder another build holds is refused before anything is written to it.
+    from advocc_ros.dataset import store
+
+    out = tmp_path / 'c'
+    out.mkdir()
+    with store.locked(out):
+        with pytest.raises(DatasetError, match='another build is running on this folder'):
+            build(selection, out, BuildConfig(), RunConfig())
+    assert [p.name for p in out.iterdir()] == [store.LOCK_FILE]
+
+
+@pytest.fixture(scope='module')
+def other_heatmap(tmp_path_factory):
+    """A robot-only heatmap of another robot (the shipped box scene's Panda, whose fingers
+    are not locked as MotionBenchMaker's problems lock them)."""
+    from advocc_ros.heatmap import HeatmapConfig, build_heatmap, save_heatmap
+    from advocc_ros.model.scene import load_scene
+
+    path = tmp_path_factory.mktemp('other_heatmap') / 'srdf_fingers.npz'
+    save_heatmap(build_heatmap(load_scene(REPO / 'config' / 'scenes' / 'box.yaml'),
+                               HeatmapConfig(samples=200, robot_only=True)), path)
+    return path
 
 
 # --------------------------------------------------------------------------------------------
 # Builds (each starts Ray and planner processes)
 
 @pytest.fixture(scope='module')
-def built(tmp_path_factory):
-    """Two real problems built on the embedded Ray, the robot-only heatmap built too: the
-    output folder and the CLI's run."""
+def built(tmp_path_factory, problems):
+    """A fresh build of two problems per family on the embedded Ray, its robot-only heatmap
+    built too: the output folder and the CLI's run."""
     out = tmp_path_factory.mktemp('dataset') / 'out'
     t0 = time.monotonic()
-    run = _run(['--problems', REAL, '--families', 'box,table_pick', '--out', out,
-                '--heatmap-samples', 1000] + TINY)
+    run = _run(['--problems', problems, '--out', out, '--limit', 2] + HEATMAP + TINY)
     print(f'embedded build: {time.monotonic() - t0:.1f} s wall')
     return out, run
 
 
+@pytest.fixture(scope='module')
+def robot_heatmap(built) -> pathlib.Path:
+    """The robot-only heatmap the first build made (a file of its own)."""
+    out, _ = built
+    return next((out / 'heatmaps').glob('robot-*.npz'))
+
+
+def _selection(problems: pathlib.Path, limit: int) -> list[str]:
+    return [p.key for p in select(discover(problems), 'all', limit, 0)]
+
+
 @pytest.mark.processes
-def test_build_on_embedded_ray(built):
+def test_build_on_embedded_ray(built, problems):
     from advocc_ros.formats.mbm_export import load_trajectory
     from advocc_ros.formats.mbm_scene import load_any_scene
 
     out, run = built
     assert run.returncode == 0, run.stderr[-3000:]
-    assert '2 built' in run.stdout and 'done=2, failed=0, left=0' in run.stderr
+    assert '3 built' in run.stdout and 'done=3, left=0' in run.stderr
     records = _records(out)
-    assert sorted(records) == ['box_panda/0001', 'table_pick_panda/0001']
+    assert sorted(records) == sorted(_selection(problems, 2))  # 2 of box's 3, table_pick's 1
+    commit = subprocess.run(['git', '-C', str(REPO), 'rev-parse', 'HEAD'], capture_output=True,
+                            text=True, check=True).stdout.strip()
     for key, record in records.items():
         assert record['outcome'] == 'built' and record['split'] == 'train', record
+        made = record['provenance']
+        assert made['commit'] == commit and isinstance(made['dirty'], bool)
+        assert made['cpus'] == 2 and made['threads'] == 2 and made['numba_threads'] == 2
+        assert made['victims_cpus_alone'] is True and made['host'] and made['cpu']
+        assert made['started'] <= made['finished'] and len(made['load_end']) == 3
         folder = out / key
         hardness = json.loads((folder / 'hardness.json').read_text())
         attack = hardness['attacks']['1']
         assert attack['certificate'] == 'certified' and attack['boxes'] == 1
         cell = attack['victims']['rrtconnect']
-        assert cell['trials'] == 1 and set(cell['failures']) >= {'timed out', 'goal not sampled'}
-        assert 'first_solution_median_s' in cell and 'pt_ratio' in cell
+        assert cell['trials'] == 1 and 'first_solution_median_s' in cell and 'pt_ratio' in cell
         assert hardness['unattacked']['rrtconnect']['trials'] == 1
-        # The exported problem reads back: the scene's objects and the box, its witness.
-        family = key.split('/')[0]
-        original = load_any_scene(REAL / family / 'scene0001.yaml',
-                                  REAL / family / 'request0001.yaml')
-        exported = load_any_scene(folder / 'm1' / 'scene0001.yaml',
-                                  folder / 'm1' / 'request0001.yaml')
+        family, number = key.split('/')
+        original = load_any_scene(problems / family / f'scene{number}.yaml',
+                                  problems / family / f'request{number}.yaml')
+        exported = load_any_scene(folder / 'm1' / f'scene{number}.yaml',
+                                  folder / 'm1' / f'request{number}.yaml')
         assert len(exported.objects) == len(original.objects) + 1
-        names, waypoints = load_trajectory(folder / 'm1' / 'trajectory0001.yaml')
+        names, waypoints = load_trajectory(folder / 'm1' / f'trajectory{number}.yaml')
         assert len(names) == 7 and len(waypoints) == attack['witness_waypoints']
+        log = (out / 'logs' / f'{key}.log').read_text()
+        assert f'--- {key}: ' in log and 'attack at M=1' in log and f'{key}: built' in log
     assert len(list((out / 'heatmaps').glob('robot-*.npz'))) == 1  # one robot, one heatmap
-    build = json.loads((out / 'build.json').read_text())
-    assert build['status'] == 'finished' and build['counts'] == {'built': 2}
-    assert build['versions']['ray'] == '2.60.0' and build['versions']['numpy']
-    assert build['settings']['build']['budgets'] == [1]
-    assert build['selection']['problems'] == ['box_panda/0001', 'table_pick_panda/0001']
+    build = _build_record(out)
+    assert build['version'] == 2 and build['settings']['build']['budgets'] == [1]
+    [entry] = build['runs']
+    assert entry['status'] == 'finished' and entry['counts'] == {'built': 3}
+    assert entry['provenance']['commit'] == commit and entry['provenance']['versions']['ray']
+    assert entry['selection']['problems'] == _selection(problems, 2)
+    assert entry['timing']['victims_cpus_alone'] is True
+    assert entry['timing']['cpus_per_problem'] == 2
+    assert entry['run']['problem_timeout_s'] == 3600 and entry['cluster']['nodes'] == 1
     summary = json.loads((out / 'summary.json').read_text())
+    assert summary['made']['timing_of_built_problems'] == {
+        'victims_cpus_alone': 3, 'shared': 0, 'unknown': 0}
     pooled = next(g for g in summary['groups'] if g['family'] == 'all')
-    assert pooled['split'] == 'train' and pooled['problems'] == 2
-    assert pooled['shares']['built'] == 1.0 and pooled['budgets']['1']['evaluated'] == 2
-    assert '| box_panda | 1 |' in (out / 'summary.md').read_text()
+    assert pooled['split'] == 'train' and pooled['problems'] == 3
+    assert pooled['shares']['built'] == 1.0 and pooled['budgets']['1']['evaluated'] == 3
+    text = (out / 'summary.md').read_text()
+    assert '| box_panda | 2 |' in text and f'`{commit[:12]}' in text and 'alone' in text
     assert (out / 'summary.png').read_bytes()[:4] == b'\x89PNG'
-    # problems.csv: per problem, the unattacked row and the attacked one, per victim.
+
+
+@pytest.mark.processes  # the `built` fixture runs a build
+def test_every_table_row_names_its_making(built):
+    """problems.csv: per problem, the unattacked row and the attacked one, each with its
+    problem's provenance."""
+    out, run = built
+    assert run.returncode == 0, run.stderr[-3000:]
+    records = _records(out)
+    commit = records['table_pick_panda/0001']['provenance']['commit']
     rows = list(csv.DictReader((out / 'problems.csv').open()))
-    assert [(r['family'], r['budget'], r['victim']) for r in rows] == [
-        ('box_panda', '0', 'rrtconnect'), ('box_panda', '1', 'rrtconnect'),
-        ('table_pick_panda', '0', 'rrtconnect'), ('table_pick_panda', '1', 'rrtconnect')]
-    attacked = json.loads((out / 'box_panda/0001/hardness.json').read_text())['attacks']['1']
+    assert [(r['family'], r['budget']) for r in rows] == [
+        (k.split('/')[0], b) for k in sorted(records) for b in '01']
+    for row in rows:
+        made = records[f'{row["family"]}/{row["problem"]}']['provenance']
+        assert row['commit'] == commit and row['host'] == made['host'] and row['cpus'] == '2.0'
+        assert row['started'] == made['started'] and f'ray={made["versions"]["ray"]}' in \
+            row['versions'] and float(row['load_start']) == made['load'][0]
+    attacked = json.loads((out / rows[1]['family'] / rows[1]['problem'] / 'hardness.json')
+                          .read_text())['attacks']['1']
     assert rows[1]['certificate'] == 'certified' and rows[1]['boxes'] == '1'
     assert float(rows[1]['psr']) == attacked['victims']['rrtconnect']['psr']
 
 
 @pytest.mark.processes  # the `built` fixture runs a build
 def test_summary_rewrites_a_build_folders_summary(built, tmp_path, capsys):
-    """``advocc dataset summary`` summarises what a folder holds (a stopped build's too); a
-    folder without a build record is a clear error."""
+    """``advocc dataset summary`` summarises the selection of the folder's last run, as far
+    as it got; records outside the selection do not count; a folder without a build record is
+    a clear error."""
     from advocc_ros.cli import main
 
     out, _ = built
     copy = tmp_path / 'copy'
     shutil.copytree(out, copy)
-    shutil.rmtree(copy / 'table_pick_panda')  # as if stopped before its second problem
+    shutil.rmtree(copy / 'table_pick_panda')  # as if stopped before that problem
+    shutil.copytree(copy / 'box_panda' / '0001', copy / 'box_panda' / '0099')  # not selected
     for name in ('summary.json', 'summary.md', 'problems.csv'):
         (copy / name).unlink()
     assert main(['dataset', 'summary', str(copy)]) == 0
-    assert '| box_panda | 1 |' in capsys.readouterr().out
+    assert '| box_panda | 2 |' in capsys.readouterr().out
     summary = json.loads((copy / 'summary.json').read_text())
-    assert summary['problems'] == 1 and len((copy / 'problems.csv').read_text().splitlines()) == 3
+    assert summary['problems'] == 2 and summary['selected'] == 3
+    assert len((copy / 'problems.csv').read_text().splitlines()) == 5
     assert main(['dataset', 'summary', str(tmp_path / 'nowhere')]) == 2
     assert 'not a data set build folder' in capsys.readouterr().err
 
 
 @pytest.mark.processes
-def test_resume_redoes_only_unfinished_problems(built, robot_heatmap):
+def test_refused_settings_leave_the_folder_as_it_was(built, problems, robot_heatmap,
+                                                     other_heatmap, tmp_path):
+    """A resume with nothing left starts no Ray (and adds its entry); other build settings,
+    a heatmap file instead of the built one, another robot's and a missing one are refused
+    and change nothing in the folder."""
     out, run = built
     assert run.returncode == 0, run.stderr[-3000:]
-    before = _records(out)
-    # A stop between a problem's files and its outcome record: that problem is redone.
-    (out / 'table_pick_panda' / '0001' / 'outcome.json').unlink()
-    again = _run(['--problems', REAL, '--families', 'box,table_pick', '--out', out,
-                  '--heatmap-samples', 1000] + TINY)
-    assert again.returncode == 0, again.stderr[-3000:]
-    assert '1 already finished' in again.stderr and 'this run: 1 built' in again.stdout
-    after = _records(out)
-    assert after['box_panda/0001'] == before['box_panda/0001']  # not redone
-    assert after['table_pick_panda/0001']['outcome'] == 'built'
-    # Nothing left: no Ray is started at all; other settings are refused.
-    third = _run(['--problems', REAL, '--families', 'box,table_pick', '--out', out,
-                  '--heatmap-samples', 1000] + TINY)
-    assert third.returncode == 0 and 'nothing to do' in third.stdout
-    assert 'Ray' not in third.stderr
-    other = _run(['--problems', REAL, '--families', 'box', '--out', out, '--heatmap-samples',
-                  1000] + TINY[:-2] + ['--time', '2'])
-    assert other.returncode == 2 and 'other settings (build)' in other.stderr
+    base = ['--problems', problems, '--limit', 2, '--out', out] + TINY
+    again = _run(base + HEATMAP)
+    assert again.returncode == 0 and 'nothing to do' in again.stdout, again.stderr[-3000:]
+    assert 'Ray' not in again.stderr
+    assert [r['status'] for r in _build_record(out)['runs']] == ['finished', 'finished']
+    before = _snapshot(out)
+    for args, words in [
+            (TINY[:-2] + ['--time', '2'] + HEATMAP, 'other settings (build)'),
+            (['--heatmap', robot_heatmap], 'other settings (heatmap)'),
+            (['--heatmap', other_heatmap], 'other settings (heatmap)'),
+            (['--heatmap', tmp_path / 'no_such.npz'], 'no_such.npz')]:
+        refused = _run(base + args)
+        assert refused.returncode == 2 and words in refused.stderr, (args, refused.stderr)
+        assert _snapshot(out) == before, args
+
+
+def _pids(log: pathlib.Path) -> list[int]:
+    """The worker pids of the attempts a problem's log names, in order."""
+    text = log.read_text() if log.exists() else ''
+    return [int(pid) for pid in re.findall(r'^--- \S+: \S+ pid (\d+), ', text, re.M)]
+
+
+def _started(proc: subprocess.Popen, log: pathlib.Path, timeout: float = 240) -> int:
+    """The pid of the worker running the problem of ``log``, once its job has started."""
+    _wait(proc, lambda: _pids(log), f'{log.name} started', timeout)
+    return _pids(log)[0]
+
+
+def _wait(proc: subprocess.Popen, condition, what: str, timeout: float = 240) -> None:
+    deadline = time.monotonic() + timeout
+    while not condition():
+        assert proc.poll() is None, f'the build ended before {what}'
+        assert time.monotonic() < deadline, f'no {what} within {timeout} s'
+        time.sleep(0.1)
+
+
+def _gone(pid: int, timeout: float = 30) -> bool:
+    """Whether every process of the process group ``pid`` led ends within ``timeout``."""
+    deadline = time.monotonic() + timeout
+    while _group(pid) and time.monotonic() < deadline:
+        time.sleep(0.2)
+    return not _group(pid)
+
+
+def _group(pid: int) -> list[int]:
+    """The live processes of the process group ``pid`` leads (a build and its Ray)."""
+    found = []
+    for stat in pathlib.Path('/proc').glob('[0-9]*/stat'):
+        try:
+            fields = stat.read_text().rsplit(')', 1)[1].split()
+        except OSError:
+            continue
+        if int(fields[2]) == pid and fields[0] != 'Z':
+            found.append(int(stat.parent.name))
+    return found
+
+
+class _Build:
+    """A CLI build leading a process group of its own (its Ray's processes join it), output in
+    files; on exit every process of the group is killed."""
+
+    def __init__(self, args, folder: pathlib.Path, name: str):
+        self.stdout, self.stderr = folder / f'{name}.out', folder / f'{name}.err'
+        with open(self.stdout, 'w') as out, open(self.stderr, 'w') as err:
+            self.proc = subprocess.Popen(
+                ADVOCC + ['dataset', 'build'] + [str(a) for a in args], cwd=REPO,
+                env=dict(os.environ, PYTHONUNBUFFERED='1'), stdout=out, stderr=err,
+                start_new_session=True)
+
+    def __enter__(self):
+        return self
+
+    def wait(self, timeout: float = 300) -> int:
+        return self.proc.wait(timeout)
+
+    def text(self) -> str:
+        return self.stdout.read_text() + self.stderr.read_text()
+
+    def __exit__(self, *exc):
+        try:
+            os.killpg(self.proc.pid, signal.SIGKILL)
+        except ProcessLookupError:
+            pass
+        self.proc.wait(30)
+
+
+def _results(out: pathlib.Path) -> dict:
+    """What a build found, without what a clock or a machine decides (PSR and times of one
+    1 s trial on a shared machine, provenance): the summary's counts per group and the
+    table's rows up to the trials."""
+    summary = json.loads((out / 'summary.json').read_text())
+    groups = [{k: g[k] for k in ('family', 'split', 'problems', 'outcomes')}
+              | {'evaluated': {b: c['evaluated'] for b, c in g['budgets'].items()}}
+              for g in summary['groups']]
+    keep = ('family', 'problem', 'split', 'outcome', 'budget', 'certificate', 'boxes',
+            'victim', 'trials')
+    rows = [{k: r[k] for k in keep} for r in csv.DictReader((out / 'problems.csv').open())]
+    return {'problems': summary['problems'], 'selected': summary['selected'],
+            'settings': summary['settings'], 'groups': groups, 'rows': rows}
 
 
 @pytest.mark.processes
-def test_malformed_problems_are_refused_and_the_rest_built(tmp_path, robot_heatmap):
-    problems = tmp_path / 'problems' / 'box_panda'
-    problems.mkdir(parents=True)
-    for name in ('scene0001.yaml', 'request0001.yaml'):
-        shutil.copy(REAL / 'box_panda' / name, problems / name)
-    text = (REAL / 'box_panda' / 'scene0001.yaml').read_text()
-    assert 'type: box' in text
-    (problems / 'scene0002.yaml').write_text(text.replace('type: box', 'type: blob', 1))
-    shutil.copy(REAL / 'box_panda' / 'request0001.yaml', problems / 'request0002.yaml')
-    (problems / 'scene0003.yaml').write_text(text)  # no request0003.yaml
-    (problems / 'scene0004.yaml').write_text('world: [unclosed\n')
-    shutil.copy(REAL / 'box_panda' / 'request0001.yaml', problems / 'request0004.yaml')
-    out = tmp_path / 'out'
-    run = _run(['--problems', tmp_path / 'problems', '--out', out, '--heatmap', robot_heatmap]
-               + TINY)
+def test_builds_stopped_by_sigint_and_kill_resume_to_a_fresh_builds_summary(
+        built, problems, tmp_path):
+    """Ctrl-C during the first problem of --limit 1; kill -9 of the driver after the first
+    problem of --limit 2; a resume with --limit 2: the same records and summary as the
+    fresh build of --limit 2, and one build.json entry per run."""
+    fresh, run = built
     assert run.returncode == 0, run.stderr[-3000:]
+    out = tmp_path / 'out'
+    shutil.copytree(fresh / 'heatmaps', out / 'heatmaps')  # reused, as by any resume
+    args = ['--problems', problems, '--out', out] + HEATMAP + TINY
+    first = _selection(problems, 1)[0]
+    with _Build(args + ['--limit', 1], tmp_path, 'sigint') as b:
+        _started(b.proc, out / 'logs' / f'{first}.log')
+        os.killpg(b.proc.pid, signal.SIGINT)  # Ctrl-C: the whole foreground group
+        assert b.wait() == 130, b.text()[-3000:]
+        assert 'interrupted' in b.text()
+        assert _gone(b.proc.pid), _group(b.proc.pid)  # Ray stopped with it
+    assert _records(out) == {}
+    assert [r['status'] for r in _build_record(out)['runs']] == ['interrupted']
+    with _Build(args + ['--limit', 2], tmp_path, 'kill') as b:
+        _wait(b.proc, lambda: _records(out), 'first record')
+        b.proc.kill()
+        b.wait()
+    assert list(_records(out)) == [first]
+    with _Build(args + ['--limit', 2], tmp_path, 'resume') as b:
+        assert b.wait() == 0, b.text()[-3000:]
+        assert '1 already finished' in b.text() and '2 built' in b.text()
+    runs = _build_record(out)['runs']
+    assert [r['status'] for r in runs] == ['interrupted', 'running', 'finished']
+    assert [r['resumed'] for r in runs] == [0, 0, 1] and runs[2]['counts'] == {'built': 2}
+    assert sorted(_records(out)) == sorted(_records(fresh)) == sorted(_selection(problems, 2))
+    assert _results(out) == _results(fresh)
+
+
+@pytest.mark.processes
+def test_a_hung_problem_times_out_a_killed_worker_is_retried_malformed_ones_refused(
+        problems, robot_heatmap, tmp_path):
+    """Box problem 0001 hangs (its worker stopped by SIGSTOP) and is cancelled at
+    --problem-timeout; table_pick's worker is killed (SIGKILL) once its job has started and Ray
+    runs it again; three malformed problems are refused; the build finishes."""
+    folder = tmp_path / 'problems'
+    shutil.copytree(problems, folder)
+    box = folder / 'box_panda'
+    text = (box / 'scene0001.yaml').read_text()
+    assert 'type: box' in text
+    (box / 'scene0002.yaml').write_text(text.replace('type: box', 'type: blob', 1))
+    (box / 'request0003.yaml').unlink()
+    (box / 'scene0004.yaml').write_text('world: [unclosed\n')
+    shutil.copy(box / 'request0001.yaml', box / 'request0004.yaml')
+    out = tmp_path / 'out'
+    timeout = 45  # the killed problem's two attempts fit in it on a loaded 2-core machine
+    with _Build(['--problems', folder, '--out', out, '--heatmap', robot_heatmap,
+                 '--cpus-per-problem', 1, '--max-retries', 1, '--problem-timeout', timeout]
+                + TINY, tmp_path, 'faults') as b:
+        os.kill(_started(b.proc, out / 'logs/box_panda/0001.log'), signal.SIGSTOP)
+        log = out / 'logs/table_pick_panda/0001.log'
+        killed = _started(b.proc, log)
+        os.kill(killed, signal.SIGKILL)  # mid-problem: its job has started
+        assert b.wait() == 0, b.text()[-3000:]
     records = _records(out)
-    assert records['box_panda/0001']['outcome'] == 'built'
+    hung = records['box_panda/0001']
+    assert hung['outcome'] == 'timeout' and hung['timeout_s'] == timeout
+    assert f'still running after {timeout} s' in hung['reason']
+    assert hung['provenance']['by'] == 'driver' and hung['provenance']['commit']
+    assert 'the driver' in (out / 'logs/box_panda/0001.log').read_text()
+    retried = records['table_pick_panda/0001']
+    assert retried['outcome'] == 'built' and retried['provenance']['pid'] != killed
+    assert _pids(log) == [killed, retried['provenance']['pid']]
+    made = retried['provenance']  # 1 CPU held: one thread, numba's pool too
+    assert made['victims_cpus_alone'] is False and made['threads'] == made['numba_threads'] == 1
     for key, words in [('box_panda/0002', 'primitives'), ('box_panda/0003', 'request0003'),
                        ('box_panda/0004', 'scene0004')]:
-        assert records[key]['outcome'] == 'refused', records[key]
-        assert words in records[key]['reason'], records[key]
+        assert records[key]['outcome'] == 'refused' and words in records[key]['reason']
     summary = json.loads((out / 'summary.json').read_text())
     pooled = next(g for g in summary['groups'] if g['family'] == 'all')
-    assert pooled['outcomes']['refused'] == 3 and pooled['shares']['built'] == 0.25
+    assert pooled['outcomes']['timeout'] == 1 and pooled['outcomes']['refused'] == 3
+    assert summary['made']['timing_of_built_problems']['shared'] == 1
+    assert any(e.startswith('box_panda/0001: timeout') for e in summary['errors'])
+    # The same limit keeps the timeout (no Ray); a larger one gives it another try. The
+    # heatmap is the same by its content, wherever it lies.
+    copied = tmp_path / 'elsewhere.npz'
+    shutil.copy(robot_heatmap, copied)
+    again = _run(['--problems', folder, '--out', out, '--heatmap', copied,
+                  '--cpus-per-problem', 1, '--problem-timeout', timeout] + TINY)
+    assert again.returncode == 0 and 'nothing to do' in again.stdout, again.stderr[-2000:]
+    from advocc_ros.dataset.store import finished
 
-
-@pytest.mark.processes
-def test_a_killed_worker_is_retried_and_every_problem_done_once(tmp_path, robot_heatmap):
-    from advocc_ros.dataset.job import KILL_ONCE_ENV
-
-    marker = tmp_path / 'killed'
-    out = tmp_path / 'out'
-    run = _run(['--problems', REAL, '--families', 'box,table_pick', '--out', out, '--heatmap',
-                robot_heatmap] + TINY, env=dict(os.environ, **{KILL_ONCE_ENV: str(marker)}))
-    assert run.returncode == 0, run.stderr[-3000:]
-    killed = int(marker.read_text())  # the hook killed a worker: SIGKILL, no clean-up
-    records = _records(out)
-    assert sorted(records) == ['box_panda/0001', 'table_pick_panda/0001']
-    assert all(r['outcome'] == 'built' for r in records.values()), records
-    assert killed not in {r['pid'] for r in records.values()}
-    build = json.loads((out / 'build.json').read_text())
-    assert build['counts'] == {'built': 2}
+    assert finished(out, 'box_panda', '0001', timeout) == hung
+    assert finished(out, 'box_panda', '0001', timeout + 1) is None
 
 
 def _free_port() -> int:
@@ -342,16 +655,22 @@ def test_build_on_a_two_node_ray_cluster(tmp_path, robot_heatmap):
             assert nodes[1].poll() is None and time.monotonic() < deadline, 'no worker node'
             time.sleep(1)
         out = tmp_path / 'out'
-        run = _run(['--problems', REAL, '--families', 'box,table_pick', '--out', out,
-                    '--heatmap', robot_heatmap, '--ray-address', f'127.0.0.1:{port}'] + TINY,
-                   env=env)
+        address = ['--ray-address', f'127.0.0.1:{port}']
+        args = ['--problems', REAL, '--families', 'box,table_pick', '--out', out, '--heatmap',
+                robot_heatmap] + address + TINY
+        refused = _run(args, env=env)  # 2 CPUs per problem by default: no node has them
+        assert refused.returncode == 2 and 'no node of the Ray cluster' in refused.stderr
+        run = _run(args + ['--cpus-per-problem', 1], env=env)
         assert run.returncode == 0, run.stderr[-3000:]
         records = _records(out)
         assert [r['outcome'] for r in records.values()] == ['built', 'built'], records
         # One CPU per node and two problems at once: one problem ran on each node.
-        assert len({r['node'] for r in records.values()}) == 2, records
-        build = json.loads((out / 'build.json').read_text())
-        assert build['cluster']['nodes'] == 2 and build['cluster']['resources']['CPU'] == 2
+        assert len({r['provenance']['node'] for r in records.values()}) == 2, records
+        entry = _build_record(out)['runs'][-1]
+        assert entry['cluster']['nodes'] == 2 and entry['cluster']['resources']['CPU'] == 2
+        assert entry['timing']['victims_cpus_alone'] is False
+        for key in records:  # the logs came back with the results
+            assert 'attack at M=1' in (out / 'logs' / f'{key}.log').read_text()
     finally:
         for proc in reversed(nodes):
             _stop(proc)

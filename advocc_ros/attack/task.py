@@ -32,7 +32,6 @@ from __future__ import annotations
 import dataclasses
 import math
 import numbers
-import os
 import time
 from typing import Any, Mapping
 
@@ -47,6 +46,7 @@ from advocc_ros.attack.solvable import WitnessGuard
 from advocc_ros.attack.types import AttackConfig
 from advocc_ros.heatmap import placement_arrays, sample_weights
 from advocc_ros.kinematics.goal_batch import GoalDraw, goal_pocket, task_goals
+from advocc_ros.limits import worker_threads
 from advocc_ros.model.collision import CollisionWorld, shared_world
 
 
@@ -110,8 +110,9 @@ def task_options(mapping: Mapping[str, Any]) -> TaskOptions:
     return TaskOptions(**values)
 
 
-THREADS = os.cpu_count() or 1
-"""Threads of the batched collision passes (C++): every core; the flags do not depend on it."""
+THREADS = worker_threads()
+"""Threads of the batched collision passes (C++): the CPUs this process holds; the flags do not
+depend on it."""
 
 
 def approach_samples(world: CollisionWorld, q_init: np.ndarray, Q_goal: np.ndarray,

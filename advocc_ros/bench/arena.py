@@ -24,7 +24,6 @@ import dataclasses
 import json
 import os
 import pathlib
-import platform
 import re
 import socket
 import sqlite3
@@ -34,6 +33,7 @@ import time
 from advocc_ros import __version__
 from advocc_ros.evaluation.outcomes import FAILURE_MODES, INTERNAL_ERROR, SUCCESS, record_outcome
 from advocc_ros.fileio import atomic_write_text
+from advocc_ros.evaluation.provenance import cpu_model
 
 STATUS = (SUCCESS, *FAILURE_MODES, INTERNAL_ERROR)
 """The ``status`` enum of the runs: index -> outcome."""
@@ -102,16 +102,6 @@ def experiments(records: list[dict], time_limit_s: float) -> list[Experiment]:
         for runs in exp.runs.values():
             runs.sort(key=lambda r: r.get('trial', 0))
     return list(out.values())
-
-
-def _cpu() -> str:
-    try:
-        for line in pathlib.Path('/proc/cpuinfo').read_text().splitlines():
-            if line.startswith('model name'):
-                return line.split(':', 1)[1].strip()
-    except OSError:
-        pass
-    return platform.processor() or platform.machine()
 
 
 def _value(value) -> str:
@@ -219,7 +209,7 @@ def write_ompl_results(run_dir: str | pathlib.Path, records: list[dict], cfg
     if not exps:
         return {}
     setup = json.dumps(cfg.to_data(), sort_keys=True)
-    host, cpu = socket.gethostname(), _cpu()
+    host, cpu = socket.gethostname(), cpu_model()
     out = {}
     for exp in exps:
         name = f'ompl_logs/{exp.name}.log'

@@ -6,9 +6,11 @@ stopped included).
 Per problem: the task check, the witness, the ``task`` attack under the ``solvable`` policy at
 each budget, the continuous certificate, the victims on the unattacked and the attacked
 problem, and the attacked problem exported in MotionBenchMaker's format with its
-``hardness.json``; per data set ``summary.json``, ``summary.md``, ``summary.png`` and
-``build.json`` (settings, versions). Running it again on the same ``--out`` resumes: finished
-problems are not redone. docs/dataset.md has the details.
+``hardness.json``; per data set ``summary.json``, ``summary.md``, ``summary.png``,
+``problems.csv``, ``build.json`` (the settings, and one entry per run) and ``logs/``. Every record
+names its making (commit, host, CPU, CPUs held, load, versions, times). Running it again on the
+same ``--out`` resumes: finished problems are not redone, and a larger ``--limit`` adds problems
+to those chosen before. docs/dataset.md has the details.
 """
 
 from __future__ import annotations
@@ -43,8 +45,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument('--split', choices=SPLITS, default='all',
                    help=f'train: problems 1-{TRAIN_LAST} of each family, test: the rest '
                    '(default %(default)s)')
-    p.add_argument('--limit', type=int, metavar='N', help='at most N problems per family, a '
-                   'seeded random sample of the split (--seed)')
+    p.add_argument('--limit', type=int, metavar='N', help='the first N problems of each family '
+                   'in a seeded order of the split (--seed): a larger N keeps the smaller\'s')
     p.add_argument('--budgets', default=','.join(map(str, build.budgets)), metavar='M,M',
                    help='boxes per attack, each attacked on its own (default %(default)s)')
     p.add_argument('--victims', default=','.join(build.victims), metavar='A,B',
@@ -67,7 +69,12 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument('--max-retries', type=int, default=run.max_retries,
                    help='runs of a problem again after its worker died (default %(default)s)')
     p.add_argument('--cpus-per-problem', type=float, default=run.cpus_per_problem,
-                   help='Ray CPUs each problem holds (default %(default)s)')
+                   help='Ray CPUs each problem holds; its threads are capped at them (default '
+                   '%(default)g: the victims\' times share no CPU with the build; fewer is '
+                   'recorded as shared)')
+    p.add_argument('--problem-timeout', type=float, default=run.problem_timeout_s,
+                   metavar='SECONDS', help='a problem still running this long is cancelled '
+                   'and recorded as timeout (default %(default)g s)')
     p.add_argument('--json', action='store_true', help='print the build record as JSON')
     p.set_defaults(func=_build)
     p = verbs.add_parser('summary', help='write the summary of a build folder again (what it '
@@ -121,14 +128,16 @@ def _config(args: argparse.Namespace):
     given = () if options is None else tuple(
         (k, v) for k, v in dataclasses.asdict(options).items()
         if v != getattr(TaskOptions(), k))
-    if args.max_retries < 0 or args.cpus_per_problem <= 0 or args.heatmap_samples < 1:
-        raise UserError('--max-retries must be >= 0, --cpus-per-problem > 0 and '
-                        '--heatmap-samples >= 1')
+    if args.max_retries < 0 or args.cpus_per_problem <= 0 or args.heatmap_samples < 1 \
+            or not args.problem_timeout > 0:
+        raise UserError('--max-retries must be >= 0, --cpus-per-problem > 0, '
+                        '--heatmap-samples >= 1 and --problem-timeout > 0')
     build = BuildConfig(budgets=tuple(sorted(set(budgets))), victims=victims,
                         trials=args.trials, time_s=args.time, seed=args.seed,
                         task_options=given, goal_tol=args.goal_tol)
     run = RunConfig(ray_address=args.ray_address, max_retries=args.max_retries,
                     cpus_per_problem=args.cpus_per_problem,
+                    problem_timeout_s=args.problem_timeout,
                     heatmap_samples=args.heatmap_samples, heatmap_file=args.heatmap)
     return build, run
 
@@ -153,14 +162,15 @@ def _build(args: argparse.Namespace) -> int:
     config, run = _config(args)
     selection = Selection(args.problems, _names(args.families) or None, args.split, args.limit,
                           args.seed)
-    record = build(selection, args.out, config, run)
+    entry = build(selection, args.out, config, run)
     if args.json:
-        print(json.dumps(record, indent=1))
+        print(json.dumps(entry, indent=1))
         return 0
-    summary = record['summary']
-    print(f'{args.out}: {summary["problems"]} problems in the data set; this run: '
-          + (', '.join(f'{v} {k}' for k, v in record['counts'].items()) or 'nothing to do')
-          + f' in {record["wall_s"]:.0f} s')
+    summary = entry['summary']
+    print(f'{args.out}: {summary["problems"]} of {summary["selected"]} selected problems '
+          'recorded; this run: '
+          + (', '.join(f'{v} {k}' for k, v in entry.get('counts', {}).items())
+             or 'nothing to do') + f' in {entry["wall_s"]:.0f} s')
     for g in summary['groups']:
         if g['family'] != 'all':
             continue
@@ -169,7 +179,8 @@ def _build(args: argparse.Namespace) -> int:
             for b, cell in g['budgets'].items() if cell['all_victims_psr_le_20'] is not None)
         print(f'  {g["split"]}: {g["outcomes"]["built"]} of {g["problems"]} built; every '
               f'victim at PSR <= 20 %: {beaten or "none evaluated"}')
+    print(f'  {entry["timing"]["note"]}')
     for line in summary['errors']:
-        print(f'  error: {line}', file=sys.stderr)
+        print(f'  not finished: {line}', file=sys.stderr)
     print(f'  see {args.out}/summary.md')
     return 0

@@ -1,18 +1,35 @@
-"""The build on Ray: one Ray task per problem, resumable, with progress.
+"""The build on Ray: one Ray task per problem, resumable, with progress, a time limit per
+problem and a record of every run.
 
-Without an address a local Ray is started in this process (``num_cpus`` = this machine's cores,
-no dashboard, every socket on the loopback interface); with ``ray_address`` (``HOST:PORT`` of a
-``ray start --head``) the build runs on that cluster, whose nodes must run this same
-installation. A task whose worker process dies is retried by Ray (``max_retries``); one that
-keeps dying is recorded as ``error``. Results come back to the driver as data and are written
-here, atomically (``dataset.store``), as they arrive: a stopped build, run again with the same
-settings and ``--out``, skips every finished problem.
+Everything that can be refused is checked before anything is written (the problems, the settings
+against those of the folder's earlier runs, a given heatmap's kind and robot, the CPUs a problem
+asks for), so a refused build leaves the folder as it was. Then the folder is locked, this run's
+entry appended to ``build.json``, the robot-only heatmaps built, and the problems not finished yet
+run.
+
+Without an address a local Ray is started in this process (every CPU this process may use, no
+dashboard) on the loopback address: ``RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER=0`` before Ray is
+imported (the variable Ray's cluster docs name; off, Ray's node address is the loopback) and
+``ray.init``'s documented ``_node_ip_address`` (which alone Ray turns into the machine's address
+on Linux); the node's address is checked after the start. With ``ray_address`` (``HOST:PORT`` of
+a ``ray start --head``) the build runs on that cluster, whose nodes must run this same
+installation.
+
+A task holds ``cpus_per_problem`` Ray CPUs and runs with its threads capped at them
+(``THREAD_ENV``, set in its worker before Python starts). Tasks are submitted as slots free up
+(per node, its CPUs // ``cpus_per_problem``), so a task starts when it is submitted and its clock
+(``problem_timeout_s``) starts then; a task still running at its limit is cancelled (its worker
+killed) and recorded as ``timeout``. A task whose worker process dies is retried by Ray
+(``max_retries``); what Ray reports after that is recorded as what it is (``classify``). Results
+are written as they arrive (``dataset.store``); a stopped build (Ctrl-C or SIGTERM: its entry says
+``interrupted``; kill -9: it stays ``running``) resumes when run again with the same settings and
+``--out``.
 """
 
 from __future__ import annotations
 
+import collections
 import dataclasses
-import datetime
 import json
 import logging
 import os
@@ -21,29 +38,43 @@ import sys
 import time
 
 from advocc_ros.dataset import store
-from advocc_ros.dataset.heatmaps import heatmap_settings, robot_heatmaps
-from advocc_ros.dataset.job import BuildConfig, problem_input, run_problem
+from advocc_ros.dataset.heatmaps import (file_sha256, heatmap_path, heatmap_settings, load_given,
+                                         robot_heatmaps)
+from advocc_ros.dataset.job import (ALONE_CPUS, OUTCOMES, BuildConfig, problem_input,
+                                    run_problem)
 from advocc_ros.dataset.problems import DatasetError, Problem, discover, select
+from advocc_ros.evaluation import provenance
+from advocc_ros.limits import available_cpus
 
 log = logging.getLogger(__name__)
 
 LOOPBACK_ENV = 'RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER'
-"""Set to 0 before Ray is imported, Ray takes the loopback address as the node's and binds its
-servers to it (its single-machine mode); otherwise a local Ray listens on every interface."""
+"""0 before Ray is imported: a local Ray takes the loopback address as its node's and binds its
+servers to it; otherwise it listens on every interface."""
+LOOPBACK = '127.0.0.1'
+THREAD_ENV = ('ADVOCC_THREADS', 'OMP_NUM_THREADS', 'OPENBLAS_NUM_THREADS', 'MKL_NUM_THREADS',
+              'NUMBA_NUM_THREADS')
+"""Set to a task's CPUs in its worker's environment: this package's thread pools
+(``limits.worker_threads``), OpenMP, the BLAS libraries and numba's parallel loops."""
 HEARTBEAT_S = 30.0
 """Longest wait for a result before the progress shows again [s]."""
 
 
 @dataclasses.dataclass(frozen=True)
 class RunConfig:
-    """How the build is distributed (none of it changes a problem's result)."""
+    """How the build is distributed and bounded (none of it changes a finished problem's
+    result, except that timing figures are faithful only with ``job.ALONE_CPUS``)."""
 
     ray_address: str | None = None
     """``HOST:PORT`` of a running Ray cluster; None: a local Ray in this process."""
     max_retries: int = 3
     """Times Ray runs a problem again after its worker process died."""
-    cpus_per_problem: float = 1.0
-    """Ray CPUs a problem holds (its planners run one at a time, so one core)."""
+    cpus_per_problem: float = 2.0
+    """Ray CPUs a problem holds; its threads are capped at them (2: its victims' times share
+    no CPU with the build, ``job.ALONE_CPUS``)."""
+    problem_timeout_s: float = 3600.0
+    """A problem still running this long after it started is cancelled: ``timeout`` [s] (a
+    problem of the default settings takes minutes)."""
     heatmap_samples: int = 15_000
     """Valid samples of the robot-only heatmap (``HeatmapConfig.samples``' default)."""
     heatmap_seed: int = 0
@@ -68,37 +99,97 @@ class Selection:
 
 def build(selection: Selection, out: str | pathlib.Path, config: BuildConfig,
           run: RunConfig = RunConfig(), echo=None) -> dict:
-    """Build (or resume) the data set of ``selection`` into ``out``; the build record
-    (``build.json``): settings, counts, versions, times. Progress goes to stderr."""
+    """Build (or resume) the data set of ``selection`` into ``out``; this run's entry of
+    ``build.json`` with the ``summary`` of the selection. Progress goes to stderr."""
     from advocc_ros.dataset.summary import write_summary
 
     echo = echo or (lambda text: print(text, file=sys.stderr, flush=True))
     out = pathlib.Path(out)
+    problems, todo, settings, given, hashes, scenes = _checked(selection, out, config, run)
+    out.mkdir(parents=True, exist_ok=True)
+    with store.locked(out):
+        record = store.check_settings(out, settings) or {
+            'format': store.BUILD_FORMAT, 'version': store.BUILD_VERSION, 'settings': settings,
+            'runs': []}
+        entry = _entry(selection, problems, todo, run)
+        record['runs'].append(entry)
+        store.write_build(out, record)
+        echo(f'advocc dataset: {len(problems)} problems, {len(problems) - len(todo)} already '
+             f'finished in {out}, {len(todo)} to build')
+        t0 = time.perf_counter()
+        try:
+            if todo:
+                heatmaps = robot_heatmaps(scenes, out, run.heatmap_samples, run.heatmap_seed,
+                                          given, workers=available_cpus(), echo=echo)
+                entry['heatmaps'] = {h: settings['heatmap'].get('sha256') or file_sha256(
+                    heatmap_path(out, h)) for h in heatmaps}
+                _run(todo, out, config, run, echo, entry, hashes, heatmaps)
+            entry['status'] = 'finished'
+        except BaseException as exc:
+            stopped = isinstance(exc, (KeyboardInterrupt, SystemExit))
+            entry.update(status='interrupted' if stopped else 'failed',
+                         reason=f'{type(exc).__name__}: {exc}'.strip(': '))
+            raise
+        finally:
+            entry.update(finished=provenance.now(), wall_s=round(time.perf_counter() - t0, 3),
+                         load_end=provenance.load())
+            store.write_build(out, record)
+    return dict(entry, summary=write_summary(out, [p.key for p in problems]))
+
+
+def _checked(selection: Selection, out: pathlib.Path, config: BuildConfig, run: RunConfig):
+    """Everything a build may refuse, checked with nothing written: the problems, the problems
+    left to do, the settings, the given heatmap (None: built), and the robots of the problems
+    left (``_robots``)."""
     problems = selection.problems()
     if not problems:
         raise DatasetError(f'{selection.root}: no problems in split {selection.split!r} of '
                            f'families {list(selection.families or []) or "all"}')
-    settings = json.loads(json.dumps({'build': config.to_json(), 'heatmap': heatmap_settings(
-        run.heatmap_samples, run.heatmap_seed, run.heatmap_file)}))  # as build.json reads back
-    out.mkdir(parents=True, exist_ok=True)
+    if run.ray_address is None and run.cpus_per_problem > available_cpus():
+        raise DatasetError(f'--cpus-per-problem {run.cpus_per_problem:g}: this process may use '
+                           f'{available_cpus()} CPU(s); give at most that (and say so with '
+                           'the figures: the victims then share their CPUs)')
+    given = load_given(run.heatmap_file) if run.heatmap_file else None
+    settings = json.loads(json.dumps({  # as build.json reads back
+        'build': config.to_json(), 'heatmap': heatmap_settings(
+            run.heatmap_samples, run.heatmap_seed,
+            file_sha256(run.heatmap_file) if given is not None else None)}))
     store.check_settings(out, settings)
-    todo = interleaved([p for p in problems if store.finished(out, p.family, p.name) is None])
-    record = {'format': 'advocc_dataset_build', 'version': 1, 'settings': settings,
-              'selection': {**dataclasses.asdict(selection),
-                            'root': str(pathlib.Path(selection.root).resolve()),
-                            'problems': [p.key for p in problems]},
-              'run': dataclasses.asdict(run), 'versions': versions(),
-              'started': _now(), 'status': 'running', 'resumed': len(problems) - len(todo)}
-    store.write_json(out / store.BUILD_FILE, record)
-    echo(f'advocc dataset: {len(problems)} problems, {len(problems) - len(todo)} already '
-         f'finished in {out}, {len(todo)} to build')
-    t0 = time.perf_counter()
-    counts = _run(todo, out, config, run, echo, record) if todo else {}
-    record.update(status='finished', finished=_now(), wall_s=round(time.perf_counter() - t0, 3),
-                  counts=counts)
-    store.write_json(out / store.BUILD_FILE, record)
-    record['summary'] = write_summary(out)
-    return record
+    todo = interleaved([p for p in problems if store.finished(
+        out, p.family, p.name, run.problem_timeout_s) is None])
+    hashes, scenes = _robots(todo, config.goal_tol)
+    other = sorted(k for k, h in hashes.items()
+                   if given is not None and h != given.meta.get('robot_hash'))
+    if other:  # only a given file can miss a robot
+        raise DatasetError(f'{run.heatmap_file}: built for robot '
+                           f'{given.meta.get("robot_hash")}, not the robot of {other[0]} '
+                           f'({hashes[other[0]]}) and {len(other) - 1} more problem(s)')
+    return problems, todo, settings, given, hashes, scenes
+
+
+def _entry(selection: Selection, problems: list[Problem], todo: list[Problem],
+           run: RunConfig) -> dict:
+    """This run's entry of ``build.json`` as it starts."""
+    alone = run.cpus_per_problem >= ALONE_CPUS
+    return {'selection': {**dataclasses.asdict(selection),
+                          'root': str(pathlib.Path(selection.root).resolve()),
+                          'problems': [p.key for p in problems]},
+            'run': dataclasses.asdict(run), 'provenance': provenance.record(),
+            'started': provenance.now(), 'status': 'running',
+            'resumed': len(problems) - len(todo), 'todo': len(todo),
+            'timing': {'cpus_per_problem': run.cpus_per_problem,
+                       'threads_per_problem': task_threads(run.cpus_per_problem),
+                       'victims_cpus_alone': alone,
+                       'note': (f'each problem held {run.cpus_per_problem:g} CPUs: its victims '
+                                'shared no CPU with the build' if alone else
+                                f'each problem held {run.cpus_per_problem:g} CPU(s) (fewer than '
+                                f'{ALONE_CPUS}): its victims may have shared their CPUs with '
+                                'other problems; time figures are not faithful')}}
+
+
+def task_threads(cpus: float) -> int:
+    """Threads of a task that holds ``cpus`` Ray CPUs (at least one)."""
+    return max(1, int(cpus))
 
 
 def interleaved(problems: list[Problem]) -> list[Problem]:
@@ -109,10 +200,6 @@ def interleaved(problems: list[Problem]) -> list[Problem]:
         families.setdefault(p.family, []).append(p)
     queues = list(families.values())
     return [q[i] for i in range(max(map(len, queues), default=0)) for q in queues if i < len(q)]
-
-
-def _now() -> str:
-    return datetime.datetime.now(datetime.timezone.utc).isoformat(timespec='seconds')
 
 
 def _robots(problems: list[Problem], goal_tol) -> tuple[dict, list]:
@@ -135,77 +222,79 @@ def _robots(problems: list[Problem], goal_tol) -> tuple[dict, list]:
 
 
 def _ray(run: RunConfig):
-    """Ray, connected to ``run.ray_address`` or started here on the loopback interface."""
+    """Ray, connected to ``run.ray_address`` or started here on the loopback address."""
     os.environ.setdefault('RAY_USAGE_STATS_ENABLED', '0')
     if run.ray_address is None:
-        if 'ray' in sys.modules and os.environ.get(LOOPBACK_ENV) != '0':
-            log.warning('ray was imported before the build: the local Ray may listen on '
-                        'every interface')
-        os.environ[LOOPBACK_ENV] = '0'
+        os.environ[LOOPBACK_ENV] = '0'  # read when Ray is imported (see the module docstring)
     import ray
 
-    if run.ray_address is None:
-        ray.init(address='local', num_cpus=os.cpu_count(), include_dashboard=False,
-                 log_to_driver=False, namespace='advocc_dataset')
-    else:
+    if run.ray_address is not None:
         try:
             ray.init(address=run.ray_address, log_to_driver=False, namespace='advocc_dataset')
         except (ConnectionError, ValueError, RuntimeError) as exc:
             raise DatasetError(f'--ray-address {run.ray_address}: cannot connect ({exc})') \
                 from None
+        return ray
+    ray.init(address='local', num_cpus=available_cpus(), include_dashboard=False,
+             log_to_driver=False, namespace='advocc_dataset', _node_ip_address=LOOPBACK)
+    addresses = {n.get('NodeManagerAddress') for n in ray.nodes()}
+    if addresses != {LOOPBACK}:
+        ray.shutdown()
+        raise DatasetError(f'the local Ray took the address {", ".join(map(str, addresses))}, '
+                           f'not the loopback ({LOOPBACK}): Ray was imported in this process '
+                           f'before the build without {LOOPBACK_ENV}=0; run the build in a '
+                           'process of its own (advocc dataset build)')
     return ray
 
 
+def _slots(ray, cpus: float) -> int:
+    """Problems the cluster runs at once: per alive node, its CPUs // ``cpus``; a
+    ``DatasetError`` when no node has ``cpus`` CPUs (the tasks would wait forever)."""
+    nodes = [n for n in ray.nodes() if n.get('Alive')]
+    slots = sum(int(n.get('Resources', {}).get('CPU', 0) // cpus) for n in nodes)
+    if slots < 1:
+        biggest = max((n.get('Resources', {}).get('CPU', 0) for n in nodes), default=0)
+        raise DatasetError(f'--cpus-per-problem {cpus:g}: no node of the Ray cluster has that '
+                           f'many CPUs (the largest has {biggest:g})')
+    return slots
+
+
 def _run(todo: list[Problem], out: pathlib.Path, config: BuildConfig, run: RunConfig, echo,
-         record: dict) -> dict:
-    """Run ``todo`` on Ray, writing each result as it arrives; the outcome counts."""
-    from advocc_ros.dataset.job import OUTCOMES
+         entry: dict, hashes: dict, heatmaps: dict) -> None:
+    """Run ``todo`` on Ray, writing each result as it arrives; ``entry['counts']`` counts the
+    outcomes so far."""
     from advocc_ros.progress import progress_bar
 
-    hashes, scenes = _robots(todo, config.goal_tol)
-    heatmaps = robot_heatmaps(scenes, out, run.heatmap_samples, run.heatmap_seed,
-                              run.heatmap_file, workers=os.cpu_count() or 1, echo=echo)
-    other = sorted(k for k, h in hashes.items() if h not in heatmaps)
-    if other:  # only a given file can miss a robot: refuse before any work
-        raise DatasetError(f'{run.heatmap_file}: built for robot '
-                           f'{", ".join(map(str, heatmaps))}, not the robot of {other[0]} '
-                           f'({hashes[other[0]]}) and {len(other) - 1} more problem(s)')
     ray = _ray(run)
-    counts = dict.fromkeys(OUTCOMES, 0)
+    entry['counts'] = counts = {}
     pending: dict = {}
     bar = None
     try:
-        record['cluster'] = {'address': run.ray_address or 'local',
-                             'resources': ray.cluster_resources(),
-                             'nodes': len([n for n in ray.nodes() if n.get('Alive')])}
+        entry['cluster'] = {'address': run.ray_address or 'local',
+                            'resources': ray.cluster_resources(),
+                            'nodes': len([n for n in ray.nodes() if n.get('Alive')])}
+        slots = _slots(ray, run.cpus_per_problem)
+        task = _task(ray, run)
         refs = {h: ray.put(hm) for h, hm in heatmaps.items()}
-        task = ray.remote(num_cpus=run.cpus_per_problem, max_retries=run.max_retries,
-                          retry_exceptions=False)(run_problem)
-        for p in todo:
-            pending[task.remote(problem_input(p), refs.get(hashes.get(p.key)), config)] = p
+        node = ray.get_runtime_context().get_node_id()
+        queue = collections.deque(todo)
         bar = progress_bar(len(todo), 'dataset', 'problem', file=sys.stderr)
         t0 = time.monotonic()
-        while pending:
-            ready, _ = ray.wait(list(pending), num_returns=1, timeout=HEARTBEAT_S)
-            if not ready:
-                bar.update(0)  # a line in a log even while no problem finishes
-            for ref in ready:
-                p = pending.pop(ref)
-                try:
-                    result = ray.get(ref)
-                except ray.exceptions.RayError as exc:  # the worker kept dying: retries spent
-                    result = _lost(p, run, exc)
-                store.save_result(out, result)
-                outcome = result['record']['outcome']
-                counts[outcome] += 1
-                if outcome != 'built':
-                    bar.write(f'{p.key}: {outcome}: {result["record"]["reason"]}')
-                done = len(todo) - len(pending)
-                eta = (time.monotonic() - t0) / done * len(pending)
-                shown = {k: v for k, v in counts.items() if v and k != 'error'}
-                bar.set_postfix(done=done, failed=counts['error'], left=len(pending),
-                                eta=_duration(eta), **shown)
-                bar.update(1)
+        while queue or pending:
+            while queue and len(pending) < slots:
+                p = queue.popleft()
+                log_to = {'path': str(store.log_path(out, p.family, p.name).resolve()),
+                          'node': node}
+                ref = task.remote(problem_input(p), refs.get(hashes.get(p.key)), config, log_to)
+                pending[ref] = (p, time.monotonic(), provenance.now())
+            results = _next_results(ray, pending, run)
+            for result in results:
+                _save(out, result, counts, bar)
+            left = len(pending) + len(queue)
+            done = len(todo) - left
+            eta = _duration((time.monotonic() - t0) / done * left) if done else '?'
+            bar.set_postfix(done=done, left=left, eta=eta, **counts)
+            bar.update(len(results))  # 0: a line in a log even while no problem finishes
     finally:
         if bar is not None:
             bar.close()
@@ -215,16 +304,99 @@ def _run(todo: list[Problem], out: pathlib.Path, config: BuildConfig, run: RunCo
             except Exception:  # already finished or its node is gone
                 pass
         ray.shutdown()
-    return {k: v for k, v in counts.items() if v}
 
 
-def _lost(p: Problem, run: RunConfig, exc: Exception) -> dict:
-    reason = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
-    return {'record': {'family': p.family, 'problem': p.name, 'split': p.split,
-                       'outcome': 'error',
-                       'reason': f'the worker died {run.max_retries + 1} times '
-                                 f'({type(exc).__name__}: {reason})'},
-            'hardness': None, 'files': {}}
+def _task(ray, run: RunConfig):
+    """``run_problem`` as a Ray task: ``cpus_per_problem`` CPUs, its threads capped at them
+    (``THREAD_ENV`` in its worker's environment from the start, before numba or a BLAS reads
+    it), retried after a worker death, never after an exception (the job has none)."""
+    threads = str(task_threads(run.cpus_per_problem))
+    return ray.remote(num_cpus=run.cpus_per_problem, max_retries=run.max_retries,
+                      retry_exceptions=False,
+                      runtime_env={'env_vars': dict.fromkeys(THREAD_ENV, threads)})(run_problem)
+
+
+def _next_results(ray, pending: dict, run: RunConfig) -> list[dict]:
+    """The results that arrive within the next heartbeat (at most until the nearest time
+    limit), and a ``timeout`` result for every task past its limit (cancelled: its worker is
+    killed). Takes them out of ``pending``."""
+    nearest = min(t + run.problem_timeout_s for _, t, _ in pending.values())
+    ready, _ = ray.wait(list(pending), num_returns=1,
+                        timeout=max(0.0, min(HEARTBEAT_S, nearest - time.monotonic())))
+    results = [_result(ray, ref, pending.pop(ref), run) for ref in ready]
+    for ref, (p, t, started) in list(pending.items()):
+        if time.monotonic() - t < run.problem_timeout_s:
+            continue
+        if ray.wait([ref], timeout=0)[0]:  # it did finish, just now
+            results.append(_result(ray, ref, pending.pop(ref), run))
+            continue
+        ray.cancel(ref, force=True)
+        del pending[ref]
+        results.append(failed(p, 'timeout', f'still running after {run.problem_timeout_s:g} s '
+                              '(--problem-timeout): cancelled, its worker killed', run,
+                              started))
+    return results
+
+
+def _result(ray, ref, task: tuple, run: RunConfig) -> dict:
+    """The result of a finished task (``pending``'s ``(problem, clock, started)``), or what the
+    driver records when Ray returned an error instead (``classify``)."""
+    p, _, started = task
+    try:
+        return ray.get(ref)
+    except ray.exceptions.RayError as exc:
+        return failed(p, *classify(exc, run.max_retries), run, started)
+
+
+def _save(out: pathlib.Path, result: dict, counts: dict, bar) -> None:
+    store.save_result(out, result)
+    record = result['record']
+    counts[record['outcome']] = counts.get(record['outcome'], 0) + 1
+    if record['outcome'] != 'built':
+        bar.write(f'{record["family"]}/{record["problem"]}: {record["outcome"]}: '
+                  f'{record["reason"]}')
+    if result.get('driver_note'):
+        store.append_log(out, record['family'], record['problem'], result['driver_note'])
+
+
+def classify(exc: Exception, max_retries: int) -> tuple[str, str]:
+    """(outcome, reason) of a task for which Ray returned ``exc`` instead of a result (after
+    its retries): ``memory``, ``cancelled``, ``crashed`` or ``error`` (``job.OUTCOMES``)."""
+    import ray.exceptions as rx
+
+    def first_line(e: BaseException) -> str:
+        lines = [line for line in str(e).splitlines() if line.strip()]
+        return f'{type(e).__name__}: {lines[0].strip()}' if lines else type(e).__name__
+
+    if isinstance(exc, rx.OutOfMemoryError):
+        return 'memory', f'killed by Ray\'s memory monitor, the node ran low on memory ' \
+                         f'({first_line(exc)})'
+    if isinstance(exc, rx.TaskCancelledError):
+        return 'cancelled', f'cancelled outside this build ({first_line(exc)})'
+    if isinstance(exc, (rx.WorkerCrashedError, rx.NodeDiedError, rx.LocalRayletDiedError)):
+        return 'crashed', f'its worker process or node died {max_retries + 1} time(s) ' \
+                          f'({first_line(exc)})'
+    if isinstance(exc, rx.RayTaskError):  # the job never raises: this is Ray's side of it
+        cause = getattr(exc, 'cause', None) or exc
+        return 'error', f'the task failed outside the job, e.g. its result did not ' \
+                        f'serialise ({first_line(cause)})'
+    return 'error', f'Ray: {first_line(exc)}'
+
+
+def failed(p: Problem, outcome: str, reason: str, run: RunConfig, started: str) -> dict:
+    """The result the driver records for a task that returned none; its provenance is the
+    driver's (``by: driver``: the worker's host is not known)."""
+    if outcome not in OUTCOMES:
+        raise ValueError(f'outcome {outcome!r}: not one of {OUTCOMES}')
+    record = {'family': p.family, 'problem': p.name, 'split': p.split, 'outcome': outcome,
+              'reason': reason,
+              'provenance': dict(provenance.record(), by='driver', started=started,
+                                 finished=provenance.now(), cpus=run.cpus_per_problem,
+                                 victims_cpus_alone=None)}
+    if outcome == 'timeout':
+        record['timeout_s'] = run.problem_timeout_s
+    note = f'--- the driver, {provenance.now()}: {outcome}: {reason}'
+    return {'record': record, 'hardness': None, 'files': {}, 'log': None, 'driver_note': note}
 
 
 def _duration(seconds: float) -> str:
@@ -234,36 +406,5 @@ def _duration(seconds: float) -> str:
     return f'{seconds // 60}m{seconds % 60:02d}s'
 
 
-def versions() -> dict:
-    """The tool's and its libraries' versions, and the checkout's commit."""
-    import importlib.metadata
-    import platform
-    import subprocess
-
-    out = {'python': platform.python_version(), 'platform': platform.platform()}
-    for dist in ('advocc_ros', 'ray', 'numpy', 'scipy', 'ompl', 'pin', 'coal', 'trimesh',
-                 'matplotlib', 'tesseract-robotics'):
-        try:
-            out[dist] = importlib.metadata.version(dist)
-        except importlib.metadata.PackageNotFoundError:
-            out[dist] = None
-    repo = pathlib.Path(__file__).resolve().parents[2]
-    # The MPlib victim's own venv (the checkout's; ADVOCC_MPLIB_PYTHON may name another).
-    found = sorted(repo.glob('.venv-mplib/lib/python*/site-packages/mplib-*.dist-info'))
-    out['mplib'] = found[-1].name[len('mplib-'):-len('.dist-info')] if found else None
-    out['advocc_ros_commit'] = out['advocc_ros_modified'] = None
-    try:
-        git = [['git', '-C', str(repo)] + cmd for cmd in (
-            ['rev-parse', 'HEAD'], ['status', '--porcelain', '--untracked-files=no', '--',
-                                    'advocc_ros'])]
-        commit, status = (subprocess.run(cmd, capture_output=True, text=True, timeout=10)
-                          for cmd in git)
-        if commit.returncode == 0:  # a checkout: its commit, and its code files changed since
-            out['advocc_ros_commit'] = commit.stdout.strip()
-            out['advocc_ros_modified'] = sorted(line[3:] for line in status.stdout.splitlines())
-    except (OSError, subprocess.SubprocessError):
-        pass
-    return out
-
-
-__all__ = ['RunConfig', 'Selection', 'build', 'interleaved', 'versions']
+__all__ = ['HEARTBEAT_S', 'LOOPBACK_ENV', 'RunConfig', 'Selection', 'THREAD_ENV', 'build',
+           'classify', 'failed', 'interleaved', 'task_threads']

@@ -13,39 +13,49 @@ the victims on the unattacked problem and on every certified attacked one
 problems in MotionBenchMaker's format (``formats.mbm_export``).
 
 Every problem ends with an outcome (``OUTCOMES``), never an exception: a malformed file is
-``refused`` with the parser's reason, an unexpected exception is ``error`` with its message.
+``refused`` with the parser's reason, an unexpected exception is ``error`` with its message. The
+record names its making (``provenance``: commit, host, CPU, the CPUs and threads the task held,
+load, versions, start and end), and the task's output goes to a log (``task_log``).
 """
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import logging
 import os
 import pathlib
-import signal
 import socket
 import sys
 import tempfile
 import time
 import traceback
-from typing import Any
+from typing import Any, Iterator
 
 log = logging.getLogger(__name__)
 
-OUTCOMES = ('built', 'uncertified', 'no_witness', 'refused', 'error')
+OUTCOMES = ('built', 'uncertified', 'no_witness', 'refused', 'timeout', 'memory', 'crashed',
+            'cancelled', 'error')
 """How a problem ended: ``built`` (at least one budget's attack certified, exported and
 evaluated), ``uncertified`` (the witness was found but no budget's attack was certified),
 ``no_witness`` (no path on the unattacked problem: nothing can be certified), ``refused`` (a
-malformed problem or one the task check refuses, with the reason) and ``error`` (an exception or
-a worker that kept dying: the one outcome a resumed build redoes)."""
-FINAL_OUTCOMES = OUTCOMES[:-1]
-KILL_ONCE_ENV = 'ADVOCC_DATASET_KILL_ONCE'
-"""Tests only: a path; the first job that finds no file there, after its first attack, creates
-it and kills its own worker process with SIGKILL (a real worker death mid-problem, retried by
-Ray), so it happens exactly once."""
+malformed problem or one the task check refuses, with the reason); then what the driver records
+when no result came back: ``timeout`` (still running after ``--problem-timeout``: cancelled),
+``memory`` (killed by Ray's memory monitor), ``crashed`` (its worker process or node died more
+than ``--max-retries`` times), ``cancelled`` (cancelled by someone else) and ``error`` (an
+exception, or a task that failed outside the job, e.g. a result that did not serialise)."""
+FINAL_OUTCOMES = OUTCOMES[:4]
+"""Outcomes a resumed build keeps; ``timeout`` is kept when the limit it hit is at least the
+resumed build's, the rest are redone."""
+ALONE_CPUS = 2
+"""Ray CPUs a problem holds for its victims' times not to share a CPU with the build: a problem
+runs two processes (its job, and the planner process of a victim or of the witness search), and
+with its threads capped at the CPUs it holds, no other problem's work lands on them."""
 HARDNESS_FORMAT = 'advocc_dataset_hardness'
 PSR_HARD = 0.2
 """A victim counts as beaten on a problem when its PSR is at most this (the audit's line)."""
+MAX_LOG_BYTES = 1 << 20
+"""The tail of a task's log returned to the driver when the task ran on another node."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -88,44 +98,140 @@ def problem_input(problem) -> dict:
             'request_name': problem.request.name, 'request': read(problem.request)}
 
 
-def _kill_once() -> None:
-    marker = os.environ.get(KILL_ONCE_ENV)
-    if not marker:
-        return
-    try:
-        fd = os.open(marker, os.O_CREAT | os.O_EXCL | os.O_WRONLY)
-    except FileExistsError:
-        return
-    os.write(fd, f'{os.getpid()}\n'.encode())
-    os.close(fd)
-    os.kill(os.getpid(), signal.SIGKILL)
-
-
-def _ray_node() -> str | None:
-    """The Ray node this job runs on (None outside Ray)."""
+def _ray_context() -> tuple[str | None, float | None]:
+    """The Ray node this job runs on and the CPUs its task holds (None, None outside Ray)."""
     ray = sys.modules.get('ray')
     if ray is None or not ray.is_initialized():
-        return None
-    return ray.get_runtime_context().get_node_id()
+        return None, None
+    context = ray.get_runtime_context()
+    return context.get_node_id(), context.get_assigned_resources().get('CPU')
 
 
-def run_problem(problem: dict, heatmap, config: BuildConfig) -> dict:
-    """The result of one problem (``problem_input``): ``record`` (outcome, reason, times),
-    ``hardness`` (None unless evaluated) and ``files`` (relative path -> YAML data). Never
-    raises."""
-    t0 = time.perf_counter()
-    record = {'family': problem['family'], 'problem': f'{problem["index"]:04d}',
-              'split': problem['split'], 'host': socket.gethostname(), 'pid': os.getpid(),
-              'node': _ray_node()}
-    files: dict[str, Any] = {}
+def provenance(cpus: float | None, node: str | None) -> dict:
+    """What makes this record (``evaluation.provenance.record``: commit, dirty flag, host,
+    CPU, cores, load, versions), with the Ray CPUs the task holds (``cpus``), the threads its
+    process may run (``limits.worker_threads``; numba's pool too, once numba is loaded),
+    whether its victims had their CPUs alone (``ALONE_CPUS``), its node and process."""
+    from advocc_ros.limits import worker_threads
+    from advocc_ros.evaluation.provenance import record
+
+    numba = sys.modules.get('numba')
+    return dict(record(), cpus=cpus, threads=worker_threads(),
+                numba_threads=numba.get_num_threads() if numba is not None else None,
+                victims_cpus_alone=None if cpus is None else cpus >= ALONE_CPUS,
+                node=node, pid=os.getpid())
+
+
+@contextlib.contextmanager
+def task_log(log_to: dict | None, title: str) -> Iterator[dict]:
+    """This task's output in a log: file descriptors 1 and 2 (which the planner processes it
+    starts inherit) and the ``advocc_ros`` loggers at INFO. ``log_to``: ``{'path', 'node'}``
+    from the driver; on the driver's node the log is ``path`` itself (appended to, and there
+    while the task runs, so a task that hangs or dies leaves its log), on another node a
+    temporary file whose last ``MAX_LOG_BYTES`` the yielded dict gets as ``text``. None: no
+    log."""
+    out: dict = {'text': None}
+    if log_to is None:
+        yield out
+        return
+    local = log_to.get('node') is not None and _ray_context()[0] == log_to['node']
+    if local:
+        path = pathlib.Path(log_to['path'])
+        path.parent.mkdir(parents=True, exist_ok=True)
+    else:
+        fd, name = tempfile.mkstemp(prefix='advocc_task_', suffix='.log')
+        os.close(fd)
+        path = pathlib.Path(name)
+    from advocc_ros.evaluation.provenance import now
+
+    with open(path, 'ab') as handle:
+        handle.write(f'--- {title}: {socket.gethostname()} pid {os.getpid()}, {now()}\n'
+                     .encode())
+        handle.flush()
+        with _redirected(handle.fileno()), _logging_to(path):
+            try:
+                yield out
+            finally:
+                print(f'--- {title}: ended {now()}', flush=True)
+    if not local:
+        with open(path, 'rb') as handle:
+            handle.seek(max(0, path.stat().st_size - MAX_LOG_BYTES))
+            out['text'] = handle.read().decode('utf-8', errors='replace')
+        path.unlink(missing_ok=True)
+
+
+@contextlib.contextmanager
+def _redirected(fd: int) -> Iterator[None]:
+    """File descriptors 1 and 2 of this process onto ``fd`` for a while, and ``sys.stdout``
+    and ``sys.stderr`` onto them (whatever they were: a test runner's capture, say)."""
+    streams = sys.stdout, sys.stderr
+    for stream in streams:
+        stream.flush()
+    saved = [os.dup(1), os.dup(2)]
     try:
-        outcome, reason, hardness = _run(problem, heatmap, config, files, record)
-    except Exception as exc:  # any bug or backend failure becomes this problem's record
-        log.exception('problem %s/%04d failed', problem['family'], problem['index'])
-        outcome, reason, hardness, files = 'error', f'{type(exc).__name__}: {exc}', None, {}
-        record['traceback'] = traceback.format_exc(limit=8)
-    record.update(outcome=outcome, reason=reason, total_s=round(time.perf_counter() - t0, 3))
-    return {'record': record, 'hardness': hardness, 'files': files}
+        os.dup2(fd, 1)
+        os.dup2(fd, 2)
+        sys.stdout, sys.stderr = (open(n, 'w', encoding='utf-8', errors='replace',
+                                       buffering=1, closefd=False) for n in (1, 2))
+        yield
+    finally:
+        for stream in (sys.stdout, sys.stderr):
+            if stream not in streams:
+                stream.close()  # flushes; the descriptor stays open (closefd=False)
+        sys.stdout, sys.stderr = streams
+        for target, copy in zip((1, 2), saved):
+            os.dup2(copy, target)
+            os.close(copy)
+
+
+@contextlib.contextmanager
+def _logging_to(path: pathlib.Path) -> Iterator[None]:
+    """The ``advocc_ros`` loggers at INFO into ``path`` (only there) for a while."""
+    logger = logging.getLogger('advocc_ros')
+    handler = logging.FileHandler(path, mode='a', encoding='utf-8')
+    handler.setFormatter(logging.Formatter('%(asctime)s %(levelname)s %(name)s: %(message)s'))
+    level, propagate = logger.level, logger.propagate
+    logger.addHandler(handler)
+    logger.setLevel(logging.INFO)
+    logger.propagate = False
+    try:
+        yield
+    finally:
+        logger.removeHandler(handler)
+        logger.setLevel(level)
+        logger.propagate = propagate
+        handler.close()
+
+
+def run_problem(problem: dict, heatmap, config: BuildConfig, log_to: dict | None = None
+                ) -> dict:
+    """The result of one problem (``problem_input``): ``record`` (outcome, reason, times,
+    ``provenance``), ``hardness`` (None unless evaluated), ``files`` (relative path -> YAML
+    data) and ``log`` (the task's log text when ``task_log`` could not write it where the
+    driver reads it, else None). Never raises."""
+    from advocc_ros.evaluation.provenance import load, now
+
+    t0 = time.perf_counter()
+    key = f'{problem["family"]}/{problem["index"]:04d}'
+    record = {'family': problem['family'], 'problem': f'{problem["index"]:04d}',
+              'split': problem['split']}
+    started, load_start = now(), load()
+    files: dict[str, Any] = {}
+    with task_log(log_to, key) as captured:
+        node, cpus = _ray_context()
+        log.info('%s: started (%s CPUs)', key, cpus)
+        try:
+            outcome, reason, hardness = _run(problem, heatmap, config, files, record)
+        except Exception as exc:  # any bug or backend failure becomes this problem's record
+            log.exception('problem %s failed', key)
+            outcome, reason, hardness, files = 'error', f'{type(exc).__name__}: {exc}', None, {}
+            record['traceback'] = traceback.format_exc(limit=8)
+        log.info('%s: %s %s', key, outcome, reason)
+    made = provenance(cpus, node)  # after the work: the threads numba did run with
+    record.update(outcome=outcome, reason=reason, total_s=round(time.perf_counter() - t0, 3),
+                  provenance=dict(made, load=load_start, load_end=made['load'],
+                                  started=started, finished=now()))
+    return {'record': record, 'hardness': hardness, 'files': files, 'log': captured['text']}
 
 
 def _load(problem: dict, goal_tol):
@@ -177,11 +283,11 @@ def _run(problem: dict, heatmap, config: BuildConfig, files: dict, record: dict)
     cfg = AttackConfig(goal_policy='solvable')
     attacks, scenes = {}, {}
     for budget in config.budgets:
+        log.info('attack at M=%d', budget)
         t = time.perf_counter()
         result = attack_task(heatmap, robot, scene.objects, q_init, scene.goal, budget, 'task',
                              cfg, seed=config.seed, method_options=options)
         wall_s = time.perf_counter() - t
-        _kill_once()  # tests: a worker death mid-problem, after its witness and first attack
         if result.status == AttackStatus.NO_WITNESS:
             record['attack_s'] = round(wall_s, 3)
             return 'no_witness', result.message, None
@@ -199,6 +305,8 @@ def _run(problem: dict, heatmap, config: BuildConfig, files: dict, record: dict)
                             for b, a in attacks.items())
         return 'uncertified', f'no attack was certified: {reasons}', _hardness(
             problem, config, attacks, {})
+    log.info('victims %s on the unattacked problem and at M=%s', ','.join(config.victims),
+             ','.join(map(str, scenes)))
     t = time.perf_counter()
     unattacked = _evaluate(scene, config, attacks, scenes)
     record['evaluate_s'] = round(time.perf_counter() - t, 3)
@@ -297,5 +405,5 @@ def _hardness(problem: dict, config: BuildConfig, attacks: dict, unattacked: dic
             'settings': config.to_json(), 'unattacked': unattacked, 'attacks': attacks}
 
 
-__all__ = ['BuildConfig', 'FINAL_OUTCOMES', 'HARDNESS_FORMAT', 'KILL_ONCE_ENV', 'OUTCOMES',
-           'PSR_HARD', 'problem_input', 'run_problem']
+__all__ = ['ALONE_CPUS', 'BuildConfig', 'FINAL_OUTCOMES', 'HARDNESS_FORMAT', 'MAX_LOG_BYTES',
+           'OUTCOMES', 'PSR_HARD', 'problem_input', 'provenance', 'run_problem', 'task_log']

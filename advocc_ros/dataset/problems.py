@@ -1,5 +1,5 @@
 """The problems of a MotionBenchMaker data set: discovery, the train/test split and the seeded
-choice of ``--limit`` problems per family.
+order in which ``--limit`` takes problems of each family.
 
 A data set folder holds one folder per family (``box_panda/``, ...), each with
 ``sceneNNNN.yaml`` + ``requestNNNN.yaml`` pairs, as MotionBenchMaker publishes them
@@ -11,8 +11,8 @@ every setting), 0041-0100 are ``test`` (they only report).
 from __future__ import annotations
 
 import dataclasses
+import hashlib
 import pathlib
-import random
 import re
 
 FAMILIES = ('bookshelf_small_panda', 'bookshelf_tall_panda', 'bookshelf_thin_panda',
@@ -102,11 +102,21 @@ def discover(root: str | pathlib.Path, families: list[str] | None = None) -> lis
     return problems
 
 
+def seeded_order(problems: list[Problem], seed: int = 0) -> list[Problem]:
+    """``problems`` ranked by a hash of ``seed``, the family and the number: a seeded order
+    in which each problem's place depends on nothing else, so the order of any subset (a split,
+    a folder with fewer problems) is the order of the whole restricted to it."""
+    def rank(p: Problem) -> bytes:
+        return hashlib.sha256(f'{seed}/{p.family}/{p.index}'.encode()).digest()
+    return sorted(problems, key=rank)
+
+
 def select(problems: list[Problem], split: str = 'all', limit: int | None = None,
            seed: int = 0) -> list[Problem]:
-    """The problems of ``split``; with ``limit``, a seeded random sample of at most ``limit``
-    per family (the same ``seed`` always picks the same problems, whatever else the folder
-    holds of other families or splits)."""
+    """The problems of ``split``, family by family, each family in its seeded order
+    (``seeded_order``); with ``limit``, the first ``limit`` of each family. The same seed takes
+    the same first N for every larger limit (a resumed build with a larger ``--limit`` builds a
+    superset), whatever else the folder holds."""
     if split not in SPLITS:
         raise DatasetError(f'--split {split!r}: expected one of {", ".join(SPLITS)}')
     if limit is not None and limit < 1:
@@ -114,11 +124,9 @@ def select(problems: list[Problem], split: str = 'all', limit: int | None = None
     chosen = []
     for family in dict.fromkeys(p.family for p in problems):
         pool = [p for p in problems if p.family == family and split in ('all', p.split)]
-        if limit is not None and len(pool) > limit:
-            pool = random.Random(f'{seed}/{family}/{split}').sample(pool, limit)
-        chosen += sorted(pool, key=lambda p: p.index)
+        chosen += seeded_order(pool, seed)[:limit]
     return chosen
 
 
 __all__ = ['DatasetError', 'FAMILIES', 'Problem', 'SPLITS', 'TRAIN_LAST', 'discover',
-           'resolve_families', 'select', 'split_of']
+           'resolve_families', 'seeded_order', 'select', 'split_of']

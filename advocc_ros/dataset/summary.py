@@ -2,8 +2,10 @@
 are; written as ``summary.json``, ``summary.md`` and ``summary.png``, beside ``problems.csv``
 (one row per problem, budget and victim: the table the summary pools).
 
-Read from the problems' records in the output folder (every problem there, whichever build
-wrote it). Per group (a family and a split; ``all`` pools the families):
+Read from the records of the selected problems (a build's selection; for ``advocc dataset
+summary``, the selection of the folder's last run), not from whatever else the folder holds, so a
+resumed build and a fresh one on the same selection summarise alike. Per group (a family and a
+split; ``all`` pools the families):
 
 - the share of each outcome (``job.OUTCOMES``);
 - per budget M, over the problems whose budget-M attack was certified and evaluated: the share
@@ -21,16 +23,20 @@ import pathlib
 import statistics
 
 from advocc_ros.dataset import store
-from advocc_ros.dataset.job import OUTCOMES, PSR_HARD
+from advocc_ros.dataset.job import ALONE_CPUS, FINAL_OUTCOMES, OUTCOMES, PSR_HARD
 
 SUMMARY_FORMAT = 'advocc_dataset_summary'
 FIGURE = 'summary.png'
 TABLE = 'problems.csv'
+PROVENANCE_COLUMNS = ('commit', 'dirty', 'host', 'cpu', 'cpus', 'threads', 'victims_cpus_alone',
+                      'load_start', 'load_end', 'started', 'finished', 'versions')
+"""The columns of ``problems.csv`` that name a row's making (the problem's ``provenance``:
+``load_*`` the 1-minute load average, ``versions`` ``name=version`` pairs)."""
 TABLE_COLUMNS = ('family', 'problem', 'split', 'outcome', 'budget', 'certificate', 'boxes',
                  'victim', 'trials', 'psr', 'psr_given_goals', 'no_goal_found',
-                 'first_solution_median_s', 'pt_ratio', 'unattacked_psr')
+                 'first_solution_median_s', 'pt_ratio', 'unattacked_psr') + PROVENANCE_COLUMNS
 """``problems.csv``: budget 0 rows are the unattacked problem; a problem without a hardness
-record (refused, no witness, error) has one row with its outcome only."""
+record (refused, no witness, timeout, ...) has one row with its outcome only."""
 
 
 def _mean(values: list) -> float | None:
@@ -72,10 +78,21 @@ def _group(family: str, split: str, items: list[tuple[dict, dict | None]], budge
             'budgets': per_budget}
 
 
-def summarise(out: pathlib.Path) -> dict:
-    """The summary of every problem recorded under ``out`` (see the module docstring)."""
-    found = store.records(out)
-    build = store.read_json(out / store.BUILD_FILE) or {}
+def selected(out: pathlib.Path) -> list[str] | None:
+    """The problems (``family/NNNN``) the last run of ``out`` selected; None when its build
+    record names none (then every record counts)."""
+    build = store.read_build(out)
+    runs = build['runs'] if build else []
+    problems = runs[-1].get('selection', {}).get('problems') if runs else None
+    return list(problems) if isinstance(problems, list) else None
+
+
+def summarise(out: pathlib.Path, keys: list[str] | None = None) -> dict:
+    """The summary of the problems ``keys`` (default: ``selected``) recorded under ``out``
+    (see the module docstring)."""
+    keys = selected(out) if keys is None else keys
+    found = store.records(out, keys)
+    build = store.read_build(out) or {}
     settings = build.get('settings', {}).get('build', {})
     budgets = [str(b) for b in settings.get('budgets', [])]
     victims = list(settings.get('victims', []))
@@ -88,18 +105,38 @@ def summarise(out: pathlib.Path) -> dict:
             groups.append(_group(family, split, [(r, h) for r, h in items
                                                  if r['family'] == family], budgets, victims))
         groups.append(_group('all', split, items, budgets, victims))
-    return {'format': SUMMARY_FORMAT, 'version': 1, 'problems': len(found),
+    return {'format': SUMMARY_FORMAT, 'version': 2, 'problems': len(found),
+            'selected': len(keys) if keys is not None else len(found),
             'settings': settings, 'budgets': budgets, 'victims': victims, 'groups': groups,
-            'errors': [f'{r["family"]}/{r["problem"]}: {r.get("reason")}' for r, _ in found
-                       if r['outcome'] == 'error']}
+            'made': _made([r for r, _ in found]),
+            'errors': [f'{r["family"]}/{r["problem"]}: {r["outcome"]}: {r.get("reason")}'
+                       for r, _ in found if r['outcome'] not in FINAL_OUTCOMES]}
 
 
-def table_rows(out: pathlib.Path) -> list[dict]:
-    """The rows of ``problems.csv`` for every problem recorded under ``out``."""
+def _made(found: list[dict]) -> dict:
+    """What made the records: their commits (a ``+dirty`` suffix for a changed checkout) and
+    how many problems evaluated their victims with the CPUs alone, shared or unknown (an
+    older record without provenance)."""
+    commits: dict[str, int] = {}
+    timing = {'victims_cpus_alone': 0, 'shared': 0, 'unknown': 0}
+    for record in found:
+        made = record.get('provenance') or {}
+        name = (made.get('commit') or 'unknown') + ('+dirty' if made.get('dirty') else '')
+        commits[name] = commits.get(name, 0) + 1
+        if record['outcome'] == 'built':
+            alone = made.get('victims_cpus_alone')
+            timing['unknown' if alone is None else 'victims_cpus_alone' if alone
+                   else 'shared'] += 1
+    return {'commits': commits, 'timing_of_built_problems': timing}
+
+
+def table_rows(out: pathlib.Path, keys: list[str] | None = None) -> list[dict]:
+    """The rows of ``problems.csv`` for the problems ``keys`` (default: ``selected``)."""
     rows = []
-    for record, hardness in store.records(out):
-        key = {'family': record['family'], 'problem': record['problem'],
-               'split': record.get('split'), 'outcome': record['outcome']}
+    for record, hardness in store.records(out, selected(out) if keys is None else keys):
+        key = dict({'family': record['family'], 'problem': record['problem'],
+                    'split': record.get('split'), 'outcome': record['outcome']},
+                   **_provenance_cells(record.get('provenance') or {}))
         if not hardness:
             rows.append(key)
             continue
@@ -115,6 +152,19 @@ def table_rows(out: pathlib.Path) -> list[dict]:
             if not attack.get('victims'):
                 rows.append(head)
     return rows
+
+
+def _provenance_cells(made: dict) -> dict:
+    """The ``PROVENANCE_COLUMNS`` of a record's provenance (empty cells when it has none)."""
+    def first(values):
+        return values[0] if isinstance(values, list) and values else None
+    versions = made.get('versions') or {}
+    return {'commit': made.get('commit'), 'dirty': made.get('dirty'), 'host': made.get('host'),
+            'cpu': made.get('cpu'), 'cpus': made.get('cpus'), 'threads': made.get('threads'),
+            'victims_cpus_alone': made.get('victims_cpus_alone'),
+            'load_start': first(made.get('load')), 'load_end': first(made.get('load_end')),
+            'started': made.get('started'), 'finished': made.get('finished'),
+            'versions': ' '.join(f'{k}={v}' for k, v in versions.items() if v) or None}
 
 
 def _cell(cell: dict) -> dict:
@@ -142,18 +192,22 @@ def _num(value) -> str:
 
 
 def markdown(summary: dict) -> str:
-    """``summary.md``: one table per split, then the refusals' and errors' count."""
+    """``summary.md``: what made it, one table per split, then the problems not finished."""
     budgets, victims = summary['budgets'], summary['victims']
     s = summary['settings']
+    outcomes = [k for k in OUTCOMES if k in FINAL_OUTCOMES
+                or any(g['outcomes'][k] for g in summary['groups'])]
     lines = ['# Certified hard problems: summary', '',
-             f'{summary["problems"]} problems; `task` attack under `solvable` at M = '
+             f'{summary["problems"]} of {summary["selected"]} selected problems recorded; '
+             '`task` attack under `solvable` at M = '
              f'{", ".join(budgets)}; victims {", ".join(victims)}; {s.get("trials")} trials x '
              f'{s.get("time_s")} s each. "All <= 20 %": share of the problems with a certified '
              'attack at M where every victim is at PSR <= 20 %. PT ratio: median over victims '
              'and problems of attacked / unattacked median time to first solution. "Unattacked: '
              'all <= 20 %": the same share before any box (the baseline). Problems '
-             '0001-0040 of each family are the train split, 0041-0100 the test split.', '']
-    head = ['family', 'problems'] + list(OUTCOMES) + ['unattacked: all <= 20 %']
+             '0001-0040 of each family are the train split, 0041-0100 the test split.', '',
+             _made_text(summary['made']), '']
+    head = ['family', 'problems'] + outcomes + ['unattacked: all <= 20 %']
     for b in budgets:
         head += [f'M={b}: all <= 20 %', f'M={b}: PT ratio']
     for split in ('train', 'test'):
@@ -165,7 +219,7 @@ def markdown(summary: dict) -> str:
         for g in rows:
             cells = [f'**{g["family"]}**' if g['family'] == 'all' else g['family'],
                      str(g['problems'])]
-            cells += [f'{g["outcomes"][k]} ({_pct(g["shares"][k])})' for k in OUTCOMES]
+            cells += [f'{g["outcomes"][k]} ({_pct(g["shares"][k])})' for k in outcomes]
             cells.append(f'{_pct(g["unattacked_all_victims_psr_le_20"])} of '
                          f'{g["unattacked_evaluated"]}')
             for b in budgets:
@@ -175,10 +229,22 @@ def markdown(summary: dict) -> str:
             lines.append('| ' + ' | '.join(cells) + ' |')
         lines.append('')
     if summary['errors']:
-        lines += ['## Errors (redone by the next build over this folder)', '']
+        lines += ['## Not finished (redone by the next build over this folder; a timeout only '
+                  'with a larger --problem-timeout)', '']
         lines += [f'- {e}' for e in summary['errors']] + ['']
     lines += [f'![mean PSR per budget and share of problems beaten per family]({FIGURE})', '']
     return '\n'.join(lines)
+
+
+def _made_text(made: dict) -> str:
+    """The paragraph of ``summary.md`` that says what made the records."""
+    timing = made['timing_of_built_problems']
+    commits = ', '.join(f'`{c[:12]}{"+dirty" if c.endswith("+dirty") else ""}` ({n})'
+                        for c, n in made['commits'].items()) or 'none'
+    return (f'Made by commit(s) {commits}. Victims timed with their CPUs alone (each problem '
+            f'held >= {ALONE_CPUS} CPUs) on {timing["victims_cpus_alone"]} built problem(s), '
+            f'with CPUs shared on {timing["shared"]}, unknown on {timing["unknown"]}: time '
+            'figures (PT ratio, time to first solution) are faithful only for the first.')
 
 
 def figure(summary: dict, path: pathlib.Path) -> None:
@@ -234,18 +300,19 @@ def figure(summary: dict, path: pathlib.Path) -> None:
     plt.close(fig)
 
 
-def write_summary(out: pathlib.Path) -> dict:
-    """Write ``summary.json``, ``summary.md``, ``summary.png`` and ``problems.csv`` into
-    ``out``; the summary."""
+def write_summary(out: pathlib.Path, keys: list[str] | None = None) -> dict:
+    """Write ``summary.json``, ``summary.md``, ``summary.png`` and ``problems.csv`` of the
+    problems ``keys`` (default: ``selected``) into ``out``; the summary."""
     from advocc_ros.fileio import atomic_write_text
 
-    summary = summarise(out)
+    keys = selected(out) if keys is None else keys
+    summary = summarise(out, keys)
     store.write_json(out / 'summary.json', summary)
     atomic_write_text(out / 'summary.md', markdown(summary))
-    atomic_write_text(out / TABLE, _csv(table_rows(out)))
+    atomic_write_text(out / TABLE, _csv(table_rows(out, keys)))
     figure(summary, out / FIGURE)
     return summary
 
 
-__all__ = ['FIGURE', 'SUMMARY_FORMAT', 'TABLE', 'TABLE_COLUMNS', 'markdown', 'summarise',
-           'table_rows', 'write_summary']
+__all__ = ['FIGURE', 'PROVENANCE_COLUMNS', 'SUMMARY_FORMAT', 'TABLE', 'TABLE_COLUMNS', 'markdown',
+           'selected', 'summarise', 'table_rows', 'write_summary']

@@ -14,20 +14,14 @@ from advocc_ros.model.collision import CollisionWorld
 from advocc_ros.model.robot import load_robot
 from advocc_ros.model.scene import Scene
 from advocc_ros.planning.worker import Planner
+from advocc_ros.evaluation.provenance import cpu_model
 from advocc_ros.planning.types import PlanningConfig
 from advocc_ros.kinematics.ik import start_configuration
 
 
 def machine() -> dict:
     """What the numbers were measured on."""
-    cpu = platform.processor()
-    try:
-        with open('/proc/cpuinfo') as handle:
-            cpu = next(line.split(':', 1)[1].strip() for line in handle
-                       if line.startswith('model name'))
-    except (OSError, StopIteration):
-        pass
-    return {'cpu': cpu, 'cores': os.cpu_count(), 'python': platform.python_version()}
+    return {'cpu': cpu_model(), 'cores': os.cpu_count(), 'python': platform.python_version()}
 
 
 def benchmark_planning(scene: Scene, planner_ids=('rrtconnect', 'prmstar', 'bkpiece1'),

@@ -18,7 +18,6 @@ from __future__ import annotations
 
 import dataclasses
 import logging
-import os
 import pathlib
 import zipfile
 from typing import Callable
@@ -28,6 +27,7 @@ import numpy as np
 from advocc_ros.kinematics.batch import ChainKinematics, PoseBox, dls, exp3
 from advocc_ros.kinematics.ik import GoalSampler, IkConfig, seed_configurations
 from advocc_ros.fileio import atomic_open
+from advocc_ros.limits import worker_threads
 from advocc_ros.model.cache import BoundedCache, disk_cache_dir
 from advocc_ros.model.collision import CollisionWorld
 from advocc_ros.model.goal import GoalRegion
@@ -36,7 +36,7 @@ from advocc_ros.model.scene import task_hash
 
 log = logging.getLogger(__name__)
 
-THREADS = os.cpu_count() or 1
+THREADS = worker_threads()
 """Threads of the batched collision checks (C++); the result does not depend on it."""
 BATCH = 512
 """Attempts per batch (the stream is drawn per batch, so this is part of the result)."""

@@ -1,0 +1,119 @@
+"""What made a record: the code (its commit, and whether its files differ from it), the machine
+(host, CPU model, the cores this process may use, the load) and the libraries' versions.
+
+A figure is only as good as what it names of its making: every record of a data set carries
+this, so that a table can be traced to a commit and a machine, and a figure measured on a loaded
+or a modified checkout can be told from one that was not. The commit and the versions are read
+once per process (the code a process runs is the code it imported); the load at every call.
+"""
+
+from __future__ import annotations
+
+import datetime
+import functools
+import importlib.metadata
+import os
+import pathlib
+import platform
+import socket
+import subprocess
+
+from advocc_ros.limits import available_cpus
+
+REPO = pathlib.Path(__file__).resolve().parents[2]
+"""The checkout this package runs from, when it runs from one (not an installed copy)."""
+CODE_PATHS = ('advocc_ros', 'config', 'setup.py')
+"""What ``dirty`` looks at: the code and the robot and scene files it loads, not docs or
+results (a results README edited before a build does not change a figure)."""
+DISTRIBUTIONS = ('advocc_ros', 'ray', 'numpy', 'scipy', 'numba', 'ompl', 'pin', 'coal',
+                 'trimesh', 'matplotlib', 'tesseract-robotics')
+"""Libraries whose versions every record names (None: not installed)."""
+
+
+def now() -> str:
+    """The time, UTC, to the second, ISO 8601."""
+    return datetime.datetime.now(datetime.timezone.utc).isoformat(timespec='seconds')
+
+
+def cpu_model() -> str:
+    """The CPU's model name (``/proc/cpuinfo``; elsewhere what ``platform`` knows)."""
+    try:
+        with open('/proc/cpuinfo', encoding='utf-8', errors='replace') as handle:
+            for line in handle:
+                if line.startswith('model name'):
+                    return line.split(':', 1)[1].strip()
+    except OSError:
+        pass
+    return platform.processor() or platform.machine()
+
+
+def load() -> list[float]:
+    """The machine's load average over 1, 5 and 15 minutes (runnable processes)."""
+    try:
+        return [round(v, 2) for v in os.getloadavg()]
+    except OSError:
+        return []
+
+
+@functools.lru_cache(maxsize=1)
+def code() -> dict:
+    """``commit`` (None outside a git checkout of this package), ``dirty`` (files of
+    ``CODE_PATHS`` changed since the commit or not in it, ignored ones aside) and ``modified``
+    (those files)."""
+    out = {'commit': None, 'dirty': None, 'modified': []}
+    git = ['git', '-C', str(REPO)]
+    try:
+        top = _git(git + ['rev-parse', '--show-toplevel'])
+        if top is None or pathlib.Path(top.strip()).resolve() != REPO:  # another repository's
+            return out
+        commit = _git(git + ['rev-parse', 'HEAD'])
+        status = _git(git + ['status', '--porcelain', '--untracked-files=all', '--']
+                      + list(CODE_PATHS))
+    except (OSError, subprocess.SubprocessError):
+        return out
+    if commit is None or status is None:
+        return out
+    modified = sorted(line[3:] for line in status.splitlines() if line.strip())
+    return {'commit': commit.strip(), 'dirty': bool(modified), 'modified': modified}
+
+
+def _git(cmd: list[str]) -> str | None:
+    done = subprocess.run(cmd, capture_output=True, text=True, timeout=20)
+    return done.stdout if done.returncode == 0 else None
+
+
+@functools.lru_cache(maxsize=1)
+def versions() -> dict:
+    """Python's, the platform's and ``DISTRIBUTIONS``' versions, and MPlib's in the venv the
+    MPlib victim runs in (``$ADVOCC_MPLIB_PYTHON``'s, else the checkout's ``.venv-mplib``)."""
+    from advocc_ros.planning.victims.mplib import PYTHON_ENV
+
+    out = {'python': platform.python_version(), 'platform': platform.platform()}
+    for dist in DISTRIBUTIONS:
+        try:
+            out[dist] = importlib.metadata.version(dist)
+        except importlib.metadata.PackageNotFoundError:
+            out[dist] = None
+    venvs = [REPO / '.venv-mplib']
+    if os.environ.get(PYTHON_ENV):  # the venv of the interpreter the victim runs
+        venvs.insert(0, pathlib.Path(os.environ[PYTHON_ENV]).parent.parent)
+    found = [sorted(v.glob('lib/python*/site-packages/mplib-*.dist-info')) for v in venvs]
+    found = next((f for f in found if f), [])
+    out['mplib'] = found[-1].name[len('mplib-'):-len('.dist-info')] if found else None
+    return out
+
+
+def machine() -> dict:
+    """``host``, ``cpu`` (model), ``cores`` (this process may use: ``limits.available_cpus``),
+    ``machine_cores`` and ``load`` (1, 5, 15 min)."""
+    return {'host': socket.gethostname(), 'cpu': cpu_model(), 'cores': available_cpus(),
+            'machine_cores': os.cpu_count(), 'load': load()}
+
+
+def record() -> dict:
+    """Everything above in one dict: ``code()``, ``machine()`` and ``versions``."""
+    return {**code(), **machine(), 'versions': versions()}
+
+
+__all__ = ['CODE_PATHS', 'DISTRIBUTIONS', 'REPO', 'code', 'cpu_model', 'load', 'machine', 'now',
+           'record', 'versions']
