@@ -29,8 +29,10 @@ REPO = pathlib.Path(__file__).resolve().parents[1]
 REAL = REPO / 'test' / 'data' / 'mbm_real'
 ADVOCC = [sys.executable, '-m', 'advocc_ros.cli']
 RAY = str(pathlib.Path(sys.executable).with_name('ray'))
-TINY = ['--budgets', '1', '--victims', 'rrtconnect', '--trials', '1', '--time', '1']
-"""One box, one RRTConnect trial of 1 s: the smallest build that runs every step."""
+TINY = ['--budgets', '1', '--victims', 'rrtconnect', '--trials', '1', '--time', '1',
+        '--goal-form', 'joint']
+"""One box, one RRTConnect trial of 1 s, the joint goal form (one data set in OUT): the
+smallest build that runs every step."""
 HEATMAP = ['--heatmap-samples', '1000']
 """A small robot-only heatmap, built by the first build and reused by the later ones."""
 
@@ -355,6 +357,39 @@ def test_build_on_embedded_ray(built, problems):
     text = (out / 'summary.md').read_text()
     assert '| box_panda | 2 |' in text and f'`{commit[:12]}' in text and 'alone' in text
     assert (out / 'summary.png').read_bytes()[:4] == b'\x89PNG'
+
+
+@pytest.mark.processes
+def test_both_goal_forms_are_data_sets_of_their_own(tmp_path, problems, robot_heatmap):
+    """--goal-form both: OUT/joint and OUT/region, each record and row naming its form; the
+    joint export's request holds the request's own goal configuration and nothing else, and
+    its witness ends there."""
+    from advocc_ros.formats.mbm_export import load_trajectory
+    from advocc_ros.formats.mbm_request import load_request
+    from advocc_ros.model.robot import load_robot
+
+    out = tmp_path / 'out'
+    run = _run(['--problems', problems, '--out', out, '--families', 'box', '--limit', 1,
+                '--heatmap', robot_heatmap] + TINY[:-2] + ['--goal-form', 'both'])
+    assert run.returncode == 0, run.stderr[-3000:]
+    for form in ('joint', 'region'):
+        assert _build_record(out / form)['settings']['build']['goal_form'] == form
+        [(key, record)] = _records(out / form).items()
+        assert record['outcome'] == 'built', record
+        attack = json.loads((out / form / key / 'hardness.json').read_text())['attacks']['1']
+        assert attack['goal_form'] == form
+        assert f',{form},built,' in (out / form / 'problems.csv').read_text()
+        assert f'goal form `{form}`' in (out / form / 'summary.md').read_text()
+    key, _ = next(iter(_records(out / 'joint').items()))
+    family, number = key.split('/')
+    folder = out / 'joint' / key / 'm1'
+    robot = load_robot()
+    own = load_request(problems / family / f'request{number}.yaml', robot).goal
+    exported = load_request(folder / f'request{number}.yaml', robot)
+    assert exported.goal == own and exported.goal_region is None
+    names, waypoints = load_trajectory(folder / f'trajectory{number}.yaml')
+    assert [waypoints[-1][names.index(j)] for j in robot.joint_names] == \
+        pytest.approx([own[j] for j in robot.joint_names], abs=1e-9)
 
 
 @pytest.mark.processes  # the `built` fixture runs a build

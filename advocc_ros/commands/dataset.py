@@ -57,8 +57,16 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help='budget per plan request [s] (default %(default)s)')
     p.add_argument('--seed', type=int, default=0, help='selection, attack and trial seed '
                    '(trial k uses SEED + k) (default %(default)s)')
-    p.add_argument('--goal-tol', metavar='TOL', help='goal region around a joint goal: '
-                   '"pos=X;rot=R" (default pos=0.02;rot=0.1)')
+    p.add_argument('--goal-form', choices=GOAL_FORM_CHOICES, default='both',
+                   help='how each request\'s joint goal is posed: joint (the configuration '
+                   'itself), region (the paper\'s region around its hand pose, --goal-tol) or '
+                   'both, each a data set of its own in OUT/joint and OUT/region (one form: '
+                   'OUT itself) (default %(default)s)')
+    p.add_argument('--goal-tol', metavar='TOL', help='goal region around a joint goal in the '
+                   'region form: "pos=X;rot=R" (default pos=0.02;rot=0.1)')
+    p.add_argument('--victim-margin', type=float, default=build.victim_margin_m, metavar='M',
+                   help='distance the boxes keep from the witness (and a joint goal) beyond the '
+                   'certificate\'s guard margin [m] (default %(default)g)')
     add_task_option_arg(p)
     p.add_argument('--heatmap', metavar='FILE', help='robot-only heatmap to attack with '
                    '(default: built once per robot into OUT/heatmaps/)')
@@ -82,6 +90,19 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument('out', metavar='DIR', help='a build\'s output folder (--out)')
     p.add_argument('--json', action='store_true', help='print the summary as JSON')
     p.set_defaults(func=_summary)
+
+
+GOAL_FORM_CHOICES = ('joint', 'region', 'both')
+
+
+def form_folders(out: str, goal_form: str) -> list[tuple[str, str]]:
+    """(goal form, its build folder) of ``--goal-form``: ``OUT`` for one form, ``OUT/joint``
+    and ``OUT/region`` for both, so the two data sets never mix."""
+    import pathlib
+
+    if goal_form != 'both':
+        return [(goal_form, out)]
+    return [(form, str(pathlib.Path(out) / form)) for form in ('joint', 'region')]
 
 
 def _ints(text: str, what: str) -> tuple[int, ...]:
@@ -128,13 +149,16 @@ def _config(args: argparse.Namespace):
     given = () if options is None else tuple(
         (k, v) for k, v in dataclasses.asdict(options).items()
         if v != getattr(TaskOptions(), k))
+    if not 0 <= args.victim_margin <= 0.05:
+        raise UserError('--victim-margin must be in [0, 0.05] m')
     if args.max_retries < 0 or args.cpus_per_problem <= 0 or args.heatmap_samples < 1 \
             or not args.problem_timeout > 0:
         raise UserError('--max-retries must be >= 0, --cpus-per-problem > 0, '
                         '--heatmap-samples >= 1 and --problem-timeout > 0')
     build = BuildConfig(budgets=tuple(sorted(set(budgets))), victims=victims,
                         trials=args.trials, time_s=args.time, seed=args.seed,
-                        task_options=given, goal_tol=args.goal_tol)
+                        task_options=given, goal_tol=args.goal_tol,
+                        victim_margin_m=args.victim_margin)
     run = RunConfig(ray_address=args.ray_address, max_retries=args.max_retries,
                     cpus_per_problem=args.cpus_per_problem,
                     problem_timeout_s=args.problem_timeout,
@@ -162,12 +186,20 @@ def _build(args: argparse.Namespace) -> int:
     config, run = _config(args)
     selection = Selection(args.problems, _names(args.families) or None, args.split, args.limit,
                           args.seed)
-    entry = build(selection, args.out, config, run)
+    entries = {}
+    for form, out in form_folders(args.out, args.goal_form):
+        entries[form] = build(selection, out, dataclasses.replace(config, goal_form=form), run)
+        if not args.json:
+            _print_build(out, entries[form])
     if args.json:
-        print(json.dumps(entry, indent=1))
-        return 0
+        print(json.dumps(entries, indent=1))
+    return 0
+
+
+def _print_build(out: str, entry: dict) -> None:
+    """A build's lines on the terminal: counts, the share beaten per split, timing, errors."""
     summary = entry['summary']
-    print(f'{args.out}: {summary["problems"]} of {summary["selected"]} selected problems '
+    print(f'{out}: {summary["problems"]} of {summary["selected"]} selected problems '
           'recorded; this run: '
           + (', '.join(f'{v} {k}' for k, v in entry.get('counts', {}).items())
              or 'nothing to do') + f' in {entry["wall_s"]:.0f} s')
@@ -182,5 +214,4 @@ def _build(args: argparse.Namespace) -> int:
     print(f'  {entry["timing"]["note"]}')
     for line in summary['errors']:
         print(f'  not finished: {line}', file=sys.stderr)
-    print(f'  see {args.out}/summary.md')
-    return 0
+    print(f'  see {out}/summary.md')

@@ -76,12 +76,19 @@ class BuildConfig:
     task_options: tuple[tuple[str, Any], ...] = ()
     """``TaskOptions`` of the attack that differ from their defaults (key, value)."""
     goal_tol: str | None = None
-    """Goal tolerance around a joint goal (``--goal-tol``; None: the default region)."""
+    """Goal tolerance around a joint goal in the region form (``--goal-tol``; None: the
+    default region)."""
+    goal_form: str = 'joint'
+    """How a request's joint goal is posed (``model.goal.GOAL_FORMS``): ``joint``, the
+    configuration itself; ``region``, the paper's region around its hand pose."""
+    victim_margin_m: float = 0.0
+    """``AttackConfig.victim_margin_m`` of the attacks."""
 
     def to_json(self) -> dict:
         return {'budgets': list(self.budgets), 'victims': list(self.victims),
                 'trials': self.trials, 'time_s': self.time_s, 'seed': self.seed,
                 'task_options': dict(self.task_options), 'goal_tol': self.goal_tol,
+                'goal_form': self.goal_form, 'victim_margin_m': self.victim_margin_m,
                 'method': 'task', 'goal_policy': 'solvable'}
 
 
@@ -234,7 +241,7 @@ def run_problem(problem: dict, heatmap, config: BuildConfig, log_to: dict | None
     return {'record': record, 'hardness': hardness, 'files': files, 'log': captured['text']}
 
 
-def _load(problem: dict, goal_tol):
+def _load(problem: dict, goal_tol, goal_form: str):
     """The problem's scene, or the reason it is refused."""
     from advocc_ros.formats.mbm_scene import load_any_scene
     from advocc_ros.model.pose import SceneError
@@ -249,7 +256,7 @@ def _load(problem: dict, goal_tol):
         scene_path.write_bytes(problem['scene'])
         request_path.write_bytes(problem['request'])
         try:
-            scene = load_any_scene(scene_path, request_path, goal_tol)
+            scene = load_any_scene(scene_path, request_path, goal_tol, goal_form)
         except (SceneError, RobotError, ValueError) as exc:
             return None, f'malformed problem: {str(exc).replace(tmp + "/", "")}'
     if scene.start is None or scene.goal is None:
@@ -268,7 +275,7 @@ def _run(problem: dict, heatmap, config: BuildConfig, files: dict, record: dict)
     from advocc_ros.model.task_check import check_task
 
     t = time.perf_counter()
-    scene, why = _load(problem, config.goal_tol)
+    scene, why = _load(problem, config.goal_tol, config.goal_form)
     if scene is None:
         return 'refused', why, None
     robot = load_robot(scene.robot)
@@ -280,7 +287,7 @@ def _run(problem: dict, heatmap, config: BuildConfig, files: dict, record: dict)
         return 'error', f'no robot-only heatmap for this problem\'s robot ({robot.hash})', None
     record['load_s'] = round(time.perf_counter() - t, 3)
     options = task_options(dict(config.task_options)) if config.task_options else None
-    cfg = AttackConfig(goal_policy='solvable')
+    cfg = AttackConfig(goal_policy='solvable', victim_margin_m=config.victim_margin_m)
     attacks, scenes = {}, {}
     for budget in config.budgets:
         log.info('attack at M=%d', budget)
@@ -292,6 +299,9 @@ def _run(problem: dict, heatmap, config: BuildConfig, files: dict, record: dict)
             record['attack_s'] = round(wall_s, 3)
             return 'no_witness', result.message, None
         entry, attacked = _attack_entry(result, scene, robot, q_init, wall_s)
+        if attacked is not None and 'mplib' in config.victims:
+            entry['witness_checks'] = {'mplib': mplib_witness_check(
+                attacked, robot, q_init, result.witness)}
         if attacked is not None:
             folder = f'm{budget}'
             entry['exported'] = folder
@@ -313,6 +323,33 @@ def _run(problem: dict, heatmap, config: BuildConfig, files: dict, record: dict)
     return 'built', '', _hardness(problem, config, attacks, unattacked)
 
 
+WITNESS_CHECK_STEP_RAD = 0.002
+"""Joint-space step at which a victim's own checker is asked about the witness [rad]."""
+
+
+def mplib_witness_check(scene, robot, q_init, witness) -> dict:
+    """What MPlib's own collision check (FCL on its model) says of the witness on ``scene``
+    (the attacked problem): its states every ``WITNESS_CHECK_STEP_RAD``, how many collide
+    and whether it accepts the path. A corridor a victim's checker calls closed is no
+    solution for that victim."""
+    import numpy as np
+
+    from advocc_ros.planning.victims import VictimConfig, make_victim
+    from advocc_ros.planning.victims.base import Task, densify
+
+    Q = densify(witness.configurations(robot), WITNESS_CHECK_STEP_RAD)
+    victim = make_victim('mplib', VictimConfig())
+    try:
+        task = Task(scene, q_init, scene.goal)
+        colliding = np.concatenate([victim.check(task, Q[i:i + 100])
+                                    for i in range(0, len(Q), 100)])
+    finally:
+        victim.close()
+    first = int(np.argmax(colliding)) if colliding.any() else -1
+    return {'states': len(Q), 'colliding': int(colliding.sum()), 'first_colliding': first,
+            'accepted': not bool(colliding.any())}
+
+
 def _attack_entry(result, scene, robot, q_init, wall_s: float):
     """The hardness file's record of one attack, and the attacked scene when its witness is
     certified with the boxes (else None)."""
@@ -321,6 +358,7 @@ def _attack_entry(result, scene, robot, q_init, wall_s: float):
 
     verdict = result.solvable
     entry = {'status': result.status.value, 'message': result.message,
+             'goal_form': result.goal_form,
              'boxes': len(result.obstacles), 'wall_s': round(wall_s, 3),
              'compute_ms': round(result.compute_s * 1e3, 3),
              'witness_search_ms': result.stats.get('witness_search_ms'),

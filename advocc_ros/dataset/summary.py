@@ -32,7 +32,8 @@ PROVENANCE_COLUMNS = ('commit', 'dirty', 'host', 'cpu', 'cpus', 'threads', 'vict
                       'load_start', 'load_end', 'started', 'finished', 'versions')
 """The columns of ``problems.csv`` that name a row's making (the problem's ``provenance``:
 ``load_*`` the 1-minute load average, ``versions`` ``name=version`` pairs)."""
-TABLE_COLUMNS = ('family', 'problem', 'split', 'outcome', 'budget', 'certificate', 'boxes',
+TABLE_COLUMNS = ('family', 'problem', 'split', 'goal_form', 'outcome', 'budget', 'certificate',
+                 'boxes', 'witness_accepted_by_mplib',
                  'victim', 'trials', 'psr', 'psr_given_goals', 'no_goal_found',
                  'first_solution_median_s', 'pt_ratio', 'unattacked_psr') + PROVENANCE_COLUMNS
 """``problems.csv``: budget 0 rows are the unattacked problem; a problem without a hardness
@@ -87,13 +88,17 @@ def selected(out: pathlib.Path) -> list[str] | None:
     return list(problems) if isinstance(problems, list) else None
 
 
+def _settings(out: pathlib.Path) -> dict:
+    """The build settings (``BuildConfig.to_json``) of the build folder ``out``."""
+    return (store.read_build(out) or {}).get('settings', {}).get('build', {})
+
+
 def summarise(out: pathlib.Path, keys: list[str] | None = None) -> dict:
     """The summary of the problems ``keys`` (default: ``selected``) recorded under ``out``
     (see the module docstring)."""
     keys = selected(out) if keys is None else keys
     found = store.records(out, keys)
-    build = store.read_build(out) or {}
-    settings = build.get('settings', {}).get('build', {})
+    settings = _settings(out)
     budgets = [str(b) for b in settings.get('budgets', [])]
     victims = list(settings.get('victims', []))
     groups = []
@@ -133,9 +138,11 @@ def _made(found: list[dict]) -> dict:
 def table_rows(out: pathlib.Path, keys: list[str] | None = None) -> list[dict]:
     """The rows of ``problems.csv`` for the problems ``keys`` (default: ``selected``)."""
     rows = []
+    form = _settings(out).get('goal_form', 'region')
     for record, hardness in store.records(out, selected(out) if keys is None else keys):
         key = dict({'family': record['family'], 'problem': record['problem'],
-                    'split': record.get('split'), 'outcome': record['outcome']},
+                    'split': record.get('split'), 'goal_form': form,
+                    'outcome': record['outcome']},
                    **_provenance_cells(record.get('provenance') or {}))
         if not hardness:
             rows.append(key)
@@ -144,8 +151,9 @@ def table_rows(out: pathlib.Path, keys: list[str] | None = None) -> list[dict]:
         for victim, cell in base.items():
             rows.append(dict(key, budget=0, victim=victim, **_cell(cell)))
         for budget, attack in hardness.get('attacks', {}).items():
+            accepted = attack.get('witness_checks', {}).get('mplib', {}).get('accepted')
             head = dict(key, budget=int(budget), certificate=attack.get('certificate'),
-                        boxes=attack.get('boxes'))
+                        boxes=attack.get('boxes'), witness_accepted_by_mplib=accepted)
             for victim, cell in attack.get('victims', {}).items():
                 rows.append(dict(head, victim=victim, **_cell(cell),
                                  unattacked_psr=base.get(victim, {}).get('psr')))
@@ -198,8 +206,8 @@ def markdown(summary: dict) -> str:
     outcomes = [k for k in OUTCOMES if k in FINAL_OUTCOMES
                 or any(g['outcomes'][k] for g in summary['groups'])]
     lines = ['# Certified hard problems: summary', '',
-             f'{summary["problems"]} of {summary["selected"]} selected problems recorded; '
-             '`task` attack under `solvable` at M = '
+             f'{summary["problems"]} of {summary["selected"]} selected problems recorded; goal '
+             f'form `{s.get("goal_form", "region")}`; `task` attack under `solvable` at M = '
              f'{", ".join(budgets)}; victims {", ".join(victims)}; {s.get("trials")} trials x '
              f'{s.get("time_s")} s each. "All <= 20 %": share of the problems with a certified '
              'attack at M where every victim is at PSR <= 20 %. PT ratio: median over victims '
