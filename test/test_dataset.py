@@ -482,29 +482,31 @@ def _wait(proc: subprocess.Popen, condition, what: str, timeout: float = 240) ->
 
 
 def _gone(pid: int, timeout: float = 30) -> bool:
-    """Whether every process of the process group ``pid`` led ends within ``timeout``."""
+    """Whether every process the build ``pid`` started ends within ``timeout``."""
     deadline = time.monotonic() + timeout
-    while _group(pid) and time.monotonic() < deadline:
+    while _started_by(pid) and time.monotonic() < deadline:
         time.sleep(0.2)
-    return not _group(pid)
+    return not _started_by(pid)
 
 
-def _group(pid: int) -> list[int]:
-    """The live processes of the process group ``pid`` leads (a build and its Ray)."""
+def _started_by(pid: int) -> list[int]:
+    """The live processes whose SID (``setsid``) is ``pid``: a build started as the leader of
+    its own, and all it started, its Ray workers too (they lead process groups of their
+    own)."""
     found = []
     for stat in pathlib.Path('/proc').glob('[0-9]*/stat'):
         try:
             fields = stat.read_text().rsplit(')', 1)[1].split()
         except OSError:
             continue
-        if int(fields[2]) == pid and fields[0] != 'Z':
+        if int(fields[3]) == pid and fields[0] != 'Z':
             found.append(int(stat.parent.name))
     return found
 
 
 class _Build:
-    """A CLI build leading a process group of its own (its Ray's processes join it), output in
-    files; on exit every process of the group is killed."""
+    """A CLI build started with a SID of its own, output in files; on exit every process
+    with that SID (the build, its Ray) is killed."""
 
     def __init__(self, args, folder: pathlib.Path, name: str):
         self.stdout, self.stderr = folder / f'{name}.out', folder / f'{name}.err'
@@ -524,10 +526,11 @@ class _Build:
         return self.stdout.read_text() + self.stderr.read_text()
 
     def __exit__(self, *exc):
-        try:
-            os.killpg(self.proc.pid, signal.SIGKILL)
-        except ProcessLookupError:
-            pass
+        for pid in [self.proc.pid] + _started_by(self.proc.pid):
+            try:
+                os.kill(pid, signal.SIGKILL)
+            except ProcessLookupError:
+                pass
         self.proc.wait(30)
 
 
@@ -563,7 +566,7 @@ def test_builds_stopped_by_sigint_and_kill_resume_to_a_fresh_builds_summary(
         os.killpg(b.proc.pid, signal.SIGINT)  # Ctrl-C: the whole foreground group
         assert b.wait() == 130, b.text()[-3000:]
         assert 'interrupted' in b.text()
-        assert _gone(b.proc.pid), _group(b.proc.pid)  # Ray stopped with it
+        assert _gone(b.proc.pid), _started_by(b.proc.pid)  # Ray stopped with it
     assert _records(out) == {}
     assert [r['status'] for r in _build_record(out)['runs']] == ['interrupted']
     with _Build(args + ['--limit', 2], tmp_path, 'kill') as b:
