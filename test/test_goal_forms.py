@@ -154,3 +154,23 @@ def test_only_the_region_form_keeps_boxes_off_the_goal_region(box_heatmap):
         hand = np.array(scene.goal.center.position_m)
         near[form] = int((np.linalg.norm(centers - hand, axis=1) < 0.1).sum())
     assert near['region'] == 0 and near['joint'] > 0
+
+
+def test_the_goal_form_travels_in_the_ros_message():
+    """The heatmap server's ~/attack and the attacker node read the goal from a GoalRegion
+    message: a joint goal keeps its form and configuration through it."""
+    from advocc_ros.ros.conversions import goal_region_from_msg, goal_region_to_msg
+
+    for form in ('joint', 'region'):
+        scene, robot, _ = _problem('box', form)
+        msg = goal_region_to_msg(scene.goal, 'panda_link0')
+        assert msg.form == form
+        back = goal_region_from_msg(msg, robot.spec.ee_link)
+        assert back.form == form
+        if form == 'joint':
+            assert np.array_equal(back.configuration(robot.joint_names),
+                                  scene.goal.configuration(robot.joint_names))
+    msg = goal_region_to_msg(_problem('box')[0].goal, 'panda_link0')
+    msg.joint_goal.position = []
+    with pytest.raises(SceneError, match='one position per named joint'):
+        goal_region_from_msg(msg, 'panda_hand')

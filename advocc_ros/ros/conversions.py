@@ -45,7 +45,17 @@ def pose_to_msg(pose: Pose) -> PoseMsg:
 
 def goal_region_from_msg(msg: GoalRegionMsg, default_link: str, where: str = 'goal_region'
                          ) -> GoalRegion:
-    """``default_link``: the link of a message that names none (the node's robot's ee link)."""
+    """``default_link``: the link of a message that names none (the node's robot's ee link).
+    A ``joint`` form message carries its goal configuration in ``joint_goal``."""
+    joint = {}
+    if msg.form:
+        joint['form'] = msg.form
+    if msg.form == 'joint':
+        names, values = list(msg.joint_goal.name), list(msg.joint_goal.position)
+        if not names or len(names) != len(values):
+            raise SceneError(f'{where}.joint_goal: the joint form needs one position per named '
+                             f'joint, got {len(names)} names and {len(values)} positions')
+        joint['seeds'] = [dict(zip(names, values))]
     return GoalRegion.from_data({
         'link': msg.link_name or default_link,
         'center': {'position': [msg.center.position.x, msg.center.position.y,
@@ -60,7 +70,7 @@ def goal_region_from_msg(msg: GoalRegionMsg, default_link: str, where: str = 'go
                                         msg.tool_offset.orientation.y,
                                         msg.tool_offset.orientation.z,
                                         msg.tool_offset.orientation.w]},
-    }, where)
+        **joint}, where)
 
 
 def goal_region_to_msg(goal: GoalRegion, frame: str) -> GoalRegionMsg:
@@ -71,6 +81,10 @@ def goal_region_to_msg(goal: GoalRegion, frame: str) -> GoalRegionMsg:
     msg.tool_offset = pose_to_msg(goal.tool_offset)
     msg.position_tolerance = [float(v) for v in goal.position_tolerance_m]
     msg.orientation_tolerance = [float(v) for v in goal.orientation_tolerance_rad]
+    msg.form = goal.form
+    if goal.is_joint:
+        msg.joint_goal.name = list(goal.seed_joints)
+        msg.joint_goal.position = [float(v) for v in goal.seeds[0]]
     return msg
 
 
