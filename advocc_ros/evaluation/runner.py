@@ -58,6 +58,7 @@ def evaluate_planner(scene, planner_id: str, trials: int, time_budget_s: float =
                      planners, run, trials)
     row = aggregate(records, time_budget_s)
     return dict(row, scene=scene.name, planner=planner_id, seed=seed,
+                goal_form=scene.goal.form if scene.goal is not None else None,
                 goal_attempts=[r.goal_attempts for r in records],
                 records=[r.to_data() for r in records])
 
