@@ -103,15 +103,15 @@ def test_a_region_with_no_solution_spends_its_attempt_budget(panda, table_scene)
 def test_task_goals_are_cached_per_task_and_on_disk(panda, table_scene, tmp_path,
                                                     monkeypatch, caplog):
     from advocc_ros.kinematics import goal_batch
-    from advocc_ros.model.cache import CACHE_ENV
+    from advocc_ros.model.cache import CACHE_ENV, clear_task_caches
 
     monkeypatch.setenv(CACHE_ENV, str(tmp_path))
-    goal_batch._TASK_GOALS.clear()
+    clear_task_caches()
     first = task_goals(panda, table_scene.objects, table_scene.goal, 32)
     assert task_goals(panda, table_scene.objects, table_scene.goal, 32) is first
     assert len(first.Q) == 32
     (path,) = tmp_path.glob('*.goals.npz')
-    goal_batch._TASK_GOALS.clear()  # a new process reads the file, sampling nothing
+    clear_task_caches()  # a new process reads the file, sampling nothing
     monkeypatch.setattr(goal_batch, 'planner_goals', lambda *a: pytest.fail('sampled again'))
     again = task_goals(panda, table_scene.objects, table_scene.goal, 32)
     np.testing.assert_array_equal(again.Q, first.Q)
@@ -121,12 +121,12 @@ def test_task_goals_are_cached_per_task_and_on_disk(panda, table_scene, tmp_path
     moved = first.Q.copy()
     moved[0, 0] += 0.5  # no longer a goal configuration: the file is not used
     np.savez(path, Q=moved, attempts=1, converged=1)
-    goal_batch._TASK_GOALS.clear()
+    clear_task_caches()
     fresh = task_goals(panda, table_scene.objects, table_scene.goal, 32)
     np.testing.assert_array_equal(fresh.Q, first.Q)
     assert 'goal sample cache' in caplog.text
     path.write_bytes(b'not a zip')
-    goal_batch._TASK_GOALS.clear()
+    clear_task_caches()
     assert len(task_goals(panda, table_scene.objects, table_scene.goal, 32).Q) == 32
 
 

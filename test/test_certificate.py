@@ -9,7 +9,8 @@ import numpy as np
 import pytest
 import yaml
 
-from advocc_ros.attack.solvable import CERTIFICATE, Verdict, WitnessBodies, assess
+from advocc_ros.attack.policy import WitnessBodies
+from advocc_ros.attack.solvable import CERTIFICATE, Verdict, assess
 from advocc_ros.kinematics.ik import goal_configuration, start_configuration
 from advocc_ros.model.collision import CollisionWorld
 from advocc_ros.model.robot import load_robot

@@ -17,7 +17,8 @@ import pinocchio as pin
 import pytest
 
 from advocc_ros.attack import AttackConfig, AttackStatus, attack, load_obstacles
-from advocc_ros.attack.solvable import CERTIFICATE, WitnessBodies, assess, probe_goal
+from advocc_ros.attack.policy import WitnessBodies
+from advocc_ros.attack.solvable import CERTIFICATE, assess, probe_goal
 from advocc_ros.heatmap import HeatmapConfig, build_heatmap, save_heatmap
 from advocc_ros.model.collision import CollisionWorld, coal_geometry
 from advocc_ros.model.robot import load_robot
@@ -186,6 +187,36 @@ def test_the_policy_keeps_the_candidate_that_shields_the_fewest_goals(task):
     assert valid_goals(results[0].witness) <= valid_goals(worst)
 
 
+def test_the_policy_returns_a_narrower_region_and_the_goal_cover_of_it(task):
+    """The policy step leaves its input alone: a new region without the candidates the kept
+    witness's body touches, with the guard, and the goal sample's cover over exactly those
+    candidates (computed once, for the witness choice, and handed to the objective)."""
+    from advocc_ros.attack import search_region
+    from advocc_ros.attack.configurations import cover_matrix
+    from advocc_ros.attack.policy import apply_policy
+    from advocc_ros.attack.task import goal_tier
+    from advocc_ros.attack.types import Task
+
+    scene, robot, q0, heatmap = task
+    witnesses = find_witnesses(robot, scene.objects, q0, scene.goal)
+    assert len(witnesses) >= 2
+    solvable = Task(robot, scene.objects, q0, scene.goal, 'solvable')
+    region = search_region(heatmap, robot, scene.objects, q0, scene.goal)
+    before = region.candidates.copy()
+    Q = goal_tier(solvable).Q
+    policed = apply_policy(solvable, region, AttackConfig(), witnesses, Q)
+    kept = policed.region
+    assert region.guard is None and np.array_equal(region.candidates, before)
+    assert kept.guard is not None and any(policed.witness is w for w in witnesses)
+    assert not (kept.candidates & ~region.candidates).any()
+    assert 0 < kept.candidates.sum() == policed.stats['witness_clear'] < region.candidates.sum()
+    world = CollisionWorld(robot, scene.shapes)
+    assert (policed.goal_cover != cover_matrix(robot, world, Q, kept)).nnz == 0
+    paper = apply_policy(Task(robot, scene.objects, q0, scene.goal), region, AttackConfig(),
+                         witnesses, Q)
+    assert paper.region is region and paper.witness is None and paper.stats == {}
+
+
 @pytest.mark.parametrize('method', ['task', 'random', 'ours'])
 def test_solvable_attacks_stay_certified_under_an_independent_check(task, method):
     scene, robot, q0, heatmap = task
@@ -303,16 +334,16 @@ def test_attack_config_accepts_the_policy():
 
 
 def test_tube_samples_surround_the_witness_and_are_valid(task):
-    from advocc_ros.attack.task import tube_samples
+    from advocc_ros.attack.objective import tube_samples
 
     scene, robot, q0, _ = task
     witness = find_witnesses(robot, scene.objects, q0, scene.goal)[0]
     states = witness_states(witness.configurations(robot))
     world = CollisionWorld(robot, scene.shapes)
-    Q = tube_samples(world, states, 200, 0.2, np.random.default_rng(0))
+    Q = tube_samples(world, states, np.random.default_rng(0).normal(0.0, 0.2, (200, robot.nq)))
     assert 100 < len(Q) <= 200  # most perturbations of a free path are free too
     assert not world.collisions_batch(Q).any()
     assert np.all((Q >= robot.lower) & (Q <= robot.upper))
     nearest = np.min(np.linalg.norm(Q[:, None] - states[None], axis=-1), axis=1)
     assert np.median(nearest) < 0.2 * np.sqrt(robot.nq) * 1.5  # around the path, not anywhere
-    assert len(tube_samples(world, states, 0, 0.2, np.random.default_rng(0))) == 0
+    assert len(tube_samples(world, states, np.zeros((0, robot.nq)))) == 0

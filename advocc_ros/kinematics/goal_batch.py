@@ -53,7 +53,7 @@ GOALS_FORMAT = 'advocc_goal_sample_1'
 RARITY_NEIGHBOUR = 5
 """The k of the k-NN distance that ranks goal configurations by rarity."""
 
-_TASK_GOALS: BoundedCache = BoundedCache('task goals', 16, per_task=True)
+TASK_GOAL_SAMPLES: BoundedCache = BoundedCache('task goals', 16, per_task=True)
 """Task hash -> GoalDraw (nodes attack from several executor threads)."""
 
 
@@ -139,7 +139,7 @@ def task_goals(robot: RobotModel, objects, goal: GoalRegion, n: int = TASK_GOALS
             if path is not None:
                 _write(path, draw)
         return draw
-    return _TASK_GOALS.get_or_make(key, make)
+    return TASK_GOAL_SAMPLES.get_or_make(key, make)
 
 
 def _read(path: pathlib.Path, robot: RobotModel, goal: GoalRegion, collisions, n: int
@@ -223,5 +223,5 @@ def _one_at_a_time(robot, goal, collisions_batch, n, seed, attempts_per_sample, 
     return GoalDraw(np.array(found).reshape(-1, robot.nq), sampler.attempts, sampler.converged)
 
 
-__all__ = ['ATTEMPTS_PER_SAMPLE', 'GoalDraw', 'TASK_GOALS', 'planner_goals', 'rarest_first',
-           'task_goals']
+__all__ = ['ATTEMPTS_PER_SAMPLE', 'GoalDraw', 'TASK_GOALS', 'TASK_GOAL_SAMPLES', 'planner_goals',
+           'rarest_first', 'task_goals']

@@ -12,7 +12,7 @@ process, so the sequence is deterministic). A task has many solutions, and which
 ``solvable`` attack must keep decides how much of the goal set its boxes may cut (the goal
 configurations the witness's body shields stay valid). So the search returns *candidates*, one
 per target, and the attack keeps the one that shields the fewest of the task's goal samples
-(``attack.solvable.choose_witness``): paths to goal configurations the planners' goal samplers
+(``attack.policy.choose_witness``): paths to goal configurations the planners' goal samplers
 rarely land on (``rare_clear_ends``), then one into the region itself. Each run checks motions at
 ``WITNESS_STEP_RAD`` (discrete); a path the continuous certificate cannot prove on the unattacked
 scene (it grazes an object closer than the floor between two checked states, e.g. a grasp in a
