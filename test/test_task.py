@@ -13,7 +13,7 @@ from advocc_ros.attack.goals import goal_samples
 from advocc_ros.evaluation.runner import evaluate_planner
 from advocc_ros.heatmap import HeatmapConfig, build_heatmap
 from advocc_ros.model.collision import CollisionWorld
-from advocc_ros.kinematics.ik import goal_set
+from advocc_ros.kinematics.goal_batch import planner_goals
 from advocc_ros.planning.types import PlanningConfig
 
 from test_attack import _assert_constraints
@@ -96,7 +96,7 @@ def test_cover_matrix_matches_a_direct_rasterization(panda, heatmap, task):
     q, goal, objects = task
     region = search_region(heatmap, panda, objects, q, goal)
     world = CollisionWorld(panda, [s for o in objects for s in o.shapes])
-    Q = goal_set(panda, world.collisions_batch, world.in_collision, goal, 4, seed=2)
+    Q = planner_goals(panda, goal, world.collisions_batch, 4, seed=2).Q
     assert len(Q) == 4
     cover = cover_matrix(panda, world, Q, region).toarray().astype(bool)
     cand = np.argwhere(region.candidates)
@@ -119,7 +119,7 @@ def test_touching_mask_is_the_union_of_the_cover_rows(panda, heatmap, task):
     q, goal, objects = task
     region = search_region(heatmap, panda, objects, q, goal)
     world = CollisionWorld(panda, [s for o in objects for s in o.shapes])
-    Q = goal_set(panda, world.collisions_batch, world.in_collision, goal, 24, seed=3)
+    Q = planner_goals(panda, goal, world.collisions_batch, 24, seed=3).Q
     Q = np.concatenate([Q, np.linspace(q, Q[0], 16)])  # overlapping bodies along a path
     cover = cover_matrix(panda, world, Q, region)
     expected = np.zeros(region.candidates.shape, dtype=bool)

@@ -10,15 +10,15 @@ from advocc_ros.attack.objective import WEIGHT_FLOOR, goal_filter, lexicographic
 from advocc_ros.attack.policy import GoalGuard
 from advocc_ros.attack.task import approach_samples
 from advocc_ros.model.collision import CollisionWorld
-from advocc_ros.kinematics.ik import goal_set, start_configuration
+from advocc_ros.kinematics.goal_batch import planner_goals
+from advocc_ros.kinematics.ik import start_configuration
 
 
 @pytest.fixture(scope='module')
 def table(table_scene, panda):
     world = CollisionWorld(panda, table_scene.shapes)
     q_init = start_configuration(table_scene, panda)
-    Q_goal = goal_set(panda, world.collisions_batch, world.in_collision, table_scene.goal, 8,
-                      seed=3)
+    Q_goal = planner_goals(panda, table_scene.goal, world.collisions_batch, 8, seed=3).Q
     assert len(Q_goal) == 8
     return world, q_init, Q_goal
 
