@@ -73,8 +73,8 @@ class _CountedSearch:
     """Calls the real witness search and counts the calls."""
 
     def __init__(self, monkeypatch):
-        self.calls, self._search = 0, witness_mod._search
-        monkeypatch.setattr(witness_mod, '_search', self)
+        self.calls, self._search = 0, witness_mod.search_witnesses
+        monkeypatch.setattr(witness_mod, 'search_witnesses', self)
 
     def __call__(self, *args):
         self.calls += 1
@@ -122,14 +122,13 @@ def test_a_damaged_cache_file_costs_a_search_not_a_wrong_verdict(task, tmp_path,
             waypoints[0, 0] += 0.1
         else:  # the middle waypoint pushed down through the table
             waypoints = np.insert(waypoints, 1, q0 + np.array([0, 1.2, 0, 0, 0, 1.5, 0]), 0)
-        witness_mod._to_disk(path, (Witness(good.joint_names, waypoints, good.locked,
-                                            good.source),))
+        witness_mod.save_candidates(path, (Witness(good.joint_names, waypoints, good.locked,
+                                                   good.source),))
     _new_process(monkeypatch)
     again = find_witnesses(robot, scene.objects, q0, scene.goal)[0]
     assert search.calls == 2 and 'witness cache' in caplog.text
     np.testing.assert_allclose(again.waypoints, good.waypoints, atol=1e-12)
-    assert witness_mod._from_disk(path, robot, CollisionWorld(robot, scene.shapes), q0,
-                                  scene.goal)[0].waypoints.shape == good.waypoints.shape
+    assert witness_mod.load_candidates(path)[0].waypoints.shape == good.waypoints.shape
 
 
 def test_attack_cli_reuses_the_witness_of_an_earlier_run(task, tmp_path):

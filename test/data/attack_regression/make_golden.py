@@ -104,23 +104,15 @@ def cases() -> list[dict]:
 
 def read_witnesses(path: pathlib.Path) -> tuple:
     """The candidate witnesses of a file written by :func:`search_witnesses` (none without)."""
-    from advocc_ros.planning.witness import SET_FORMAT, Witness
-    from advocc_ros.model.scene import read_yaml
+    from advocc_ros.planning.witness import load_candidates
 
-    if not path.is_file():
-        return ()
-    data = read_yaml(path)
-    if data.get('format') != SET_FORMAT:
-        raise SystemExit(f'{path}: not a {SET_FORMAT} file')
-    return tuple(Witness.from_data(w, f'{path}: witnesses[{i}]')
-                 for i, w in enumerate(data['witnesses']))
+    return load_candidates(path) if path.is_file() else ()
 
 
 def search_witnesses() -> None:
     """Search the candidate witnesses, on the unattacked scene, of every task without a file,
     and write them."""
-    from advocc_ros.model.scene import save_yaml_atomic
-    from advocc_ros.planning.witness import SET_FORMAT, find_witnesses
+    from advocc_ros.planning.witness import find_witnesses, save_candidates
 
     for name, (scene_path, request) in tasks().items():
         if witness_path(name).is_file():
@@ -130,8 +122,7 @@ def search_witnesses() -> None:
         if not witnesses:
             print(f'{name}: the witness search found no witness', flush=True)
             continue
-        save_yaml_atomic(witness_path(name),
-                         {'format': SET_FORMAT, 'witnesses': [w.to_data() for w in witnesses]})
+        save_candidates(witness_path(name), witnesses)
         print(f'{name}: {len(witnesses)} candidate witnesses', flush=True)
 
 
