@@ -25,7 +25,8 @@ import time
 
 import numpy as np
 
-from advocc_ros.attack.api import attack, box_size, validate_request
+from advocc_ros.attack.api import attack
+from advocc_ros.attack.request import box_size, validate_request
 from advocc_ros.attack.types import (DEFAULT_METHOD, AttackConfig, AttackError, AttackResult,
                                      AttackStatus)
 from advocc_ros.model.robot import RobotError, RobotModel

@@ -156,14 +156,15 @@ def select_task(region: SearchRegion, budget: int, seed: int, cfg: AttackConfig,
         stats['task_goal_covered'] = int(covered[:objective.goal_rows].sum())
     if len(placed.picks) < budget and placed.candidates and \
             not placed.rejected > cfg.max_rejections:
-        stats['stop_reason'] = stop_reason(context, len(placed.picks), budget)
+        stats['stop_reason'] = stop_reason(context, len(placed.picks), budget,
+                                           region.guard is not None)
     return placed.picks, placed.rejected, stats
 
 
-def stop_reason(context: MethodContext, placed: int, budget: int) -> str:
-    """Why fewer than ``budget`` boxes were placed although candidates were left."""
+def stop_reason(context: MethodContext, placed: int, budget: int, guarded: bool) -> str:
+    """Why fewer than ``budget`` boxes were placed although candidates were left (``guarded``:
+    a goal policy's guard checked the picks)."""
     n_goal = len(context.sample.goals)
-    guarded = context.policy != 'paper'
     return (f'{placed} of {budget} boxes: no further box covers a sampled task '
             'configuration' + (' within the goal policy' if guarded else '')
             + ('' if n_goal else f' (no collision-free goal configuration in '
