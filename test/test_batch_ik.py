@@ -4,8 +4,7 @@ import numpy as np
 import pinocchio as pin
 import pytest
 
-from advocc_ros.kinematics.batch import (ChainKinematics, _log3_row, dls, exp3, inverse, log3,
-                                         log6)
+from advocc_ros.kinematics.batch import ChainKinematics, dls
 from advocc_ros.kinematics.goal_batch import (GoalSampler, planner_goals, rarest_first,
                                               task_goals)
 from advocc_ros.model.collision import CollisionWorld
@@ -16,61 +15,66 @@ def chain(panda, table_scene):
     return ChainKinematics(panda.model, panda.model.getFrameId(table_scene.goal.link))
 
 
-def test_frame_and_local_jacobian_match_pinocchio(panda, table_scene, chain):
+def test_compiled_frames_match_pinocchio(panda, table_scene, chain):
     model, data = panda.model, panda.create_data()
     fid = model.getFrameId(table_scene.goal.link)
     Q = np.random.default_rng(0).uniform(panda.lower, panda.upper, (40, panda.nq))
-    T, J = chain.frame_and_jacobian(Q)
-    assert chain.supports
+    T = chain.frame(Q)
+    assert chain.supports and T.shape == (40, 4, 4) and chain.frame(Q[:0]).shape == (0, 4, 4)
     for i, q in enumerate(Q):
         pin.framesForwardKinematics(model, data, q)
         np.testing.assert_allclose(T[i], data.oMf[fid].homogeneous, atol=1e-12)
-        np.testing.assert_allclose(J[i], pin.computeFrameJacobian(model, data, q, fid,
-                                                                  pin.LOCAL), atol=1e-12)
 
 
-def test_lie_group_maps_match_pinocchio():
-    rng = np.random.default_rng(1)
-    w = rng.normal(0, 1.2, (50, 3))
+def test_exp3_matches_pinocchio():
+    from advocc_ros.kinematics.ik import exp3
+
+    w = np.random.default_rng(1).normal(0, 1.2, (50, 3))
     w[0] = 0.0
-    w[1] = [np.pi - 1e-6, 0, 0]  # near a half turn: the guarded branch
+    w[1] = [np.pi - 1e-6, 0, 0]
     R = exp3(w)
     for i in range(len(w)):
         np.testing.assert_allclose(R[i], pin.exp3(w[i]), atol=1e-12)
-        np.testing.assert_allclose(log3(R[i:i + 1])[0], pin.log3(R[i]), atol=1e-9)
-        compiled = np.empty(3)
-        _log3_row(R[i], compiled)
-        np.testing.assert_allclose(compiled, pin.log3(R[i]), atol=1e-9)
-    T = np.broadcast_to(np.eye(4), (50, 4, 4)).copy()
-    T[:, :3, :3], T[:, :3, 3] = R, rng.normal(0, 1, (50, 3))
-    for i in range(2, len(w)):
-        np.testing.assert_allclose(log6(T[i:i + 1])[0], pin.log6(pin.SE3(T[i])).vector,
-                                   atol=1e-9)
-        np.testing.assert_allclose(inverse(T[i:i + 1])[0], np.linalg.inv(T[i]), atol=1e-12)
+
+
+def test_the_compiled_region_test_is_the_goal_regions(panda, table_scene):
+    """``PoseBox.contains`` (compiled, rotation errors near a half turn included) says what
+    ``GoalRegion.contains`` (pinocchio) says, on poses inside, outside and at the edges."""
+    import dataclasses
+
+    from advocc_ros.kinematics.ik import goal_box
+
+    goal = dataclasses.replace(table_scene.goal, orientation_tolerance_rad=(np.pi, 0.4, 3.0))
+    box, T_c = goal_box(panda, goal), goal.center.to_se3()
+    T_link_tool = goal.tool_offset.to_se3()
+    rng = np.random.default_rng(2)
+    w = rng.uniform(-3.2, 3.2, (400, 3)) * [1.0, 0.15, 1.0]
+    w[:40] = np.array([np.pi - 1e-6, 0.0, 0.0]) * rng.choice([-1, 1], (40, 1))  # half turns
+    p = rng.uniform(-1.3, 1.3, (400, 3)) * np.asarray(goal.position_tolerance_m)
+    links = np.array([(T_c * pin.SE3(pin.exp3(w[i]), p[i]) * T_link_tool.inverse()).homogeneous
+                      for i in range(400)])
+    inside = box.contains(links)
+    expected = [goal.contains(pin.SE3(T) * T_link_tool) for T in links]
+    assert 50 < inside.sum() < 350 and inside[:40].any()
+    np.testing.assert_array_equal(inside, expected)
 
 
 def test_compiled_ik_steps_like_pinocchios_dls(panda, table_scene, chain):
     """The compiled batch IK takes pinocchio's DLS steps (``kinematics.ik.dls_ik``, one
     configuration at a time): the same rows reach the region, at the same configurations."""
-    from advocc_ros.kinematics.goal_batch import _Region
-    from advocc_ros.kinematics.ik import IkConfig, dls_ik
+    from advocc_ros.kinematics.ik import IkConfig
 
     goal, cfg = table_scene.goal, IkConfig()
-    region = _Region(panda, goal)
-    rng = np.random.default_rng(5)
-    starts = rng.uniform(panda.lower, panda.upper, (48, panda.nq))
-    targets = region.random_targets(rng, 48)
-    iterations = rng.integers(5, 60, 48)
+    sampler = GoalSampler(panda, None, goal, np.random.default_rng(5))
+    starts, targets, iterations = sampler.draw(48)
+    iterations = np.random.default_rng(6).integers(5, 60, 48)
     Q, reached = dls(chain, starts, targets, iterations, cfg.ik_damping,
-                     GoalSampler.max_step_rad, panda.lower, panda.upper, region.box)
+                     GoalSampler.max_step_rad, panda.lower, panda.upper, sampler.box)
     assert 5 <= reached.sum() < 48
-    data, fid = panda.create_data(), panda.model.getFrameId(goal.link)
     for i in range(48):
-        q, ok = dls_ik(panda, data, fid, starts[i], pin.SE3(targets[i]), int(iterations[i]) + 1,
-                       cfg.ik_damping, lambda T, err: bool(region.box.contains(
-                           T.homogeneous[None])[0]), max_step=GoalSampler.max_step_rad)
-        assert ok == reached[i]
-        if ok:
+        q = sampler.solve(starts[i], targets[i], iterations[i])
+        assert (q is not None) == reached[i]
+        if q is not None:
             np.testing.assert_allclose(Q[i], q, atol=1e-7)
 
 
@@ -89,6 +93,19 @@ def test_planner_goals_are_valid_goal_configurations_and_follow_their_seed(panda
     assert not np.array_equal(other.Q, draw.Q)
 
 
+def test_the_planners_one_at_a_time_sampler_draws_the_same_goals(panda, table_scene):
+    """One goal sampler: a planner's attempts, one at a time through pinocchio, are the
+    attempts of the batches, so both find the same goal configurations from one seed."""
+    world = CollisionWorld(panda, [sh for o in table_scene.objects for sh in o.shapes])
+    draw = planner_goals(panda, table_scene.goal, world.collisions_batch, 16, seed=9,
+                         attempts_per_sample=32)  # one full batch of 512 attempts
+    sampler = GoalSampler(panda, world.in_collision, table_scene.goal,
+                          np.random.default_rng(9))
+    one_at_a_time = np.array(sampler.sample(16, float('inf')))
+    assert len(draw.Q) == 16 and sampler.attempts <= draw.attempts
+    np.testing.assert_allclose(one_at_a_time, draw.Q, atol=1e-6)
+
+
 def test_a_region_with_no_solution_spends_its_attempt_budget(panda, table_scene):
     import dataclasses
 
@@ -103,15 +120,15 @@ def test_a_region_with_no_solution_spends_its_attempt_budget(panda, table_scene)
 def test_task_goals_are_cached_per_task_and_on_disk(panda, table_scene, tmp_path,
                                                     monkeypatch, caplog):
     from advocc_ros.kinematics import goal_batch
-    from advocc_ros.model.cache import CACHE_ENV
+    from advocc_ros.model.cache import CACHE_ENV, clear_task_caches
 
     monkeypatch.setenv(CACHE_ENV, str(tmp_path))
-    goal_batch._TASK_GOALS.clear()
+    clear_task_caches()
     first = task_goals(panda, table_scene.objects, table_scene.goal, 32)
     assert task_goals(panda, table_scene.objects, table_scene.goal, 32) is first
     assert len(first.Q) == 32
     (path,) = tmp_path.glob('*.goals.npz')
-    goal_batch._TASK_GOALS.clear()  # a new process reads the file, sampling nothing
+    clear_task_caches()  # a new process reads the file, sampling nothing
     monkeypatch.setattr(goal_batch, 'planner_goals', lambda *a: pytest.fail('sampled again'))
     again = task_goals(panda, table_scene.objects, table_scene.goal, 32)
     np.testing.assert_array_equal(again.Q, first.Q)
@@ -121,12 +138,12 @@ def test_task_goals_are_cached_per_task_and_on_disk(panda, table_scene, tmp_path
     moved = first.Q.copy()
     moved[0, 0] += 0.5  # no longer a goal configuration: the file is not used
     np.savez(path, Q=moved, attempts=1, converged=1)
-    goal_batch._TASK_GOALS.clear()
+    clear_task_caches()
     fresh = task_goals(panda, table_scene.objects, table_scene.goal, 32)
     np.testing.assert_array_equal(fresh.Q, first.Q)
     assert 'goal sample cache' in caplog.text
     path.write_bytes(b'not a zip')
-    goal_batch._TASK_GOALS.clear()
+    clear_task_caches()
     assert len(task_goals(panda, table_scene.objects, table_scene.goal, 32).Q) == 32
 
 

@@ -9,7 +9,8 @@ import numpy as np
 import pytest
 import yaml
 
-from advocc_ros.attack.solvable import CERTIFICATE, Verdict, WitnessBodies, assess
+from advocc_ros.attack.policy import WitnessBodies
+from advocc_ros.attack.solvable import CERTIFICATE, Verdict, assess
 from advocc_ros.kinematics.ik import goal_configuration, start_configuration
 from advocc_ros.model.collision import CollisionWorld
 from advocc_ros.model.robot import load_robot
@@ -169,7 +170,8 @@ def test_a_failed_search_is_not_kept(task, monkeypatch, tmp_path):
     monkeypatch.setenv(witness_mod.CACHE_ENV, str(tmp_path))
     witness_mod.WITNESSES.clear()
     calls, answers = [], [(), (witness,)]
-    monkeypatch.setattr(witness_mod, '_search', lambda *a: calls.append(a) or answers.pop(0))
+    monkeypatch.setattr(witness_mod, 'search_witnesses',
+                        lambda *a: calls.append(a) or answers.pop(0))
     assert find_witnesses(robot, scene.objects, q0, scene.goal) == ()
     assert len(calls) == 1 and not list(tmp_path.iterdir())  # no path: no other seed either
     again = find_witnesses(robot, scene.objects, q0, scene.goal)  # searches again
@@ -184,7 +186,7 @@ def _scripted_runs(monkeypatch, robot, answers):
     runs = []
     monkeypatch.setattr(witness_mod, 'rare_clear_ends',
                         lambda *a, **k: np.zeros((0, robot.nq)))
-    monkeypatch.setattr(witness_mod, '_plan',
+    monkeypatch.setattr(witness_mod, 'plan_witness',
                         lambda planner, robot, q, goal, q_end, time_s, seed, simplify:
                         runs.append((seed, simplify)) or answers.pop(0))
     return runs

@@ -112,7 +112,7 @@ def test_the_cache_facility_is_bounded_lru_and_keeps_the_first_value():
 
 def test_clear_task_caches_forgets_what_a_new_task_computes_again():
     """The cold timings of ``advocc perf attack``: per-task caches go, the others stay."""
-    from advocc_ros.attack import goals, solvable
+    from advocc_ros.attack import goals, policy
     from advocc_ros.kinematics import goal_batch
     from advocc_ros.model import collision
     from advocc_ros.model.cache import BoundedCache, clear_task_caches
@@ -123,7 +123,7 @@ def test_clear_task_caches_forgets_what_a_new_task_computes_again():
     clear_task_caches()
     assert 'a' not in mine and 'a' in kept
     from advocc_ros.model.cache import task_caches
-    for cache in (goals._GOAL_SAMPLES, goal_batch._TASK_GOALS, solvable._BODIES):
+    for cache in (goals.GOAL_SAMPLES, goal_batch.TASK_GOAL_SAMPLES, policy.WITNESS_BODIES):
         assert cache in task_caches(), cache.name
     assert collision.SHARED_WORLDS not in task_caches()
 

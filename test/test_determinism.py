@@ -1,7 +1,6 @@
 """Same seed, same answer: seeded attacks do not depend on how busy the machine is."""
 
 import json
-import logging
 import os
 import subprocess
 import sys
@@ -10,7 +9,8 @@ import numpy as np
 import pytest
 
 from advocc_ros.model.collision import CollisionWorld
-from advocc_ros.kinematics.ik import GoalSampler, goal_set, start_configuration
+from advocc_ros.kinematics.goal_batch import planner_goals
+from advocc_ros.kinematics.ik import GoalSampler, start_configuration
 from advocc_ros.model.robot import load_robot
 from advocc_ros.planning.witness import CACHE_ENV
 
@@ -59,8 +59,6 @@ def test_task_attack_is_the_same_alone_and_beside_two_cpu_hogs(tmp_path, table_s
             hog.kill()
             hog.wait()
     assert alone['status'] == 'success' and len(alone['obstacles']) == 5
-    for result in (alone, loaded):
-        assert result['stats']['goal_samples_time_cap_hit'] is False
     assert _answer(loaded) == _answer(alone)
 
 
@@ -70,29 +68,14 @@ def table(table_scene):
     return robot, CollisionWorld(robot, table_scene.shapes), table_scene
 
 
-def test_goal_set_follows_its_seed_not_the_clock(table):
+def test_the_goal_sampler_follows_its_seed_not_the_clock(table):
     robot, world, scene = table
-    first = goal_set(robot, world.collisions_batch, world.in_collision, scene.goal, 24, seed=5)
-    again = goal_set(robot, world.collisions_batch, world.in_collision, scene.goal, 24, seed=5)
-    other = goal_set(robot, world.collisions_batch, world.in_collision, scene.goal, 24, seed=6)
-    assert first.shape == (24, robot.nq)
-    np.testing.assert_array_equal(first, again)
-    assert not np.array_equal(first, other)
-
-
-def test_goal_set_safety_cap_reports_itself(table, caplog):
-    robot, world, scene = table
-    stats = {}
-    with caplog.at_level(logging.WARNING, logger='advocc_ros.kinematics.ik'):
-        Q = goal_set(robot, world.collisions_batch, world.in_collision, scene.goal, 24, seed=5,
-                     cap_s=1e-9, stats=stats)
-    assert stats['goal_time_cap_hit'] is True
-    assert len(Q) < 24
-    assert any('safety cap' in r.getMessage() for r in caplog.records)
-    stats = {}
-    goal_set(robot, world.collisions_batch, world.in_collision, scene.goal, 24, seed=5,
-             stats=stats)
-    assert stats['goal_time_cap_hit'] is False and stats['goal_walks'] > 0
+    first = planner_goals(robot, scene.goal, world.collisions_batch, 24, seed=5)
+    again = planner_goals(robot, scene.goal, world.collisions_batch, 24, seed=5)
+    other = planner_goals(robot, scene.goal, world.collisions_batch, 24, seed=6)
+    assert first.Q.shape == (24, robot.nq) and first.attempts == again.attempts
+    np.testing.assert_array_equal(first.Q, again.Q)
+    assert not np.array_equal(first.Q, other.Q)
 
 
 def test_goal_sampler_is_seeded_when_its_deadline_is_not_hit(table):

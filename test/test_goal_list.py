@@ -1,11 +1,13 @@
-"""Goals found before the clock: a sliver of a goal region that the old iteration budget of
-``goal_set`` misses and the generous search finds, and the two PSRs of a row."""
+"""Goals found before the clock: a sliver of a goal region that a small attempt budget of the
+goal sampler misses and the generous search finds, and the two PSRs of a row."""
 
 import json
 import pathlib
 
+import numpy as np
+
 from advocc_ros.evaluation.metrics import aggregate
-from advocc_ros.kinematics.ik import goal_set
+from advocc_ros.kinematics.goal_batch import planner_goals
 from advocc_ros.model.collision import CollisionWorld
 from advocc_ros.model.scene import make_box
 from advocc_ros.planning.goal_list import goal_list
@@ -25,17 +27,18 @@ def _sliver(table_scene):
 def test_goal_list_finds_the_sliver_the_old_budget_missed(panda, table_scene):
     scene = _sliver(table_scene)
     world = CollisionWorld(panda, scene.shapes)
-    missed = None
-    for seed in range(8):  # the old budget (240 IK attempts) misses it for some seeds
-        stats = {}
-        if not len(goal_set(panda, world.collisions_batch, world.in_collision, scene.goal, 32,
-                            seed, stats=stats)):
+    missed, small = None, None
+    for seed in range(8):  # a small budget (256 IK attempts) misses it for some seeds
+        small = planner_goals(panda, scene.goal, world.collisions_batch, 32, seed,
+                              attempts_per_sample=8)
+        if not len(small.Q):
             missed = seed
             break
-    assert missed is not None, 'the sliver is wider than the old budget: rebuild it'
+    assert missed is not None, 'the sliver is wider than the small budget: rebuild it'
     found = goal_list(panda, world, scene.goal, 32, missed, scene.objects_hash())
-    assert found.found and len(found.configs) == 32
-    assert found.attempts > stats['goal_ik_attempts']  # it took more than the old budget
+    assert found.found and len(found.configs) == 32 and found.fill_attempts > 0
+    assert len(np.unique(found.configs, axis=0)) == 32  # the anchors are not repeated
+    assert found.attempts > small.attempts  # it took more than the small budget
     assert not world.collisions_batch(found.configs).any()
     assert all(scene.goal.contains(panda.ee_pose(q) * scene.goal.tool_offset.to_se3())
                for q in found.configs)

@@ -18,7 +18,7 @@ import pytest
 from scipy import sparse
 from scipy.optimize import Bounds, LinearConstraint, milp
 
-from advocc_ros.attack.configurations import greedy_configurations
+from advocc_ros.attack.greedy import greedy_configurations
 
 D_MIN_M = 0.05
 PITCH_M = 0.02

@@ -17,7 +17,8 @@ import pinocchio as pin
 import pytest
 
 from advocc_ros.attack import AttackConfig, AttackStatus, attack, load_obstacles
-from advocc_ros.attack.solvable import CERTIFICATE, WitnessBodies, assess, probe_goal
+from advocc_ros.attack.policy import WitnessBodies
+from advocc_ros.attack.solvable import CERTIFICATE, assess, probe_goal
 from advocc_ros.heatmap import HeatmapConfig, build_heatmap, save_heatmap
 from advocc_ros.model.collision import CollisionWorld, coal_geometry
 from advocc_ros.model.robot import load_robot
@@ -72,8 +73,8 @@ class _CountedSearch:
     """Calls the real witness search and counts the calls."""
 
     def __init__(self, monkeypatch):
-        self.calls, self._search = 0, witness_mod._search
-        monkeypatch.setattr(witness_mod, '_search', self)
+        self.calls, self._search = 0, witness_mod.search_witnesses
+        monkeypatch.setattr(witness_mod, 'search_witnesses', self)
 
     def __call__(self, *args):
         self.calls += 1
@@ -121,14 +122,13 @@ def test_a_damaged_cache_file_costs_a_search_not_a_wrong_verdict(task, tmp_path,
             waypoints[0, 0] += 0.1
         else:  # the middle waypoint pushed down through the table
             waypoints = np.insert(waypoints, 1, q0 + np.array([0, 1.2, 0, 0, 0, 1.5, 0]), 0)
-        witness_mod._to_disk(path, (Witness(good.joint_names, waypoints, good.locked,
-                                            good.source),))
+        witness_mod.save_candidates(path, (Witness(good.joint_names, waypoints, good.locked,
+                                                   good.source),))
     _new_process(monkeypatch)
     again = find_witnesses(robot, scene.objects, q0, scene.goal)[0]
     assert search.calls == 2 and 'witness cache' in caplog.text
     np.testing.assert_allclose(again.waypoints, good.waypoints, atol=1e-12)
-    assert witness_mod._from_disk(path, robot, CollisionWorld(robot, scene.shapes), q0,
-                                  scene.goal)[0].waypoints.shape == good.waypoints.shape
+    assert witness_mod.load_candidates(path)[0].waypoints.shape == good.waypoints.shape
 
 
 def test_attack_cli_reuses_the_witness_of_an_earlier_run(task, tmp_path):
@@ -184,6 +184,36 @@ def test_the_policy_keeps_the_candidate_that_shields_the_fewest_goals(task):
 
     worst = witnesses[int(np.argmax(shielded))]
     assert valid_goals(results[0].witness) <= valid_goals(worst)
+
+
+def test_the_policy_returns_a_narrower_region_and_the_goal_cover_of_it(task):
+    """The policy step leaves its input alone: a new region without the candidates the kept
+    witness's body touches, with the guard, and the goal sample's cover over exactly those
+    candidates (computed once, for the witness choice, and handed to the objective)."""
+    from advocc_ros.attack import search_region
+    from advocc_ros.attack.configurations import cover_matrix
+    from advocc_ros.attack.policy import apply_policy
+    from advocc_ros.attack.task import goal_tier
+    from advocc_ros.attack.types import Task
+
+    scene, robot, q0, heatmap = task
+    witnesses = find_witnesses(robot, scene.objects, q0, scene.goal)
+    assert len(witnesses) >= 2
+    solvable = Task(robot, scene.objects, q0, scene.goal, 'solvable')
+    region = search_region(heatmap, robot, scene.objects, q0, scene.goal)
+    before = region.candidates.copy()
+    Q = goal_tier(solvable).Q
+    policed = apply_policy(solvable, region, AttackConfig(), witnesses, Q)
+    kept = policed.region
+    assert region.guard is None and np.array_equal(region.candidates, before)
+    assert kept.guard is not None and any(policed.witness is w for w in witnesses)
+    assert not (kept.candidates & ~region.candidates).any()
+    assert 0 < kept.candidates.sum() == policed.stats['witness_clear'] < region.candidates.sum()
+    world = CollisionWorld(robot, scene.shapes)
+    assert (policed.goal_cover != cover_matrix(robot, world, Q, kept)).nnz == 0
+    paper = apply_policy(Task(robot, scene.objects, q0, scene.goal), region, AttackConfig(),
+                         witnesses, Q)
+    assert paper.region is region and paper.witness is None and paper.stats == {}
 
 
 @pytest.mark.parametrize('method', ['task', 'random', 'ours'])
@@ -303,16 +333,16 @@ def test_attack_config_accepts_the_policy():
 
 
 def test_tube_samples_surround_the_witness_and_are_valid(task):
-    from advocc_ros.attack.task import tube_samples
+    from advocc_ros.attack.objective import tube_samples
 
     scene, robot, q0, _ = task
     witness = find_witnesses(robot, scene.objects, q0, scene.goal)[0]
     states = witness_states(witness.configurations(robot))
     world = CollisionWorld(robot, scene.shapes)
-    Q = tube_samples(world, states, 200, 0.2, np.random.default_rng(0))
+    Q = tube_samples(world, states, np.random.default_rng(0).normal(0.0, 0.2, (200, robot.nq)))
     assert 100 < len(Q) <= 200  # most perturbations of a free path are free too
     assert not world.collisions_batch(Q).any()
     assert np.all((Q >= robot.lower) & (Q <= robot.upper))
     nearest = np.min(np.linalg.norm(Q[:, None] - states[None], axis=-1), axis=1)
     assert np.median(nearest) < 0.2 * np.sqrt(robot.nq) * 1.5  # around the path, not anywhere
-    assert len(tube_samples(world, states, 0, 0.2, np.random.default_rng(0))) == 0
+    assert len(tube_samples(world, states, np.zeros((0, robot.nq)))) == 0

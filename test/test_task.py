@@ -7,13 +7,13 @@ import numpy as np
 import pytest
 
 from advocc_ros.attack import AttackConfig, AttackStatus, attack, robot_occupancy, search_region
-from advocc_ros.attack.configurations import (cover_matrix, goal_cover, greedy_configurations,
-                                              touching_mask)
+from advocc_ros.attack.configurations import cover_matrix, touching_mask
+from advocc_ros.attack.greedy import greedy_configurations
 from advocc_ros.attack.goals import goal_samples
 from advocc_ros.evaluation.runner import evaluate_planner
 from advocc_ros.heatmap import HeatmapConfig, build_heatmap
 from advocc_ros.model.collision import CollisionWorld
-from advocc_ros.kinematics.ik import goal_set
+from advocc_ros.kinematics.goal_batch import planner_goals
 from advocc_ros.planning.types import PlanningConfig
 
 from test_attack import _assert_constraints
@@ -96,7 +96,7 @@ def test_cover_matrix_matches_a_direct_rasterization(panda, heatmap, task):
     q, goal, objects = task
     region = search_region(heatmap, panda, objects, q, goal)
     world = CollisionWorld(panda, [s for o in objects for s in o.shapes])
-    Q = goal_set(panda, world.collisions_batch, world.in_collision, goal, 4, seed=2)
+    Q = planner_goals(panda, goal, world.collisions_batch, 4, seed=2).Q
     assert len(Q) == 4
     cover = cover_matrix(panda, world, Q, region).toarray().astype(bool)
     cand = np.argwhere(region.candidates)
@@ -119,7 +119,7 @@ def test_touching_mask_is_the_union_of_the_cover_rows(panda, heatmap, task):
     q, goal, objects = task
     region = search_region(heatmap, panda, objects, q, goal)
     world = CollisionWorld(panda, [s for o in objects for s in o.shapes])
-    Q = goal_set(panda, world.collisions_batch, world.in_collision, goal, 24, seed=3)
+    Q = planner_goals(panda, goal, world.collisions_batch, 24, seed=3).Q
     Q = np.concatenate([Q, np.linspace(q, Q[0], 16)])  # overlapping bodies along a path
     cover = cover_matrix(panda, world, Q, region)
     expected = np.zeros(region.candidates.shape, dtype=bool)
@@ -128,22 +128,6 @@ def test_touching_mask_is_the_union_of_the_cover_rows(panda, heatmap, task):
     assert expected.any() and not expected.all()
     assert np.array_equal(mask, expected)
     assert not touching_mask(panda, world, Q[:0], region).any()
-
-
-def test_goal_cover_is_computed_once_and_follows_a_pruned_region(panda, heatmap, task):
-    q, goal, objects = task
-    region = search_region(heatmap, panda, objects, q, goal)
-    world = CollisionWorld(panda, [s for o in objects for s in o.shapes])
-    Q = goal_set(panda, world.collisions_batch, world.in_collision, goal, 16, seed=4)
-    first = goal_cover(panda, world, Q, region)
-    assert (first != cover_matrix(panda, world, Q, region)).nnz == 0
-    region.candidates &= np.random.default_rng(0).random(region.candidates.shape) < 0.5
-    pruned = goal_cover(panda, world, Q, region)
-    assert pruned.shape[1] == region.candidates.sum()
-    assert (pruned != cover_matrix(panda, world, Q, region)).nnz == 0
-    other = Q.copy()  # another sample is computed, not restricted
-    assert (goal_cover(panda, world, other, region) != pruned).nnz == 0
-    assert region.goal_cover[0] is other
 
 
 def test_task_respects_every_constraint_and_is_nested(panda, heatmap, task):

@@ -7,7 +7,7 @@ import json
 
 import pytest
 
-from advocc_ros.attack.task import _OPTION_VALUES, TaskOptions, task_options
+from advocc_ros.attack.task import OPTION_VALUES, TaskOptions, task_options
 from advocc_ros.bench import BenchConfig, BenchError, check_run_config
 from advocc_ros.cli import main
 
@@ -17,7 +17,7 @@ def test_a_valid_mapping_gives_the_options_the_rest_default():
     assert opts == TaskOptions(detours=1, tube_rad=1.0, detour_rad=0.3)
     assert isinstance(opts.tube_rad, float)  # an integer for a real option becomes a float
     assert task_options({}) == TaskOptions()
-    assert set(_OPTION_VALUES) == {f.name for f in dataclasses.fields(TaskOptions)}
+    assert set(OPTION_VALUES) == {f.name for f in dataclasses.fields(TaskOptions)}
 
 
 @pytest.mark.parametrize('mapping, words', [

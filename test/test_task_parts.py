@@ -5,19 +5,20 @@ import numpy as np
 import pytest
 from scipy import sparse
 
-from advocc_ros.attack.goals import GoalGuard, GoalSamples
-from advocc_ros.attack.task import (WEIGHT_FLOOR, _goal_filter, approach_samples,
-                                    lexicographic_weights)
+from advocc_ros.attack.goals import GoalSamples
+from advocc_ros.attack.objective import WEIGHT_FLOOR, goal_filter, lexicographic_weights
+from advocc_ros.attack.policy import GoalGuard
+from advocc_ros.attack.task import approach_samples
 from advocc_ros.model.collision import CollisionWorld
-from advocc_ros.kinematics.ik import goal_set, start_configuration
+from advocc_ros.kinematics.goal_batch import planner_goals
+from advocc_ros.kinematics.ik import start_configuration
 
 
 @pytest.fixture(scope='module')
 def table(table_scene, panda):
     world = CollisionWorld(panda, table_scene.shapes)
     q_init = start_configuration(table_scene, panda)
-    Q_goal = goal_set(panda, world.collisions_batch, world.in_collision, table_scene.goal, 8,
-                      seed=3)
+    Q_goal = planner_goals(panda, table_scene.goal, world.collisions_batch, 8, seed=3).Q
     assert len(Q_goal) == 8
     return world, q_init, Q_goal
 
@@ -101,13 +102,13 @@ def test_goal_filter_follows_the_guard_valid_samples(table):
     cover = np.zeros((n, 3), dtype=bool)
     cover[:5, 0] = True      # blocks 5 of 8: leaves 3/8 < 0.5
     cover[:4, 1] = True      # blocks 4 of 8: leaves exactly 0.5
-    feasible = _goal_filter(guard, sparse.csr_matrix(cover))
+    feasible = goal_filter(guard, sparse.csr_matrix(cover))
     np.testing.assert_array_equal(feasible(), [False, True, True])
     guard.valid[6:] = False  # two samples already blocked by earlier boxes
     np.testing.assert_array_equal(feasible(), [False, False, True])
     guard.valid[:] = True
     cover[:, 2] = True       # a box over every sample
-    np.testing.assert_array_equal(_goal_filter(guard, sparse.csr_matrix(cover))(),
+    np.testing.assert_array_equal(goal_filter(guard, sparse.csr_matrix(cover))(),
                                   [False, True, False])
 
 

@@ -11,7 +11,8 @@ from advocc_ros.attack.region import SearchRegion, robot_occupancy, search_regio
 from advocc_ros.attack.methods import (CONTEXT_METHODS, KNOWN_METHODS, METHODS, MethodContext,
                                        MethodSpec, REGISTRY, Selector, available_methods,
                                        load_method, register_method)
-from advocc_ros.attack.api import attack, validate_request
+from advocc_ros.attack.api import attack
+from advocc_ros.attack.request import validate_request
 from advocc_ros.attack.obstacles import (OBSTACLES_FORMAT, OBSTACLES_VERSION, load_obstacles,
                                          obstacles_data, obstacles_file_data, obstacles_meta,
                                          save_obstacles)

@@ -1,4 +1,4 @@
-"""Coverage over configurations: which boxes touch which robot configurations, and the greedy.
+"""Coverage over configurations: which candidate boxes touch which robot configurations.
 
 The lattice relation matches ``ours``: a box centred at candidate c covers configuration q when
 a voxel centre inside the robot's links at q lies in U(c), the (2k+1)^3 voxel cube of the box.
@@ -14,7 +14,6 @@ from scipy import sparse
 
 from advocc_ros.attack.coverage import box_sum
 from advocc_ros.attack.region import SearchRegion
-from advocc_ros.attack.types import AttackConfig
 from advocc_ros.heatmap import link_tables, placement_arrays
 from advocc_ros.heatmap.build import in_link, link_voxel_box
 from advocc_ros.model.collision import CollisionWorld
@@ -108,21 +107,6 @@ def cover_matrix(robot: RobotModel, world: CollisionWorld, Q: np.ndarray,
     return sparse.csr_matrix((np.ones(len(indices)), indices, indptr), shape=dense.shape)
 
 
-def goal_cover(robot: RobotModel, world: CollisionWorld, Q_goal: np.ndarray,
-               region: SearchRegion, placements: tuple[np.ndarray, np.ndarray] | None = None
-               ) -> sparse.csr_matrix:
-    """``cover_matrix`` of the task's goal sample ``Q_goal``, computed once per region: the
-    witness choice and the task's objective both need it, and a region pruned in between (the
-    witness guard) gets the columns of the candidates it kept, which are the same entries."""
-    if region.goal_cover is not None:
-        Q_then, then, cover = region.goal_cover
-        if Q_then is Q_goal and not (region.candidates & ~then).any():
-            return cover[:, region.candidates[then]]
-    cover = cover_matrix(robot, world, Q_goal, region, placements=placements)
-    region.goal_cover = (Q_goal, region.candidates.copy(), cover)
-    return cover
-
-
 def touching_mask(robot: RobotModel, world: CollisionWorld, Q: np.ndarray,
                   region: SearchRegion) -> np.ndarray:
     """Mask of ``region``'s candidates that cover at least one configuration of ``Q`` (the
@@ -162,48 +146,4 @@ def _dense_to_csr(dense):
     return indptr, indices
 
 
-def greedy_configurations(cover: sparse.spmatrix | np.ndarray, weights: np.ndarray,
-                          centers_m: np.ndarray, budget: int, d_min_m: float, accept=None,
-                          max_rejections: int = AttackConfig.max_rejections,
-                          bonus: np.ndarray | None = None, feasible=None) -> tuple[list[int], int]:
-    """Greedy budgeted maximum coverage: up to ``budget`` candidate columns of ``cover``
-    (configurations x candidates, 0/1), >= ``d_min_m`` apart, maximizing the ``weights`` of
-    the configurations covered (each once) plus a modular ``bonus`` per candidate; and how
-    many candidates ``accept`` refused. Picks with no gain left are not made. ``feasible()``,
-    if given, returns a mask of candidates still allowed (called before every pick).
-    Ties go to the lowest column, so the result is deterministic."""
-    rows = sparse.csr_matrix(cover, dtype=np.float64)
-    cols = rows.tocsc()
-    weights = np.asarray(weights, dtype=np.float64)
-    score = rows.T @ weights
-    if bonus is not None:
-        score = score + bonus  # modular: every box earns its own, picks never change it
-    alive = np.ones(rows.shape[1], dtype=bool)
-    uncovered = np.ones(rows.shape[0], dtype=bool)
-    picks: list[int] = []
-    rejected = 0
-    while len(picks) < budget and alive.any():
-        if feasible is not None:
-            alive &= feasible()
-            if not alive.any():
-                break
-        j = int(np.argmax(np.where(alive, score, -np.inf)))
-        if score[j] <= 0:
-            break  # nothing left to cover: a further box would be no attack
-        if accept is not None and not accept(j):
-            alive[j] = False
-            rejected += 1
-            if rejected > max_rejections:
-                break
-            continue
-        hit = cols.indices[cols.indptr[j]:cols.indptr[j + 1]]
-        newly = hit[uncovered[hit]]
-        if len(newly):
-            score -= rows[newly].T @ weights[newly]
-            uncovered[newly] = False
-        picks.append(j)
-        alive &= np.linalg.norm(centers_m - centers_m[j], axis=1) >= d_min_m
-    return picks, rejected
-
-
-__all__ = ['cover_matrix', 'goal_cover', 'greedy_configurations', 'touching_mask']
+__all__ = ['cover_matrix', 'touching_mask']

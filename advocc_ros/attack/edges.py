@@ -11,7 +11,7 @@ once per task, by the tool and never by the victim, and reported apart from the 
    fresh planning worker for the task's candidate witnesses, cached per task in the process and
    on disk; its wall time is ``stats['witness_search_ms']``, never part of ``compute_s``;
 3. the core attack, with the candidates as data (under ``solvable`` it keeps one of them:
-   ``attack.solvable.choose_witness``).
+   ``attack.policy.choose_witness``).
 
 ``attack_task`` is what ``advocc attack``, ``advocc export``, the data set builder and the
 heatmap server's ``~/attack`` call; ``advocc perf attack`` and the audit call
@@ -25,7 +25,8 @@ import time
 
 import numpy as np
 
-from advocc_ros.attack.api import attack, box_size, validate_request
+from advocc_ros.attack.api import attack
+from advocc_ros.attack.request import box_size, validate_request
 from advocc_ros.attack.types import (DEFAULT_METHOD, AttackConfig, AttackError, AttackResult,
                                      AttackStatus)
 from advocc_ros.model.robot import RobotError, RobotModel

@@ -1,16 +1,13 @@
-"""Is the goal still there? Exact goal checks under placed boxes, and the goal policies.
+"""Is the goal still there? The task's fixed goal samples and exact checks of boxes against them.
 
-Every attack reports ``goal_valid_fraction``: of a fixed-seed set of goal-region IK samples
-that are valid without the boxes, the fraction still valid with them (coal, exact). It tells
-how a planner will fail: at 0 every goal pose is blocked (the planner reports
-GOAL_IN_COLLISION); above 0 the boxes must occlude the paths.
+Every attack reports ``goal_valid_fraction``: of a fixed-seed set of goal configurations
+(drawn by the one goal sampler, ``kinematics.goal_batch.planner_goals``) that are valid without
+the boxes, the fraction still valid with them (coal, exact). It tells how a planner will fail:
+at 0 every goal pose is blocked (the planner reports GOAL_IN_COLLISION); above 0 the boxes must
+occlude the paths.
 
-Goal policies (docs/design.md):
-
-- ``paper``: the paper's C3 only (d_safe from the robot at q_init and from G's position box);
-  boxes may block every goal pose;
-- ``reachable``: a pick is refused when it would leave fewer than ``reachable_fraction`` of the
-  fixed goal samples valid, so the attack has to occlude paths rather than the goal.
+The same samples are the ``reachable`` goal policy's (``attack.policy.GoalGuard``): a pick is
+refused when it would leave fewer than ``reachable_fraction`` of them valid.
 
 The sample set depends on the task only (robot, scene, goal region; seed fixed), so it is
 computed once per task and cached: every attack of one task is judged on the same samples. It
@@ -24,7 +21,7 @@ import numpy as np
 
 from advocc_ros.attack.bodies import LinkBoxes
 from advocc_ros.model.collision import CollisionWorld
-from advocc_ros.kinematics.ik import goal_set
+from advocc_ros.kinematics.goal_batch import planner_goals
 from advocc_ros.model.cache import BoundedCache
 from advocc_ros.model.robot import RobotModel
 from advocc_ros.model.goal import GoalRegion
@@ -34,27 +31,21 @@ VALIDATION_SEED = 7_345_001
 """Seed of the goal samples behind ``goal_valid_fraction`` (fixed: comparable attacks)."""
 VALIDATION_SAMPLES = 32
 
-_GOAL_SAMPLES: BoundedCache = BoundedCache('goal samples', 16, per_task=True)
+GOAL_SAMPLES: BoundedCache = BoundedCache('goal samples', 16, per_task=True)
 """Task hash -> GoalSamples (nodes attack from several executor threads)."""
 
 
 class GoalSamples:
     """A fixed set of valid goal configurations and exact box checks against their bodies."""
 
-    def __init__(self, world: CollisionWorld, Q: np.ndarray, time_cap_hit: bool = False):
+    def __init__(self, world: CollisionWorld, Q: np.ndarray):
         self.Q = Q
-        self.time_cap_hit = time_cap_hit
-        """Whether ``goal_set``'s safety cap cut the sampling short (then machine-dependent)."""
         self.bodies = LinkBoxes(world, Q)
 
     def blocked_by(self, center_m: np.ndarray, box_size_m: float, among=None) -> np.ndarray:
         """bool (n,): samples whose body the axis-aligned box at ``center_m`` touches (of the
         bool mask ``among`` when given; the others are False)."""
         return self.bodies.blocked_by(center_m, box_size_m, among)
-
-    def touched_by(self, center_m: np.ndarray, box_size_m: float) -> bool:
-        """Whether the box touches any sample's body (stops at the first contact)."""
-        return self.bodies.touched_by(center_m, box_size_m)
 
     def valid_mask(self, centers_m: np.ndarray, box_size_m: float) -> np.ndarray:
         """bool (n,): the samples no box (centres (k, 3)) touches."""
@@ -71,39 +62,19 @@ class GoalSamples:
 def goal_samples(robot: RobotModel, objects: tuple[SceneObject, ...], goal: GoalRegion,
                  n: int = VALIDATION_SAMPLES, world: CollisionWorld | None = None
                  ) -> GoalSamples:
-    """The task's fixed-seed goal samples (cached per task; ~60 ms the first time, computed
-    outside the lock: two threads may both compute a new task, and the first one is kept)."""
+    """The task's fixed-seed goal samples, drawn the planners' way
+    (``kinematics.goal_batch.planner_goals``), cached per task (computed outside the lock: two
+    threads may both compute a new task, and the first one is kept)."""
     key = task_hash(robot.hash, objects, goal, n)
-    cached = _GOAL_SAMPLES.get(key)
+    cached = GOAL_SAMPLES.get(key)
     if cached is not None:
         return cached
     world = world or CollisionWorld(robot, [sh for o in objects for sh in o.shapes])
     if goal.is_joint:  # the goal is its configuration: the one sample, when it is free
-        q_goal = goal.configuration(robot.joint_names)[None]
-        return _GOAL_SAMPLES.put(key, GoalSamples(world, q_goal[~world.collisions_batch(q_goal)]))
-    sampling: dict = {}
-    Q = goal_set(robot, world.collisions_batch, world.in_collision, goal, n, VALIDATION_SEED,
-                 stats=sampling)
-    return _GOAL_SAMPLES.put(key, GoalSamples(world, Q, sampling['goal_time_cap_hit']))
+        Q = goal.configuration(robot.joint_names)[None]
+        return GOAL_SAMPLES.put(key, GoalSamples(world, Q[~world.collisions_batch(Q)]))
+    Q = planner_goals(robot, goal, world.collisions_batch, n, VALIDATION_SEED).Q
+    return GOAL_SAMPLES.put(key, GoalSamples(world, Q))
 
 
-class GoalGuard:
-    """The ``reachable`` policy as a stateful check: ``admit`` commits the boxes it accepts."""
-
-    reason = 'the goal policy (too many goal samples blocked)'
-
-    def __init__(self, samples: GoalSamples, box_size_m: float, min_fraction: float):
-        self.samples, self.box_size_m, self.min_fraction = samples, box_size_m, min_fraction
-        self.valid = np.ones(len(samples.Q), dtype=bool)
-
-    def admit(self, center_m: np.ndarray) -> bool:
-        if not len(self.valid):
-            return True
-        left = self.valid & ~self.samples.blocked_by(center_m, self.box_size_m, among=self.valid)
-        if left.mean() < self.min_fraction - 1e-12:
-            return False
-        self.valid = left
-        return True
-
-
-__all__ = ['GoalGuard', 'GoalSamples', 'VALIDATION_SAMPLES', 'goal_samples']
+__all__ = ['GOAL_SAMPLES', 'GoalSamples', 'VALIDATION_SAMPLES', 'goal_samples']

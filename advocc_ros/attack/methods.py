@@ -11,10 +11,7 @@ import numpy as np
 
 from advocc_ros.attack.coverage import greedy_cover, random_cover
 from advocc_ros.attack.region import SearchRegion
-from advocc_ros.attack.types import AttackConfig
-from advocc_ros.model.robot import RobotModel
-from advocc_ros.model.goal import GoalRegion
-from advocc_ros.model.scene import SceneObject
+from advocc_ros.attack.types import AttackConfig, Task
 
 log = logging.getLogger(__name__)
 
@@ -22,24 +19,32 @@ log = logging.getLogger(__name__)
 # --------------------------------------------------------------------------------------------
 # Methods
 
-Selector = Callable[..., tuple[list, int]]
-"""``(region, budget, seed, cfg[, context]) -> ([(window index, mass), ...], rejected picks)``;
-``context`` (a :class:`MethodContext`) only for methods registered with ``needs_context``."""
+Selector = Callable[..., tuple]
+"""``(region, budget, seed, cfg[, context]) -> ([(window index, mass), ...], rejected picks[,
+stats])``; ``context`` (a :class:`MethodContext`) only for methods registered with
+``needs_context``; ``stats``, the method's own statistics, when it has some (the attack gathers
+them with the other steps')."""
 
 
 @dataclasses.dataclass(frozen=True)
-class MethodContext:
-    """The task behind a search region, for planner-in-the-loop methods (PFA, PFA++).
+class MethodContext(Task):
+    """The task behind a search region and what the earlier steps made of it, for the methods
+    that read more than the region (``task``, PFA, PFA++; ``ours`` and ``random`` never get
+    it: they choose from the heatmap and the region alone)."""
 
-    Ours and Random never get it: they choose from the heatmap and the region alone.
-    """
-
-    robot: RobotModel
-    objects: tuple[SceneObject, ...]
-    q_init: np.ndarray
-    goal: GoalRegion
     options: Any = None
     """Method-specific settings from ``attack(method_options=...)`` (e.g. a planner)."""
+    sample: Any = None
+    """The task sample (``attack.task.TaskSample``) when the method or the policy needs it."""
+    policed: Any = None
+    """What the goal policy kept (``attack.policy.Policed``): the witness, its body, ..."""
+
+    @classmethod
+    def of(cls, task: Task, options: Any = None, sample: Any = None, policed: Any = None
+           ) -> 'MethodContext':
+        """The context of ``task`` with the steps' data."""
+        fields = {f.name: getattr(task, f.name) for f in dataclasses.fields(Task)}
+        return cls(**fields, options=options, sample=sample, policed=policed)
 
 
 def _select_greedy(region: SearchRegion, budget: int, seed: int, cfg: AttackConfig):
@@ -65,12 +70,15 @@ class MethodSpec:
     """The selector also takes ``context=MethodContext(...)`` (the task: robot, scene, q, G)."""
     queries_planner: bool = False
     """The method plans to choose its boxes (PFA, PFA++): a benchmark serves its queries."""
+    needs_sample: bool = False
+    """The method covers the task sample (``attack.task``): the attack draws it first."""
 
 
 REGISTRY: dict[str, MethodSpec] = {
     'ours': MethodSpec('advocc_ros.attack.methods', 'Ours'),
     'random': MethodSpec('advocc_ros.attack.methods', 'Random'),
-    'task': MethodSpec('advocc_ros.attack.task', 'Task', needs_context=True),
+    'task': MethodSpec('advocc_ros.attack.objective', 'Task', needs_context=True,
+                       needs_sample=True),
     'pfa': MethodSpec('advocc_ros.attack.pfa', 'PFA', needs_context=True, queries_planner=True),
     'pfa++': MethodSpec('advocc_ros.attack.pfa', 'PFA++', needs_context=True,
                         queries_planner=True),

@@ -1,4 +1,5 @@
-"""Does the attacked task still have a solution? Certificates, goal probes, the witness guard.
+"""Step 6 of the attack, the verdict: does the attacked task still have a solution, and how much
+of the goal set do the boxes leave? Certificates and goal probes (docs/design.md).
 
 A planner that fails a task with no solution has not been beaten, so every attack says which of
 three things holds for its boxes (``Verdict``):
@@ -12,20 +13,8 @@ three things holds for its boxes (``Verdict``):
   Strong evidence (not a proof) that no solution exists, with the counts to judge it.
 - ``unknown``: neither (e.g. the witness is blocked but a free goal configuration exists).
 
-The ``solvable`` goal policy keeps the witness valid by construction: a candidate box is
-refused when it comes within ``CertificateConfig.guard_margin_m`` (m) of the robot's body at any
-guard state, the witness cut at ``h = CertificateConfig.guard_step_rad(L)`` (L2), L the robot's
-motion bound (``RobotModel.motion_bound``). Every point of the path is within ``h / 2`` of a
-guard state, where a body point has moved at most ``L h / 2 = m - 2 floor``, so every box keeps
-``2 floor`` from the whole continuous sweep and the certificate (floor at every state it
-measures) proves the witness again with the boxes. Candidates whose box holds a voxel centre
-inside the body at a guard state are first dropped on the voxel lattice, and every pick is then
-checked exactly with coal.
-
-A task has many solutions, and the one kept decides how much of the goal set the boxes may cut:
-the goal configurations whose bodies only boxes touching the witness could reach stay valid.
-The witness search returns candidates, and the policy keeps the one that shields the fewest of
-the task's goal samples (``choose_witness``).
+The ``solvable`` goal policy (``attack.policy``) keeps a witness valid by construction, so its
+attacks are ``certified``. ``judge`` also measures ``goal_valid_fraction`` (``attack.goals``).
 """
 
 from __future__ import annotations
@@ -35,19 +24,16 @@ import enum
 import time
 
 import numpy as np
-from scipy import ndimage
 
-from advocc_ros.attack.bodies import LinkBoxes
-from advocc_ros.model.cache import BoundedCache
-from advocc_ros.attack.configurations import goal_cover, touching_mask
+from advocc_ros.attack.goals import goal_samples
+from advocc_ros.attack.types import Task
 from advocc_ros.model.collision import CollisionWorld
 from advocc_ros.kinematics.goal_batch import THREADS, planner_goals
 from advocc_ros.model.robot import RobotModel
 from advocc_ros.model.goal import GoalRegion
 from advocc_ros.model.scene import SceneObject
 from advocc_ros.planning.certificate import CertificateConfig
-from advocc_ros.planning.witness import (WITNESS_STEP_RAD, Witness, certify,
-                                         object_shape_names, witness_states)
+from advocc_ros.planning.witness import Witness, certify, object_shape_names
 
 
 class Verdict(enum.StrEnum):
@@ -155,98 +141,37 @@ def assess(robot: RobotModel, objects: tuple[SceneObject, ...], boxes: tuple[Sce
                        'collision', probe, states, ms)
 
 
-class WitnessBodies:
-    """The robot's body at every guard state of the witness: exact box tests and the lattice
-    test of a region's candidates (built once per task and kept: ``witness_bodies``)."""
+@dataclasses.dataclass(frozen=True)
+class Judgement:
+    """The verdict step's answer for one attack."""
 
-    def __init__(self, robot: RobotModel, world: CollisionWorld, witness: Witness,
-                 config: CertificateConfig = CERTIFICATE):
-        self.robot, self._world = robot, world
-        self.step_rad = config.guard_step_rad(robot.motion_bound.max_m_per_rad)
-        """Largest joint-space distance between guard states [rad] (L2)."""
-        self.states = witness_states(witness.configurations(robot), self.step_rad)
-        # The lattice test may use any subset of the states (it only drops boxes the exact
-        # test would refuse): every k-th, about the witness search's step apart, and the last.
-        k = max(int(WITNESS_STEP_RAD / self.step_rad), 1)
-        self._lattice = np.unique(np.r_[np.arange(0, len(self.states), k), len(self.states) - 1])
-        self._boxes: LinkBoxes | None = None
-
-    @property
-    def boxes(self) -> LinkBoxes:
-        """The link hulls at every guard state (built on the first exact test: a candidate
-        witness the policy does not keep never needs them)."""
-        if self._boxes is None:
-            self._boxes = LinkBoxes(self._world, self.states)
-        return self._boxes
-
-    def touched_by(self, center_m: np.ndarray, box_size_m: float) -> bool:
-        """Whether the axis-aligned cube of edge ``box_size_m`` at ``center_m`` touches the body
-        at any guard state (coal on the hulls, for the pairs whose bounding boxes meet)."""
-        return self.boxes.touched_by(center_m, box_size_m)
-
-    def touching(self, region) -> np.ndarray:
-        """Mask of ``region``'s window: candidates whose box holds a voxel centre inside the
-        body at a state of the lattice subset (``attack.configurations.touching_mask``, the
-        relation the attack covers with). Such a box touches the body, so the exact test
-        refuses it too."""
-        return touching_mask(self.robot, self._world, self.states[self._lattice], region)
+    solvable: Solvability | None
+    """Whether the task keeps a solution (None: not assessed)."""
+    goal_valid_fraction: float | None
+    """Of the task's fixed goal samples valid without the boxes, the fraction still valid with
+    them (None: the goal region has no IK solution)."""
+    stats: dict
+    """Its counts and times (``goal_samples``, ``goal_check_ms``, ``solvable_ms``)."""
 
 
-class WitnessGuard:
-    """The ``solvable`` policy for one request: refuses boxes within ``clearance_m`` (default
-    the guard margin, module docstring) of the robot at any guard state (exact, coal, on the
-    cube grown by the clearance on each side, which only refuses more)."""
-
-    reason = 'the solvable policy (the box would come too close to the witness path)'
-
-    def __init__(self, bodies: WitnessBodies, box_size_m: float,
-                 clearance_m: float = CERTIFICATE.guard_margin_m):
-        self.bodies, self.box_size_m, self.clearance_m = bodies, box_size_m, clearance_m
-
-    def admit(self, center_m: np.ndarray) -> bool:
-        grown = self.box_size_m + 2 * self.clearance_m
-        return not self.bodies.touched_by(center_m, grown)
-
-    def prune(self, region, touching: np.ndarray | None = None) -> None:
-        """Drop ``region``'s candidates the body touches on the lattice (``touching``: the
-        bodies' mask, when the caller has it); ``admit`` still checks each pick exactly."""
-        region.candidates &= ~(self.bodies.touching(region) if touching is None else touching)
-        region.stats['witness_clear'] = int(region.candidates.sum())
+def judge(task: Task, boxes: tuple[SceneObject, ...], box_size_m: float, witnesses: tuple,
+          certify_task: bool = True) -> Judgement:
+    """The verdict on ``boxes`` (the module docstring): ``goal_valid_fraction`` on the task's
+    fixed goal samples (cached per task, so a task's attacks are judged on the same samples)
+    and, with ``certify_task``, ``assess`` with the candidate ``witnesses``."""
+    t0 = time.perf_counter()
+    samples = goal_samples(task.robot, task.objects, task.goal)
+    fraction = samples.valid_fraction(
+        np.array([o.shapes[0].pose.position_m for o in boxes]), box_size_m)
+    stats = {'goal_check_ms': round((time.perf_counter() - t0) * 1e3, 3),
+             'goal_samples': len(samples.Q)}
+    solvable = None
+    if certify_task:
+        t0 = time.perf_counter()
+        solvable = assess(task.robot, task.objects, boxes, task.goal, witnesses, task.q_init)
+        stats['solvable_ms'] = round((time.perf_counter() - t0) * 1e3, 3)
+    return Judgement(solvable, fraction, stats)
 
 
-def choose_witness(robot: RobotModel, world: CollisionWorld, region, witnesses, Q_goal
-                   ) -> tuple[int, list[int], np.ndarray | None]:
-    """Which of the task's candidate witnesses the ``solvable`` policy keeps: the one whose
-    guard shields the fewest goal configurations of ``Q_goal`` (the task's goal sample), i.e.
-    leaves the fewest that no admitted candidate box covers on the lattice, so the boxes may
-    cut the most of the goal set (earlier candidates win ties). A box beside one the body
-    touches counts as refused too: the exact test works on the link hulls grown by the
-    clearance, which reach about a voxel beyond the lattice's solid links. (index, shielded
-    count per candidate, the kept one's ``touching`` mask or None when there was no choice)."""
-    if len(witnesses) == 1 or not len(Q_goal) or not region.candidates.any():
-        return 0, [], None
-    cover = goal_cover(robot, world, Q_goal, region).tocsc()
-    cand = tuple(np.argwhere(region.candidates).T)
-    shielded, masks = [], []
-    for witness in witnesses:
-        masks.append(witness_bodies(robot, world, witness).touching(region))
-        refused = ndimage.binary_dilation(masks[-1])[cand]
-        shielded.append(int((cover[:, ~refused].sum(axis=1) == 0).sum()))
-    kept = int(np.argmin(shielded))
-    return kept, shielded, masks[kept]
-
-
-_BODIES: BoundedCache = BoundedCache('witness bodies', 8, per_task=True)
-"""(robot hash, witness content hash) -> WitnessBodies."""
-
-
-def witness_bodies(robot: RobotModel, world: CollisionWorld, witness: Witness
-                   ) -> WitnessBodies:
-    """The bodies of ``witness`` (cached per robot and path)."""
-    return _BODIES.get_or_make((robot.hash, witness.content_hash()),
-                               lambda: WitnessBodies(robot, world, witness))
-
-
-__all__ = ['CERTIFICATE', 'GOAL_PROBE_CONVERGED', 'VERDICTS', 'Solvability', 'Verdict',
-           'WitnessBodies', 'WitnessGuard', 'assess', 'certify', 'choose_witness', 'probe_goal',
-           'witness_bodies', 'witness_candidates']
+__all__ = ['CERTIFICATE', 'GOAL_PROBE_CONVERGED', 'Judgement', 'VERDICTS', 'Solvability',
+           'Verdict', 'assess', 'certify', 'judge', 'probe_goal', 'witness_candidates']

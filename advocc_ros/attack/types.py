@@ -10,11 +10,17 @@ from typing import Any
 import numpy as np
 
 from advocc_ros.heatmap.build import HeatmapConfig
+from advocc_ros.model.goal import GoalRegion
+from advocc_ros.model.robot import RobotModel
 from advocc_ros.model.scene import SceneObject, objects_to_data
 
 
 POLICIES = ('paper', 'reachable', 'solvable')
-"""Goal policies (``advocc_ros.attack.goals``): the one list of their names."""
+"""Goal policies (``advocc_ros.attack.policy``): the one list of their names."""
+GOAL_FORMS = ('region',)
+"""Goal forms, what a task's goal is: ``region``, a goal region G (a plan may end at any
+collision-free configuration whose tool pose lies in G). The steps that depend on the form
+read ``Task.goal_form``, each in one place (docs/design.md)."""
 DEFAULT_METHOD = 'task'
 """The attack method of a request that names none: the paper's."""
 BOX_ID = re.compile(r'adv_\d+')
@@ -80,6 +86,28 @@ class AttackConfig:
             value = getattr(self, name)
             if not ok or not np.isfinite(float(value)):
                 raise ValueError(f'attack parameter {name}={value!r} is out of range')
+
+
+@dataclasses.dataclass(frozen=True)
+class Task:
+    """One attack's task as every step of the pipeline reads it (docs/design.md): the robot,
+    the scene, the start, the goal, and the two choices that change what the steps do, the goal
+    policy and the goal form (data, so each step branches on them in one place)."""
+
+    robot: RobotModel
+    objects: tuple[SceneObject, ...]
+    q_init: np.ndarray
+    goal: GoalRegion
+    policy: str = 'paper'
+    """One of :data:`POLICIES`."""
+    goal_form: str = 'region'
+    """One of :data:`GOAL_FORMS`."""
+
+    def __post_init__(self):
+        if self.policy not in POLICIES:
+            raise ValueError(f'goal policy {self.policy!r}: expected one of {list(POLICIES)}')
+        if self.goal_form not in GOAL_FORMS:
+            raise ValueError(f'goal form {self.goal_form!r}: expected one of {list(GOAL_FORMS)}')
 
 
 class AttackStatus(enum.Enum):

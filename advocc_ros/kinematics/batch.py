@@ -1,6 +1,5 @@
-"""Batched kinematics: forward kinematics and frame Jacobians for many configurations at once
-(numpy), and damped-least-squares IK for many attempts at once (a compiled kernel, rows in
-parallel).
+"""Batched kinematics: forward kinematics of many configurations and damped-least-squares IK
+for many attempts at once, in compiled kernels (rows in parallel).
 
 Goal sampling is the online phase's largest cost when every IK runs one configuration at a time
 through pinocchio (~4-16 ms per converged sample on the Panda). Here the chain to one frame is
@@ -8,9 +7,8 @@ read once from the pinocchio model into arrays, and the IK runs every attempt's 
 (kinematics, Jacobian, a 6x6 Cholesky solve) in compiled code. Revolute and prismatic joints
 (aligned or not) are supported, which covers the serial arms the tool loads;
 ``ChainKinematics.supports`` tells. The kinematics agree with pinocchio's
-``framesForwardKinematics`` and ``computeFrameJacobian`` (LOCAL) to round-off, and the
-compiled IK takes the steps of pinocchio's one-at-a-time ``kinematics.ik.dls_ik``
-(test/test_batch_ik.py).
+``framesForwardKinematics`` to round-off, and the compiled IK takes the steps of pinocchio's
+one-at-a-time ``kinematics.ik.dls_ik`` (test/test_batch_ik.py).
 """
 
 from __future__ import annotations
@@ -22,16 +20,6 @@ import numpy as np
 import pinocchio as pin
 
 _AXES = {'X': (1.0, 0.0, 0.0), 'Y': (0.0, 1.0, 0.0), 'Z': (0.0, 0.0, 1.0)}
-
-
-@dataclasses.dataclass(frozen=True)
-class _Joint:
-    index_q: int
-    revolute: bool
-    axis: np.ndarray
-    """Unit axis in the joint frame."""
-    T_parent_joint: np.ndarray
-    """4x4 placement of the joint frame in its parent joint's frame (q = 0)."""
 
 
 def _joint_kind(joint) -> tuple[bool, np.ndarray] | None:
@@ -48,7 +36,7 @@ def _joint_kind(joint) -> tuple[bool, np.ndarray] | None:
 
 
 class ChainKinematics:
-    """The kinematic chain from the base to one frame, evaluated for many configurations."""
+    """The kinematic chain from the base to one frame, as the compiled kernels read it."""
 
     def __init__(self, model: pin.Model, frame_id: int):
         frame = model.frames[frame_id]
@@ -57,121 +45,29 @@ class ChainKinematics:
         while j > 0:
             chain.append(j)
             j = model.parents[j]
-        self.joints: list[_Joint] = []
-        self.supports = True
-        for j in reversed(chain):
-            kind = _joint_kind(model.joints[j])
-            if kind is None or model.joints[j].nq != 1:
-                self.supports = False
-                break
-            self.joints.append(_Joint(model.joints[j].idx_q, kind[0], kind[1],
-                                      model.jointPlacements[j].homogeneous))
+        kinds = [_joint_kind(model.joints[j]) for j in reversed(chain)]
+        self.supports = all(k is not None and model.joints[j].nq == 1
+                            for j, k in zip(reversed(chain), kinds))
+        """Whether every joint of the chain is one the kernels model (else use pinocchio)."""
+        joints = list(reversed(chain)) if self.supports else []
         self.T_joint_frame = frame.placement.homogeneous
         self.nq = model.nq
-        # The chain as arrays, for the compiled IK.
-        self.T_parent_joint = np.array([jt.T_parent_joint for jt in self.joints]).reshape(-1, 4, 4)
-        self.axis = np.array([jt.axis for jt in self.joints]).reshape(-1, 3)
-        self.revolute = np.array([jt.revolute for jt in self.joints], dtype=np.bool_)
-        self.index_q = np.array([jt.index_q for jt in self.joints], dtype=np.int64)
-
-    def frame_and_jacobian(self, Q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """T_base_frame (N, 4, 4) and the frame Jacobian in the LOCAL frame (N, 6, nq), rows
-        (linear, angular) as pinocchio's ``computeFrameJacobian(..., LOCAL)``."""
-        n = len(Q)
-        T = np.broadcast_to(np.eye(4), (n, 4, 4)).copy()
-        origins, axes, cols, revolute = [], [], [], []
-        for jt in self.joints:
-            T = T @ jt.T_parent_joint
-            axis_w = T[:, :3, :3] @ jt.axis
-            origins.append(T[:, :3, 3].copy())
-            axes.append(axis_w)
-            cols.append(jt.index_q)
-            revolute.append(jt.revolute)
-            T = T @ _motion(jt, Q[:, jt.index_q])
-        T = T @ self.T_joint_frame
-        J = np.zeros((n, 6, self.nq))
-        R_t = np.transpose(T[:, :3, :3], (0, 2, 1))
-        p = T[:, :3, 3]
-        for origin, axis_w, col, rev in zip(origins, axes, cols, revolute):
-            if rev:
-                J[:, :3, col] = np.einsum('nij,nj->ni', R_t, np.cross(axis_w, p - origin))
-                J[:, 3:, col] = np.einsum('nij,nj->ni', R_t, axis_w)
-            else:
-                J[:, :3, col] = np.einsum('nij,nj->ni', R_t, axis_w)
-        return T, J
+        self.T_parent_joint = np.array([model.jointPlacements[j].homogeneous
+                                        for j in joints]).reshape(-1, 4, 4)
+        """Placement of each joint frame in its parent joint's frame (q = 0)."""
+        self.axis = np.array([k[1] for k in kinds[:len(joints)]]).reshape(-1, 3)
+        """Unit axis of each joint in its own frame."""
+        self.revolute = np.array([k[0] for k in kinds[:len(joints)]], dtype=np.bool_)
+        self.index_q = np.array([model.joints[j].idx_q for j in joints], dtype=np.int64)
 
     def frame(self, Q: np.ndarray) -> np.ndarray:
-        """T_base_frame (N, 4, 4)."""
-        return self.frame_and_jacobian(Q)[0]
-
-
-def _motion(joint: _Joint, q: np.ndarray) -> np.ndarray:
-    """(N, 4, 4) joint motion for the joint values ``q`` (N,)."""
-    M = np.broadcast_to(np.eye(4), (len(q), 4, 4)).copy()
-    if joint.revolute:
-        M[:, :3, :3] = exp3(joint.axis[None, :] * q[:, None])
-    else:
-        M[:, :3, 3] = joint.axis[None, :] * q[:, None]
-    return M
-
-
-def _hat(w: np.ndarray) -> np.ndarray:
-    """(N, 3, 3) skew matrices of the vectors ``w`` (N, 3)."""
-    H = np.zeros((len(w), 3, 3))
-    H[:, 0, 1], H[:, 0, 2], H[:, 1, 2] = -w[:, 2], w[:, 1], -w[:, 0]
-    H[:, 1, 0], H[:, 2, 0], H[:, 2, 1] = w[:, 2], -w[:, 1], w[:, 0]
-    return H
-
-
-def exp3(w: np.ndarray) -> np.ndarray:
-    """Rotation matrices (N, 3, 3) of the rotation vectors ``w`` (N, 3) (Rodrigues)."""
-    theta = np.linalg.norm(w, axis=1)
-    small = theta < 1e-8
-    safe = np.where(small, 1.0, theta)
-    a = np.where(small, 1.0 - theta ** 2 / 6, np.sin(theta) / safe)
-    b = np.where(small, 0.5 - theta ** 2 / 24, (1 - np.cos(theta)) / safe ** 2)
-    H = _hat(w)
-    return np.eye(3) + a[:, None, None] * H + b[:, None, None] * (H @ H)
-
-
-def log3(R: np.ndarray) -> np.ndarray:
-    """Rotation vectors (N, 3) of the rotation matrices ``R`` (N, 3, 3); rotations within 1e-4
-    rad of a half turn go through pinocchio's ``log3`` (the closed form is ill-conditioned)."""
-    cos = np.clip((np.trace(R, axis1=1, axis2=2) - 1.0) / 2.0, -1.0, 1.0)
-    theta = np.arccos(cos)
-    vee = np.stack([R[:, 2, 1] - R[:, 1, 2], R[:, 0, 2] - R[:, 2, 0], R[:, 1, 0] - R[:, 0, 1]],
-                   axis=1)
-    sin = np.sin(theta)
-    small = theta < 1e-6
-    scale = np.where(small, 0.5 + theta ** 2 / 12, theta / (2 * np.where(small, 1.0, sin)))
-    w = vee * scale[:, None]
-    for i in np.flatnonzero(theta > np.pi - 1e-4):
-        w[i] = pin.log3(R[i])
-    return w
-
-
-def log6(T: np.ndarray) -> np.ndarray:
-    """Twists (N, 6), (linear, angular), of the homogeneous matrices ``T`` (N, 4, 4), as
-    pinocchio's ``log6``."""
-    w = log3(T[:, :3, :3])
-    theta = np.linalg.norm(w, axis=1)
-    small = theta < 1e-6
-    safe = np.where(small, 1.0, theta)
-    c = np.where(small, 1.0 / 12, (1 - safe * np.sin(safe) / (2 * (1 - np.cos(safe))))
-                 / safe ** 2)
-    H = _hat(w)
-    V_inv = np.eye(3) - 0.5 * H + c[:, None, None] * (H @ H)
-    v = np.einsum('nij,nj->ni', V_inv, T[:, :3, 3])
-    return np.concatenate([v, w], axis=1)
-
-
-def inverse(T: np.ndarray) -> np.ndarray:
-    """Inverses (N, 4, 4) of rigid transforms."""
-    out = np.broadcast_to(np.eye(4), T.shape).copy()
-    R_t = np.transpose(T[:, :3, :3], (0, 2, 1))
-    out[:, :3, :3] = R_t
-    out[:, :3, 3] = -np.einsum('nij,nj->ni', R_t, T[:, :3, 3])
-    return out
+        """T_base_frame (N, 4, 4) of the configurations ``Q`` (N, nq)."""
+        Q = np.ascontiguousarray(Q, dtype=float).reshape(-1, self.nq)
+        out = np.empty((len(Q), 4, 4))
+        if len(Q):
+            _frames(Q, self.T_parent_joint, self.axis, self.revolute, self.index_q,
+                    self.T_joint_frame, out)
+        return out
 
 
 @dataclasses.dataclass(frozen=True)
@@ -187,12 +83,12 @@ class PoseBox:
 
     def contains(self, T_base_link: np.ndarray) -> np.ndarray:
         """(N,) whether each link pose (N, 4, 4) puts the tool in the box."""
-        T_tool = T_base_link @ self.T_link_tool
-        R_c, p_c = self.T_center[:3, :3], self.T_center[:3, 3]
-        p_local = (T_tool[:, :3, 3] - p_c) @ R_c
-        r_err = log3(np.einsum('ji,njk->nik', R_c, T_tool[:, :3, :3]))
-        return (np.all(np.abs(p_local) <= self.pos_tol, axis=1)
-                & np.all(np.abs(r_err) <= self.rot_tol, axis=1))
+        T_base_link = np.ascontiguousarray(T_base_link, dtype=float).reshape(-1, 4, 4)
+        out = np.zeros(len(T_base_link), dtype=np.bool_)
+        if len(out):
+            _contains_rows(T_base_link, self.T_center, self.T_link_tool,
+                           np.asarray(self.pos_tol, float), np.asarray(self.rot_tol, float), out)
+        return out
 
 
 def dls(chain: ChainKinematics, Q: np.ndarray, T_target: np.ndarray, iterations: np.ndarray,
@@ -254,9 +150,9 @@ def _mul4(A, B, out):
 
 
 @numba.njit(cache=True, nogil=True)
-def _fk_jacobian(q, T_pj, axis, revolute, index_q, T_jf, T, J, origins, axes_w, M):
-    """T_base_frame into ``T`` (4, 4) and the LOCAL frame Jacobian into ``J`` (6, nq) at ``q``
-    (``ChainKinematics.frame_and_jacobian`` for one row; the rest are scratch arrays)."""
+def _fk(q, T_pj, axis, revolute, index_q, T_jf, T, origins, axes_w, M):
+    """T_base_frame into ``T`` (4, 4) at ``q``, and each joint's origin and axis in the base
+    frame into ``origins`` and ``axes_w`` (what ``_jacobian`` reads); ``M``: scratch."""
     T[:, :] = 0.0
     for a in range(4):
         T[a, a] = 1.0
@@ -288,8 +184,14 @@ def _fk_jacobian(q, T_pj, axis, revolute, index_q, T_jf, T, J, origins, axes_w, 
                 M[a, 3] = axis[j, a] * x
         _mul4(T, M, T)
     _mul4(T, T_jf, T)
+
+
+@numba.njit(cache=True, nogil=True)
+def _jacobian(T, origins, axes_w, revolute, index_q, J):
+    """The LOCAL frame Jacobian (6, nq) into ``J``, rows (linear, angular) as pinocchio's
+    ``computeFrameJacobian(..., LOCAL)``, from ``_fk``'s outputs."""
     J[:, :] = 0.0
-    for j in range(T_pj.shape[0]):
+    for j in range(origins.shape[0]):
         col = index_q[j]
         aw = axes_w[j]
         if revolute[j]:
@@ -303,6 +205,24 @@ def _fk_jacobian(q, T_pj, axis, revolute, index_q, T_jf, T, J, origins, axes_w, 
         else:
             for a in range(3):
                 J[a, col] = T[0, a] * aw[0] + T[1, a] * aw[1] + T[2, a] * aw[2]
+
+
+@numba.njit(cache=True, nogil=True, parallel=True)
+def _frames(Q, T_pj, axis, revolute, index_q, T_jf, out):
+    """``out[i]`` = T_base_frame at ``Q[i]``, rows in parallel."""
+    nj = T_pj.shape[0]
+    for i in numba.prange(Q.shape[0]):
+        origins, axes_w, M = np.empty((nj, 3)), np.empty((nj, 3)), np.empty((4, 4))
+        _fk(Q[i], T_pj, axis, revolute, index_q, T_jf, out[i], origins, axes_w, M)
+
+
+@numba.njit(cache=True, nogil=True, parallel=True)
+def _contains_rows(T_links, T_center, T_link_tool, pos_tol, rot_tol, out):
+    """``out[i]``: whether the link pose ``T_links[i]`` puts the tool in the box (``_in_box``),
+    rows in parallel."""
+    for i in numba.prange(T_links.shape[0]):
+        tool, Rrel, w = np.empty((4, 4)), np.empty((3, 3)), np.empty(3)
+        out[i] = _in_box(T_links[i], T_center, T_link_tool, pos_tol, rot_tol, tool, Rrel, w)
 
 
 @numba.njit(cache=True, nogil=True)
@@ -346,6 +266,35 @@ def _log6_row(E, twist, Rs, w):
     twist[3], twist[4], twist[5] = w[0], w[1], w[2]
 
 
+@numba.njit(cache=True, nogil=True)
+def _damped_solve(J, err, damping, A, x):
+    """``x = (J J^T + damping I)^-1 err`` by Cholesky (symmetric positive definite); ``A``
+    (6, 6): scratch."""
+    nq = J.shape[1]
+    for a in range(6):
+        for b in range(a + 1):
+            v = 0.0
+            for c in range(nq):
+                v += J[a, c] * J[b, c]
+            A[a, b] = v + (damping if a == b else 0.0)
+    for a in range(6):
+        for b in range(a + 1):
+            v = A[a, b]
+            for c in range(b):
+                v -= A[a, c] * A[b, c]
+            A[a, b] = np.sqrt(v) if a == b else v / A[b, b]
+    for a in range(6):
+        v = err[a]
+        for c in range(a):
+            v -= A[a, c] * x[c]
+        x[a] = v / A[a, a]
+    for a in range(5, -1, -1):
+        v = x[a]
+        for c in range(a + 1, 6):
+            v -= A[c, a] * x[c]
+        x[a] = v / A[a, a]
+
+
 @numba.njit(cache=True, nogil=True, parallel=True)
 def _dls_rows(Q, done, T_target, iterations, damping, max_step, lower, upper, T_pj, axis,
               revolute, index_q, T_jf, T_center, T_link_tool, pos_tol, rot_tol):
@@ -360,12 +309,13 @@ def _dls_rows(Q, done, T_target, iterations, damping, max_step, lower, upper, T_
         A, x, dq = np.empty((6, 6)), np.empty(6), np.empty(nq)
         q = Q[i]
         for step in range(iterations[i] + 1):
-            _fk_jacobian(q, T_pj, axis, revolute, index_q, T_jf, T, J, origins, axes_w, M)
+            _fk(q, T_pj, axis, revolute, index_q, T_jf, T, origins, axes_w, M)
             if _in_box(T, T_center, T_link_tool, pos_tol, rot_tol, E, Rs, w):
                 done[i] = True
                 break
             if step >= iterations[i]:
                 break
+            _jacobian(T, origins, axes_w, revolute, index_q, J)
             # E = T^-1 T_target
             for a in range(3):
                 for b in range(4):
@@ -374,29 +324,7 @@ def _dls_rows(Q, done, T_target, iterations, damping, max_step, lower, upper, T_
                         v += T[c, a] * (T_target[i, c, b] - (T[c, 3] if b == 3 else 0.0))
                     E[a, b] = v
             _log6_row(E, err, Rs, w)
-            # A = J J^T + damping I, solved by Cholesky (symmetric positive definite)
-            for a in range(6):
-                for b in range(a + 1):
-                    v = 0.0
-                    for c in range(nq):
-                        v += J[a, c] * J[b, c]
-                    A[a, b] = v + (damping if a == b else 0.0)
-            for a in range(6):
-                for b in range(a + 1):
-                    v = A[a, b]
-                    for c in range(b):
-                        v -= A[a, c] * A[b, c]
-                    A[a, b] = np.sqrt(v) if a == b else v / A[b, b]
-            for a in range(6):
-                v = err[a]
-                for c in range(a):
-                    v -= A[a, c] * x[c]
-                x[a] = v / A[a, a]
-            for a in range(5, -1, -1):
-                v = x[a]
-                for c in range(a + 1, 6):
-                    v -= A[c, a] * x[c]
-                x[a] = v / A[a, a]
+            _damped_solve(J, err, damping, A, x)
             norm = 0.0
             for c in range(nq):
                 v = 0.0
@@ -409,4 +337,4 @@ def _dls_rows(Q, done, T_target, iterations, damping, max_step, lower, upper, T_
                 q[c] = min(max(q[c] + dq[c] * scale, lower[c]), upper[c])
 
 
-__all__ = ['ChainKinematics', 'PoseBox', 'dls', 'exp3', 'inverse', 'log3', 'log6']
+__all__ = ['ChainKinematics', 'PoseBox', 'dls']

@@ -1,11 +1,15 @@
-"""Goal configurations drawn the way the planners draw theirs, many at once.
+"""The goal sampler's attempts, many at once: goal configurations drawn the way the planners
+draw theirs.
 
-The planners' goal sampler (``kinematics.ik.GoalSampler``) makes one attempt at a time: offer
-the region's seeds, then alternate walks near a seed with random-seed IK towards a random pose
-of the region. :func:`planner_goals` makes the same attempts, with the same distributions and
-DLS settings, in batches through ``kinematics.batch``, and keeps the collision-free ones: a
-sample of the goal set as the victims see it (where their samples land often, and where
-rarely), at a few milliseconds per thousand attempts instead of seconds.
+The planners' goal sampler (``kinematics.ik.GoalSampler``) makes one attempt at a time from one
+seeded stream. :func:`planner_goals` makes the same attempts, from the same stream, with the same
+DLS steps, in batches through ``kinematics.batch``, and keeps the collision-free ones: a sample
+of the goal set as the victims see it (where their samples land often, and where rarely), at a
+few milliseconds per thousand attempts instead of seconds. It is the one way goal
+configurations are drawn outside the planners' clock: the attack's task sample
+(:func:`task_goals`), the goal checks (``attack.goals``), the goal probe
+(``attack.solvable``), the victims' goal lists (``planning.goal_list``, with anchors) and the
+tests.
 
 The attempts follow one seeded stream and an attempt budget (``attempts_per_sample * n``),
 never a clock, so a seed gives the same set on any machine. The task's sample
@@ -24,8 +28,8 @@ from typing import Callable
 
 import numpy as np
 
-from advocc_ros.kinematics.batch import ChainKinematics, PoseBox, dls, exp3
-from advocc_ros.kinematics.ik import GoalSampler, IkConfig, seed_configurations
+from advocc_ros.kinematics.batch import ChainKinematics, dls
+from advocc_ros.kinematics.ik import BATCH, GoalSampler, IkConfig, goal_box
 from advocc_ros.fileio import atomic_open
 from advocc_ros.limits import worker_threads
 from advocc_ros.model.cache import BoundedCache, disk_cache_dir
@@ -38,8 +42,6 @@ log = logging.getLogger(__name__)
 
 THREADS = worker_threads()
 """Threads of the batched collision checks (C++); the result does not depend on it."""
-BATCH = 512
-"""Attempts per batch (the stream is drawn per batch, so this is part of the result)."""
 ATTEMPTS_PER_SAMPLE = 16
 """Attempt budget per wanted sample (narrow regions in cluttered scenes need many)."""
 TASK_GOALS = 1024
@@ -53,14 +55,7 @@ GOALS_FORMAT = 'advocc_goal_sample_1'
 RARITY_NEIGHBOUR = 5
 """The k of the k-NN distance that ranks goal configurations by rarity."""
 
-POCKET_SAMPLES = 256
-"""Size of a ``joint`` goal's pocket sample (:func:`goal_pocket`)."""
-POCKET_RAD = 0.2
-"""Standard deviation of the pocket's perturbation of the goal configuration per joint [rad]."""
-POCKET_SEED = 7_345_003
-"""Seed of the pocket sample: part of the task, not of one attack."""
-
-_TASK_GOALS: BoundedCache = BoundedCache('task goals', 16, per_task=True)
+TASK_GOAL_SAMPLES: BoundedCache = BoundedCache('task goals', 16, per_task=True)
 """Task hash -> GoalDraw (nodes attack from several executor threads)."""
 
 
@@ -75,48 +70,29 @@ class GoalDraw:
     """Attempts whose IK reached the region (valid or not)."""
 
 
-class _Region:
-    """The goal region as batched tests and draws (``GoalSampler``'s, on arrays)."""
-
-    def __init__(self, robot: RobotModel, goal: GoalRegion):
-        sampler = GoalSampler(robot, None, goal, np.random.default_rng(0))
-        self.tol_p, self.tol_r = sampler.tol_p, sampler.tol_r
-        self.T_center = goal.center.to_se3().homogeneous
-        self.T_tool_link = sampler.T_tool_link.homogeneous
-        self.box = PoseBox(self.T_center, sampler.T_link_tool.homogeneous,
-                           np.asarray(goal.position_tolerance_m) + 1e-6,
-                           np.asarray(goal.orientation_tolerance_rad) + 1e-6)
-        """``GoalRegion.contains`` for link poses (the IK's stopping test)."""
-
-    def random_targets(self, rng: np.random.Generator, n: int) -> np.ndarray:
-        """(n, 4, 4) T_base_link of tool poses drawn uniformly in the region's box."""
-        T = np.broadcast_to(np.eye(4), (n, 4, 4)).copy()
-        T[:, :3, :3] = exp3(rng.uniform(-self.tol_r, self.tol_r, (n, 3)))
-        T[:, :3, 3] = rng.uniform(-self.tol_p, self.tol_p, (n, 3))
-        return self.T_center @ T @ self.T_tool_link
-
-
 def planner_goals(robot: RobotModel, goal: GoalRegion,
-                  collisions_batch: Callable[[np.ndarray], np.ndarray], n: int, seed: int,
+                  collisions_batch: Callable[[np.ndarray], np.ndarray], n: int, seed,
                   attempts_per_sample: int = ATTEMPTS_PER_SAMPLE, config=IkConfig(),
-                  enough: int | None = None) -> GoalDraw:
-    """Up to ``n`` valid goal configurations from ``seed`` (module docstring); with ``enough``,
-    it stops after the first batch that brings the count to ``enough``."""
-    chain = ChainKinematics(robot.model, robot.model.getFrameId(goal.link))
-    if not chain.supports:
-        return _one_at_a_time(robot, goal, collisions_batch, n, seed, attempts_per_sample,
-                              config, n if enough is None else min(enough, n))
-    region = _Region(robot, goal)
-    rng = np.random.default_rng(seed)
-    seeds = seed_configurations(robot, goal)
+                  enough: int | None = None, anchors: np.ndarray | None = None) -> GoalDraw:
+    """Up to ``n`` valid goal configurations from ``seed`` (an integer or a sequence of them:
+    ``numpy.random.default_rng``'s), the module docstring; with ``enough``, it stops after the
+    first batch that brings the count to ``enough``; ``anchors``: configurations the stream
+    offers and walks near, besides the region's seeds (``GoalSampler``)."""
+    sampler = GoalSampler(robot, None, goal, np.random.default_rng(seed), config, anchors)
+    chain = ChainKinematics(robot.model, sampler.frame)
     found, attempts, converged = [], 0, 0
     budget = attempts_per_sample * n
     wanted = n if enough is None else min(enough, n)
     while sum(len(f) for f in found) < wanted and attempts < budget:
         k = min(BATCH, budget - attempts)
-        starts, iterations = _starts(robot, rng, seeds, attempts, k, config.ik_iterations)
-        Q, ok = dls(chain, starts, region.random_targets(rng, k), iterations, config.ik_damping,
-                    GoalSampler.max_step_rad, robot.lower, robot.upper, region.box)
+        starts, targets, iterations = sampler.draw(k)
+        if chain.supports:
+            Q, ok = dls(chain, starts, targets, iterations, config.ik_damping,
+                        GoalSampler.max_step_rad, robot.lower, robot.upper, sampler.box)
+        else:  # the same attempts, one at a time through pinocchio
+            solved = [sampler.solve(*row) for row in zip(starts, targets, iterations)]
+            ok = np.array([q is not None for q in solved], dtype=bool)
+            Q = np.array([starts[i] if q is None else q for i, q in enumerate(solved)])
         Q = Q[ok]
         converged += len(Q)
         if len(Q):
@@ -146,7 +122,15 @@ def task_goals(robot: RobotModel, objects, goal: GoalRegion, n: int = TASK_GOALS
             if path is not None:
                 _write(path, draw)
         return draw
-    return _TASK_GOALS.get_or_make(key, make)
+    return TASK_GOAL_SAMPLES.get_or_make(key, make)
+
+
+POCKET_SAMPLES = 256
+"""Size of a ``joint`` goal's pocket sample (:func:`goal_pocket`)."""
+POCKET_RAD = 0.2
+"""Standard deviation of the pocket's perturbation of the goal configuration per joint [rad]."""
+POCKET_SEED = 7_345_003
+"""Seed of the pocket sample: part of the task, not of one attack."""
 
 
 def goal_pocket(robot: RobotModel, world: CollisionWorld, goal: GoalRegion) -> np.ndarray:
@@ -178,7 +162,7 @@ def _read(path: pathlib.Path, robot: RobotModel, goal: GoalRegion, collisions, n
              and bool(np.isfinite(Q).all())
              and bool(np.all((Q >= robot.lower) & (Q <= robot.upper))))
     if valid and len(Q):
-        in_region = (_Region(robot, goal).box.contains(chain.frame(Q)) if chain.supports
+        in_region = (goal_box(robot, goal).contains(chain.frame(Q)) if chain.supports
                      else np.ones(len(Q), bool))
         valid = bool(in_region.all()) and not collisions(Q).any()
     if not valid:
@@ -207,39 +191,5 @@ def rarest_first(Q: np.ndarray, k: int = RARITY_NEIGHBOUR) -> np.ndarray:
     return np.argsort(-kth, kind='stable')
 
 
-def _starts(robot: RobotModel, rng: np.random.Generator, seeds: np.ndarray, first: int, k: int,
-            ik_iterations: int) -> tuple[np.ndarray, np.ndarray]:
-    """Start configurations and DLS step budgets of attempts ``first .. first + k - 1``: the
-    seeds first, then (with seeds) walks near a seed on every other attempt, else random-seed
-    IK (``GoalSampler.draw``)."""
-    index = first + np.arange(k)
-    starts = rng.uniform(robot.lower, robot.upper, (k, robot.nq))
-    iterations = np.full(k, ik_iterations)
-    ns = len(seeds)
-    if ns:
-        is_seed = index < ns
-        starts[is_seed] = seeds[index[is_seed]]
-        walk = ~is_seed & ((index - ns) % 2 == 0)
-        picks = rng.integers(ns, size=int(walk.sum()))
-        starts[walk] = seeds[picks] + rng.normal(0.0, GoalSampler.walk_rad,
-                                                 (len(picks), robot.nq))
-        iterations[walk] = GoalSampler.walk_iterations
-    return starts, iterations
-
-
-def _one_at_a_time(robot, goal, collisions_batch, n, seed, attempts_per_sample, config,
-                   wanted):
-    """The same draw through ``GoalSampler`` for chains ``kinematics.batch`` does not model
-    (stops at ``wanted`` valid ones)."""
-    sampler = GoalSampler(robot, lambda q: bool(collisions_batch(q[None])[0]), goal,
-                          np.random.default_rng(seed), config)
-    found = []
-    while len(found) < wanted and sampler.attempts < attempts_per_sample * n:
-        q = sampler.attempt()
-        if q is not None:
-            found.append(q)
-    return GoalDraw(np.array(found).reshape(-1, robot.nq), sampler.attempts, sampler.converged)
-
-
-__all__ = ['ATTEMPTS_PER_SAMPLE', 'GoalDraw', 'POCKET_SAMPLES', 'TASK_GOALS', 'goal_pocket',
-           'planner_goals', 'rarest_first', 'task_goals']
+__all__ = ['ATTEMPTS_PER_SAMPLE', 'GoalDraw', 'POCKET_SAMPLES', 'TASK_GOALS', 'TASK_GOAL_SAMPLES',
+           'goal_pocket', 'planner_goals', 'rarest_first', 'task_goals']

@@ -1,15 +1,18 @@
-"""Inverse kinematics to goal regions: one damped-least-squares solver and its two uses.
+"""Inverse kinematics to goal regions: one damped-least-squares solver and the one goal sampler.
 
 - :func:`goal_configuration`: one deterministic solution from ``q_init`` to the goal centre
   (with ``AttackConfig.protect_goal_hand`` the attack keeps the hand clear there);
-- :class:`GoalSampler`: collision-free configurations anywhere in a goal region (the planners'
-  goal set, scene checks), the region's seeds first (a request's joint goal);
-- :func:`goal_set`: many goal configurations fast (the ``task`` attack, goal checks).
+- :class:`GoalSampler`: collision-free configurations anywhere in a goal region, from one seeded
+  stream of attempts (the region's seeds first, a request's joint goal). The planners run its
+  attempts one at a time inside their clock (``attempt``); the attack, the victims' goal lists,
+  the goal probe and the goal checks run the same stream many at once
+  (``kinematics.goal_batch.planner_goals``, a compiled kernel that takes the same steps).
 """
 
 from __future__ import annotations
 
 import dataclasses
+import functools
 import logging
 import math
 import time
@@ -34,16 +37,6 @@ class IkConfig:
     """DLS iterations per attempt."""
     ik_damping: float = 1e-4
     """DLS damping (lambda^2)."""
-
-
-@dataclasses.dataclass(frozen=True)
-class IkJob:
-    """One goal-sampling attempt after its random draws: where DLS starts and what it aims at."""
-
-    q_start: np.ndarray
-    T_base_link_target: np.ndarray | None
-    """4x4 homogeneous target of the link frame; None when ``q_start`` is already in the region."""
-    iterations: int
 
 
 def dls_ik(robot: RobotModel, data, frame_id: int, q: np.ndarray, T_target: pin.SE3,
@@ -102,34 +95,64 @@ def goal_configuration(robot: RobotModel, goal: GoalRegion, q_init: np.ndarray,
 
     Deterministic and cheap (~ms): it only decides which hand pose to keep clear of boxes.
     """
-    model = robot.model
-    data = model.createData()
-    fid = model.getFrameId(goal.link)
+    data = robot.create_data()
+    tool = goal.tool_offset.to_se3()
     for q in seed_configurations(robot, goal):  # a joint goal is the configuration to keep clear
-        pin.framesForwardKinematics(model, data, q)
-        if goal.contains(data.oMf[fid] * goal.tool_offset.to_se3()):
+        if goal.contains(robot.ee_pose(q, data, goal.link, tool)):
             return q
-    T_des = goal.center.to_se3() * goal.tool_offset.to_se3().inverse()  # T_base_link wanted
-    q, _ = dls_ik(robot, data, fid, np.array(q_init, dtype=float), T_des, iterations, 1e-6,
-                  lambda T, err: np.linalg.norm(err) < 1e-4, gain=0.5, log_jacobian=True)
-    pin.framesForwardKinematics(model, data, q)
-    if goal.contains(data.oMf[fid] * goal.tool_offset.to_se3()):
-        return q
-    return None
+    T_des = goal.center.to_se3() * tool.inverse()  # T_base_link wanted
+    q, _ = dls_ik(robot, data, robot.model.getFrameId(goal.link), np.array(q_init, dtype=float),
+                  T_des, iterations, 1e-6, lambda T, err: np.linalg.norm(err) < 1e-4, gain=0.5,
+                  log_jacobian=True)
+    return q if goal.contains(robot.ee_pose(q, data, goal.link, tool)) else None
+
+
+def _hat(w: np.ndarray) -> np.ndarray:
+    """(N, 3, 3) skew matrices of the vectors ``w`` (N, 3)."""
+    H = np.zeros((len(w), 3, 3))
+    H[:, 0, 1], H[:, 0, 2], H[:, 1, 2] = -w[:, 2], w[:, 1], -w[:, 0]
+    H[:, 1, 0], H[:, 2, 0], H[:, 2, 1] = w[:, 2], -w[:, 1], w[:, 0]
+    return H
+
+
+def exp3(w: np.ndarray) -> np.ndarray:
+    """Rotation matrices (N, 3, 3) of the rotation vectors ``w`` (N, 3) (Rodrigues)."""
+    theta = np.linalg.norm(w, axis=1)
+    small = theta < 1e-8
+    safe = np.where(small, 1.0, theta)
+    a = np.where(small, 1.0 - theta ** 2 / 6, np.sin(theta) / safe)
+    b = np.where(small, 0.5 - theta ** 2 / 24, (1 - np.cos(theta)) / safe ** 2)
+    H = _hat(w)
+    return np.eye(3) + a[:, None, None] * H + b[:, None, None] * (H @ H)
+
+
+BATCH = 512
+"""Attempts the stream draws at once (it is drawn per batch, so this is part of the result)."""
+
+
+def goal_box(robot: RobotModel, goal: GoalRegion):
+    """The goal region as the IK's stopping test on the goal link's pose (``GoalRegion.contains``
+    with its slack of 1e-6), for the compiled kernels (``kinematics.batch.PoseBox``; imported
+    here so that the planners' one-at-a-time sampling loads no compiler)."""
+    from advocc_ros.kinematics.batch import PoseBox
+
+    return PoseBox(goal.center.to_se3().homogeneous, goal.tool_offset.to_se3().homogeneous,
+                   np.asarray(goal.position_tolerance_m) + 1e-6,
+                   np.asarray(goal.orientation_tolerance_rad) + 1e-6)
 
 
 class GoalSampler:
     """Collision-free configurations with FK inside a goal region, by damped-least-squares IK.
 
-    Each attempt draws a target pose uniformly inside the region (position box x rotation-vector
-    box) and a random seed configuration, then iterates DLS on the link frame until the tool
-    pose enters the region (not necessarily the target: any point of the region will do).
-    When the region has seeds (a request's joint goal), the first attempts offer them (pulled
-    into the region if they are not quite inside), and every other attempt after that is a
-    local walk around one (perturbed by N(0, ``walk_rad``) per joint, pulled back with at most
-    ``walk_iterations`` DLS steps): the joint goal itself, its neighbourhood, and the rest of
-    the region's IK branches. ``config``: anything with ``ik_iterations`` and ``ik_damping``
-    (``IkConfig``, ``PlanningConfig``).
+    The attempts follow one seeded stream (``draw``): the region's seeds (a request's joint
+    goal) and the ``anchors`` first, each pulled into the region unless it is inside already;
+    after them every other attempt is a local walk near one (perturbed by N(0, ``walk_rad``) per
+    joint, pulled back with at most ``walk_iterations`` DLS steps), and every attempt without
+    seeds or anchors, and every other one with them, starts from a uniformly random
+    configuration and runs DLS towards a pose drawn uniformly in the region (position box x
+    rotation-vector box) until the tool enters the region (not necessarily the target: any
+    point of the region will do). ``config``: anything with ``ik_iterations`` and
+    ``ik_damping`` (``IkConfig``, ``PlanningConfig``).
     """
 
     walk_rad = 0.3
@@ -138,14 +161,13 @@ class GoalSampler:
     """Largest DLS step (joint-space norm): full steps from a random seed overshoot."""
 
     def __init__(self, robot: RobotModel, in_collision, goal: GoalRegion,
-                 rng: np.random.Generator, config=IkConfig()):
+                 rng: np.random.Generator, config=IkConfig(), anchors: np.ndarray | None = None):
         self.robot, self.model = robot, robot.model
         self.data = robot.create_data()
         self.in_collision = in_collision
         self.goal, self.rng, self.config = goal, rng, config
         self.frame = robot.model.getFrameId(goal.link)
         self.T_link_tool = goal.tool_offset.to_se3()
-        self.T_tool_link = self.T_link_tool.inverse()
         self.T_center = goal.center.to_se3()
         # abs: -0.0 passes '>= 0' but makes rng.uniform(-t, t) raise; huge tolerances overflow
         # its range (and mean nothing beyond a full turn or the robot's reach).
@@ -153,10 +175,18 @@ class GoalSampler:
         self.tol_r = np.clip(np.abs(goal.orientation_tolerance_rad), 0.0, math.pi)
         self.attempts = self.converged = self.colliding = 0
         self.seeds = seed_configurations(robot, goal)
+        if anchors is not None and len(anchors):
+            self.seeds = np.concatenate([self.seeds, np.reshape(anchors, (-1, robot.nq))])
+        self._drawn = 0
+        self._pending: tuple | None = None
+
+    @functools.cached_property
+    def box(self):
+        """The region as the compiled kernels' stopping test (``goal_box``)."""
+        return goal_box(self.robot, self.goal)
 
     def tool_pose(self, q: np.ndarray) -> pin.SE3:
-        pin.framesForwardKinematics(self.model, self.data, q)
-        return self.data.oMf[self.frame] * self.T_link_tool
+        return self.robot.ee_pose(q, self.data, self.goal.link, self.T_link_tool)
 
     def region_distance(self, q: np.ndarray) -> float:
         """0 inside the region, else the excess position [m] + orientation [rad] error."""
@@ -167,38 +197,49 @@ class GoalSampler:
             return 0.0
         return float(np.linalg.norm(dp) + np.linalg.norm(dr))
 
-    def attempt(self) -> np.ndarray | None:
-        """One IK attempt (a seed, a walk near one, or random-seed IK); a valid goal
-        configuration or None."""
-        return self.accept(self.solve(self.draw()))
+    def draw(self, k: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The next ``k`` attempts of the stream (class docstring): start configurations
+        (k, nq), targets T_base_link (k, 4, 4) and DLS step budgets (k,)."""
+        robot, rng = self.robot, self.rng
+        index = self._drawn + np.arange(k)
+        self._drawn += k
+        starts = rng.uniform(robot.lower, robot.upper, (k, robot.nq))
+        iterations = np.full(k, self.config.ik_iterations)
+        ns = len(self.seeds)
+        if ns:
+            is_seed = index < ns
+            starts[is_seed] = self.seeds[index[is_seed]]
+            walk = ~is_seed & ((index - ns) % 2 == 0)
+            picks = rng.integers(ns, size=int(walk.sum()))
+            starts[walk] = self.seeds[picks] + rng.normal(0.0, self.walk_rad,
+                                                          (len(picks), robot.nq))
+            iterations[walk] = self.walk_iterations
+        T = np.broadcast_to(np.eye(4), (k, 4, 4)).copy()
+        T[:, :3, :3] = exp3(rng.uniform(-self.tol_r, self.tol_r, (k, 3)))
+        T[:, :3, 3] = rng.uniform(-self.tol_p, self.tol_p, (k, 3))
+        targets = self.T_center.homogeneous @ T @ self.T_link_tool.inverse().homogeneous
+        return starts, targets, iterations
 
-    def draw(self) -> IkJob:
-        """The next attempt's random draws (the only part that uses ``self.rng``), so its DLS
-        can run elsewhere while the attempts still follow one seeded stream."""
-        self.attempts += 1
-        k, n = self.attempts - 1, len(self.seeds)
-        if k < n:
-            q = self.seeds[k]
-            if self.region_distance(q) == 0.0:
-                return IkJob(q, None, 0)
-            return self._pull_job(q, self.config.ik_iterations)
-        if n and (k - n) % 2 == 0:
-            return self._pull_job(self.seeds[int(self.rng.integers(n))]
-                                  + self.rng.normal(0.0, self.walk_rad, self.robot.nq),
-                                  self.walk_iterations)
-        T_target = self._random_target()
-        q = self.rng.uniform(self.robot.lower, self.robot.upper)
-        return IkJob(q, T_target.homogeneous, self.config.ik_iterations)
-
-    def solve(self, job: IkJob) -> np.ndarray | None:
-        """The job's DLS: a configuration inside the region, or None. No collision check."""
-        if job.T_base_link_target is None:
-            return job.q_start
-        q, reached = dls_ik(self.robot, self.data, self.frame, job.q_start,
-                            pin.SE3(job.T_base_link_target), job.iterations,
-                            self.config.ik_damping, self._tool_in_region,
+    def solve(self, q_start: np.ndarray, T_target: np.ndarray, iterations: int
+              ) -> np.ndarray | None:
+        """One attempt's DLS (pinocchio), the steps of the compiled kernel: from ``q_start``
+        (clipped into the limits) at most ``iterations`` steps towards ``T_target``; a
+        configuration inside the region, or None. No collision check."""
+        q, reached = dls_ik(self.robot, self.data, self.frame,
+                            np.clip(q_start, self.robot.lower, self.robot.upper),
+                            pin.SE3(T_target), int(iterations) + 1, self.config.ik_damping,
+                            lambda T, err: self.goal.contains(T * self.T_link_tool),
                             max_step=self.max_step_rad)
         return q if reached else None
+
+    def attempt(self) -> np.ndarray | None:
+        """The stream's next attempt, one at a time: a valid goal configuration or None."""
+        if self._pending is None or self._pending[3] >= len(self._pending[0]):
+            self._pending = (*self.draw(BATCH), 0)
+        starts, targets, iterations, i = self._pending
+        self._pending = (starts, targets, iterations, i + 1)
+        self.attempts += 1
+        return self.accept(self.solve(starts[i], targets[i], iterations[i]))
 
     def accept(self, q: np.ndarray | None) -> np.ndarray | None:
         """``q`` if it is a collision-free solution (counted), else None."""
@@ -209,25 +250,6 @@ class GoalSampler:
             self.colliding += 1
             return None
         return q
-
-    def pull(self, q: np.ndarray, iterations: int) -> np.ndarray | None:
-        """``q`` (clipped into the limits) pulled into the region by at most ``iterations``
-        DLS steps toward a random pose of the region, or None. No collision check."""
-        return self.solve(self._pull_job(q, iterations))
-
-    def _pull_job(self, q: np.ndarray, iterations: int) -> IkJob:
-        T_target = self._random_target()
-        return IkJob(np.clip(q, self.robot.lower, self.robot.upper), T_target.homogeneous,
-                     iterations)
-
-    def _random_target(self) -> pin.SE3:
-        """T_base_link of a tool pose drawn uniformly in the region's box."""
-        return self.T_center * pin.SE3(
-            pin.exp3(self.rng.uniform(-self.tol_r, self.tol_r)),
-            self.rng.uniform(-self.tol_p, self.tol_p)) * self.T_tool_link
-
-    def _tool_in_region(self, T_base_link: pin.SE3, err: np.ndarray) -> bool:
-        return self.goal.contains(T_base_link * self.T_link_tool)
 
     def sample(self, n: int, deadline: float) -> list[np.ndarray]:
         """Up to ``n`` valid goal configurations found before ``deadline`` (monotonic time).
@@ -244,70 +266,6 @@ class GoalSampler:
         return out
 
 
-GOAL_SET_CAP_S = 30.0
-"""Safety cap on :func:`goal_set`'s wall-clock time [s]; its iteration budgets decide the
-result (~0.1 s for 64 samples on the Panda), so the cap is hit only when something is wrong."""
-
-
-def goal_set(robot: RobotModel, collisions_batch: Callable[[np.ndarray], np.ndarray],
-             in_collision: Callable[[np.ndarray], bool], goal: GoalRegion, n: int, seed: int,
-             cap_s: float = GOAL_SET_CAP_S, anchors: int = 6, walk_rad: float = 0.3,
-             walk_iterations: int = 12, stats: dict | None = None) -> np.ndarray:
-    """Up to ``n`` collision-free configurations inside G, (k, nq), from ``seed``.
-
-    A few IK solutions from random seeds (``anchors``: they find the distinct IK branches,
-    ~4 ms each) are spread by local walks: perturb a stored solution by N(0, ``walk_rad``) per
-    joint and pull it back into G with at most ``walk_iterations`` DLS steps toward a random
-    pose of G (~0.3 ms each, collisions checked in batches). This explores the self-motion
-    manifold and the tolerances at a tenth of the cost of a random-seed IK per sample.
-
-    Iteration budgets (``40 * anchors`` IK attempts, ``20 * n`` walks) decide the result, so a
-    seed gives the same set on an idle and on a loaded machine. ``cap_s`` is only a safety
-    limit: when it cuts sampling short the result depends on the machine, which is logged as a
-    warning and reported as ``stats['goal_time_cap_hit']`` (``stats``, when given, also gets
-    the attempts and walks used).
-    """
-    rng = np.random.default_rng(seed)
-    sampler = GoalSampler(robot, in_collision, goal, rng)
-    deadline = time.monotonic() + cap_s
-    capped = False
-    found: list[np.ndarray] = []
-    tries = 0
-    while len(found) < min(anchors, n) and tries < 40 * anchors:
-        if time.monotonic() >= deadline:
-            capped = True
-            break
-        tries += 1
-        q = sampler.attempt()
-        if q is not None:
-            found.append(q)
-    pending: list[np.ndarray] = []
-    walks = 0
-    while found and len(found) < n and walks < 20 * n and not capped:
-        if time.monotonic() >= deadline:
-            capped = True
-            break
-        walks += 1
-        q = sampler.pull(found[int(rng.integers(len(found)))]
-                         + rng.normal(0.0, walk_rad, robot.nq), walk_iterations)
-        if q is not None:
-            pending.append(q)
-        if len(pending) >= 16 or len(found) + len(pending) >= n:
-            P = np.array(pending)
-            found.extend(P[~collisions_batch(P)])
-            pending = []
-    if pending:
-        P = np.array(pending)
-        found.extend(P[~collisions_batch(P)])
-    if capped:
-        log.warning('goal sampling stopped at its %.1f s safety cap after %d IK attempts and %d '
-                    'walks: %d of %d goal samples, not reproducible from the seed alone',
-                    cap_s, tries, walks, min(len(found), n), n)
-    if stats is not None:
-        stats.update(goal_ik_attempts=tries, goal_walks=walks, goal_time_cap_hit=capped)
-    return np.array(found[:n]).reshape(-1, robot.nq)
-
-
 def start_configuration(scene: Scene, robot: RobotModel) -> np.ndarray:
     """``q_init`` of a scene, or a clear error when the scene has none."""
     if scene.start is None:
@@ -316,5 +274,5 @@ def start_configuration(scene: Scene, robot: RobotModel) -> np.ndarray:
                               f'{scene.name}.start')
 
 
-__all__ = ['GOAL_SET_CAP_S', 'GoalSampler', 'IkConfig', 'IkJob', 'dls_ik', 'goal_configuration',
-           'goal_set', 'seed_configurations', 'start_configuration']
+__all__ = ['BATCH', 'GoalSampler', 'IkConfig', 'dls_ik', 'exp3', 'goal_box', 'goal_configuration',
+           'seed_configurations', 'start_configuration']

@@ -353,11 +353,15 @@ class RobotModel:
         """``n`` configurations uniform within joint limits, shape (n, nq)."""
         return rng.uniform(self.lower, self.upper, size=(n, self.nq))
 
-    def ee_pose(self, q: np.ndarray, data: pin.Data | None = None) -> pin.SE3:
-        """``T_base_ee`` of the end-effector link."""
+    def ee_pose(self, q: np.ndarray, data: pin.Data | None = None, link: str | None = None,
+                tool: pin.SE3 | None = None) -> pin.SE3:
+        """``T_base_ee`` of the end-effector link at ``q``; of ``link`` instead when given, and
+        times ``tool`` (``T_link_tool``, a goal's tool offset) when given: the tool pose a goal
+        region judges. The one tool-pose function (the attack, the witness, the IK)."""
         data = data or self.create_data()
         pin.framesForwardKinematics(self.model, data, q)
-        return data.oMf[self.ee_frame].copy()
+        T = data.oMf[self.ee_frame if link is None else self.model.getFrameId(link)]
+        return T * tool if tool is not None else T.copy()
 
     def ee_jacobian(self, q: np.ndarray, data: pin.Data | None = None) -> np.ndarray:
         """6 x nq geometric Jacobian of the end-effector, in the base-aligned local frame."""

@@ -3,16 +3,17 @@
 A victim that takes goal configurations (MPlib, TrajOpt, ours with ``--goal-list``) can only be
 charged with its path search if it was given goals. When an attack leaves only a sliver of the
 goal region valid, a small sampling budget finds none, and such a trial used to count as the
-victim's failure. Here the list is sampled outside every victim's clock with a generous budget:
-goal configurations drawn the way the planners draw theirs (``kinematics.goal_batch``, batched)
-until one is valid or ``GoalListConfig.max_attempts`` attempts are spent, then local walks
-around what was found to fill K. ``attempts`` says how thin the valid goal set is. A trial whose
-list stays empty is "no goal found": the task as posed fails (``psr``), the victim's path search
-is not judged on it (``psr_given_goals``). Callers search the lists of their trials before the
-first trial starts, so no search shares the machine with a victim's clock.
+victim's failure. Here the list is sampled outside every victim's clock with a generous budget,
+by the one goal sampler (``kinematics.goal_batch.planner_goals``, the planners' attempts in
+batches): until one goal is valid or ``GoalListConfig.max_attempts`` attempts are spent, then
+the same sampler with the goals found as anchors (walks near them on every other attempt) to
+fill K. ``attempts`` says how thin the valid goal set is. A trial whose list stays empty is "no
+goal found": the task as posed fails (``psr``), the victim's path search is not judged on it
+(``psr_given_goals``). Callers search the lists of their trials before the first trial starts,
+so no search shares the machine with a victim's clock.
 
-The list depends on the task and the trial's seed only, so every victim of a trial gets the
-same one; lists are cached per process (``goal_list``).
+The list depends on the task and the trial's seed only (attempt budgets, never a clock), so
+every victim of a trial gets the same one; lists are cached per process (``goal_list``).
 """
 
 from __future__ import annotations
@@ -31,12 +32,9 @@ class GoalListConfig:
 
     max_attempts: int = 50_000
     """IK attempts (random seed + damped least squares) at most before the first valid goal."""
-    cap_s: float = 30.0
-    """Wall-clock cap of the walks that fill the list [s] (a cut is reported as
-    ``cap_hit``); the attempts are bounded by their count alone."""
-    walks_per_goal: int = 20
-    """Local walks (perturb a found goal by N(0, 0.3 rad), pull it back into the region) per
-    missing goal once one goal is found (``goal_set``'s ratio)."""
+    fill_attempts_per_goal: int = 40
+    """Attempts per goal of the list once one goal is found: walks near the goals found (every
+    other attempt) and random-seed IK."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -46,14 +44,11 @@ class GoalList:
     configs: np.ndarray
     """(k, nq) collision-free configurations in the goal region [rad]; k = 0: none found."""
     attempts: int
-    """IK attempts made until the first valid goal (or all of them when none was found;
-    walks not counted)."""
-    walks: int
-    """Local walks made."""
+    """IK attempts made until the first valid goal (or all of them when none was found)."""
+    fill_attempts: int
+    """Attempts made to fill the list once a goal was found."""
     time_s: float
     """Wall time of the search [s] (never on a victim's clock)."""
-    cap_hit: bool = False
-    """The search stopped at ``GoalListConfig.cap_s`` before its attempts ran out."""
 
     @property
     def found(self) -> bool:
@@ -62,8 +57,8 @@ class GoalList:
     def stats(self) -> dict:
         """The fields a trial record carries (``goal_found``, ``goal_attempts``, ...)."""
         return {'goal_found': self.found, 'goal_attempts': int(self.attempts),
-                'goal_walks': int(self.walks), 'goal_search_s': float(self.time_s),
-                'goal_configs': int(len(self.configs)), 'goal_cap_hit': bool(self.cap_hit)}
+                'goal_fill_attempts': int(self.fill_attempts),
+                'goal_search_s': float(self.time_s), 'goal_configs': int(len(self.configs))}
 
 
 _CACHE: BoundedCache[GoalList] = BoundedCache('goal lists before the clock', 512)
@@ -83,24 +78,14 @@ def search_goal_list(robot, world, goal, k: int, seed: int,
                      config: GoalListConfig = GoalListConfig()) -> GoalList:
     """:func:`goal_list` without the cache."""
     from advocc_ros.kinematics.goal_batch import planner_goals
-    from advocc_ros.kinematics.ik import GoalSampler
 
     t0 = time.monotonic()
-    draw = planner_goals(robot, goal, world.collisions_batch, k, int(seed) % 2 ** 63,
-                         attempts_per_sample=max(config.max_attempts // max(k, 1), 1),
-                         enough=1)
-    out = list(draw.Q)
-    sampler = GoalSampler(robot, world.in_collision, goal,
-                          np.random.default_rng([int(seed) % 2 ** 63, 1]))
-    rng = np.random.default_rng([int(seed) % 2 ** 63, 2])
-    deadline, walks = t0 + config.cap_s, 0
-    while out and len(out) < k and walks < config.walks_per_goal * k \
-            and time.monotonic() < deadline:
-        walks += 1
-        q = sampler.pull(out[int(rng.integers(len(out)))] + rng.normal(0.0, 0.3, robot.nq),
-                         GoalSampler.walk_iterations)
-        if q is not None and not world.in_collision(q):
-            out.append(q)
-    cap_hit = time.monotonic() >= deadline and len(out) < k
-    return GoalList(np.array(out).reshape(-1, robot.nq), draw.attempts, walks,
-                    time.monotonic() - t0, cap_hit)
+    seed = int(seed) % 2 ** 63
+    first = planner_goals(robot, goal, world.collisions_batch, k, seed,
+                          attempts_per_sample=max(config.max_attempts // max(k, 1), 1), enough=1)
+    Q, filled = first.Q, 0
+    if 0 < len(Q) < k:
+        fill = planner_goals(robot, goal, world.collisions_batch, k, [seed, 1],
+                             attempts_per_sample=config.fill_attempts_per_goal, anchors=Q)
+        Q, filled = fill.Q, fill.attempts
+    return GoalList(Q.reshape(-1, robot.nq), first.attempts, filled, time.monotonic() - t0)

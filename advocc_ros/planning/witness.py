@@ -12,7 +12,7 @@ process, so the sequence is deterministic). A task has many solutions, and which
 ``solvable`` attack must keep decides how much of the goal set its boxes may cut (the goal
 configurations the witness's body shields stay valid). So the search returns *candidates*, one
 per target, and the attack keeps the one that shields the fewest of the task's goal samples
-(``attack.solvable.choose_witness``): paths to goal configurations the planners' goal samplers
+(``attack.policy.choose_witness``): paths to goal configurations the planners' goal samplers
 rarely land on (``rare_clear_ends``), then one into the region itself. Each run checks motions at
 ``WITNESS_STEP_RAD`` (discrete); a path the continuous certificate cannot prove on the unattacked
 scene (it grazes an object closer than the floor between two checked states, e.g. a grasp in a
@@ -43,7 +43,6 @@ import pathlib
 import typing
 
 import numpy as np
-import pinocchio as pin
 
 from advocc_ros.model.cache import CACHE_ENV, BoundedCache, disk_cache_dir
 from advocc_ros.model.collision import CollisionWorld
@@ -66,7 +65,7 @@ unattacked scene (a run that finds no path leaves the target)."""
 END_CANDIDATES = 6
 """Rare goal configurations the search aims at before the region (``rare_clear_ends``): each
 reached one is a candidate witness. A ``joint`` goal is the one end: the search makes this many
-runs to it, each on its own seeds, and each path found is a candidate."""
+runs to it, each on seeds of its own, and each path found is a candidate."""
 END_CLEARANCE_M = 2e-3
 """Least scene clearance of an aimed-at end [m]: well above the certificate's floor."""
 END_TIME_S = 2.0
@@ -161,11 +160,6 @@ def witness_states(waypoints: np.ndarray, step_rad: float = WITNESS_STEP_RAD) ->
     return np.concatenate(parts)
 
 
-def _tool_pose(robot: RobotModel, data, q: np.ndarray, goal: GoalRegion) -> pin.SE3:
-    pin.framesForwardKinematics(robot.model, data, q)
-    return data.oMf[robot.model.getFrameId(goal.link)] * goal.tool_offset.to_se3()
-
-
 class Certified(typing.NamedTuple):
     """``certify``'s answer: ``why`` is None when the witness is proven, else the reason."""
 
@@ -222,7 +216,8 @@ def certify(robot: RobotModel, world: CollisionWorld, goal: GoalRegion, witness:
         if not gap <= JOINT_TOLERANCE_RAD:
             return Certified(f'the witness does not end at the joint goal (largest joint '
                              f'difference {gap:.3g} rad)', proof)
-    elif not goal.contains(_tool_pose(robot, robot.create_data(), Q[-1], goal)):
+    elif not goal.contains(robot.ee_pose(Q[-1], link=goal.link,
+                                         tool=goal.tool_offset.to_se3())):
         return Certified('the witness does not end inside the goal region', proof)
     return Certified(None, proof)
 
@@ -274,7 +269,7 @@ def find_witnesses(robot: RobotModel, objects: tuple[SceneObject, ...] | list,
     world = CollisionWorld(robot, [sh for o in objects for sh in o.shapes])
     witnesses = _from_disk(disk, robot, world, q_init, goal) if disk is not None else ()
     if not witnesses:
-        witnesses = _search(robot, world, objects, q_init, goal, time_s)
+        witnesses = search_witnesses(robot, world, objects, q_init, goal, time_s)
         if not witnesses:  # not kept: a later call searches again
             return ()
         if disk is not None:
@@ -298,14 +293,16 @@ def rare_clear_ends(robot: RobotModel, world: CollisionWorld, objects: tuple[Sce
     return clear[rarest_first(clear)[:k]]
 
 
-def _search(robot: RobotModel, world: CollisionWorld, objects: tuple[SceneObject, ...],
-            q_init: np.ndarray, goal: GoalRegion, time_s: float) -> tuple[Witness, ...]:
-    """The one search (module docstring): RRTConnect to each rare clear end (``END_TIME_S``
-    each), then into the region (``time_s``, or ``END_TIME_S`` once an end was reached), each
-    target on seeds ``WITNESS_SEED``, + 1, ... (up to ``WITNESS_TRIES``) until the certificate
-    proves a path; a target without a path is left (another seed would spend its budget too).
-    Simplified paths first; when no target gave a proven path, the targets whose paths were all
-    unproven (pulled taut against an object) once more without simplification."""
+def search_witnesses(robot: RobotModel, world: CollisionWorld,
+                     objects: tuple[SceneObject, ...], q_init: np.ndarray, goal: GoalRegion,
+                     time_s: float = WITNESS_TIME_S) -> tuple[Witness, ...]:
+    """The one search (module docstring), uncached (``find_witnesses`` caches it): RRTConnect
+    to each rare clear end (``END_TIME_S`` each), then into the region (``time_s``, or
+    ``END_TIME_S`` once an end was reached), each target on seeds ``WITNESS_SEED``, + 1, ...
+    (up to ``WITNESS_TRIES``) until the certificate proves a path; a target without a path is
+    left (another seed would spend its budget too). Simplified paths first; when no target gave
+    a proven path, the targets whose paths were all unproven (pulled taut against an object)
+    once more without simplification."""
     from advocc_ros.planning.worker import Planner
 
     targets = _targets(robot, world, objects, goal, time_s)
@@ -334,7 +331,8 @@ def _search(robot: RobotModel, world: CollisionWorld, objects: tuple[SceneObject
 def _targets(robot: RobotModel, world: CollisionWorld, objects: tuple[SceneObject, ...],
              goal: GoalRegion, time_s: float) -> list[tuple]:
     """(end or None for the region, budget [s], first seed) of each run of the search: the rare
-    clear ends then the region, or ``END_CANDIDATES`` runs to a ``joint`` goal."""
+    clear ends then the region, or ``END_CANDIDATES`` runs to a ``joint`` goal, each on seeds
+    of its own."""
     if goal.is_joint:
         q_goal = goal.configuration(robot.joint_names)
         return [(q_goal, time_s, WITNESS_SEED + k * WITNESS_TRIES)
@@ -351,7 +349,7 @@ def _proven_path(planner, robot: RobotModel, world: CollisionWorld, q_init: np.n
     'proven', 'no path' or 'unproven' (every path found failed the certificate)."""
     outcome = 'no path'
     for seed in range(first_seed, first_seed + WITNESS_TRIES):
-        witness = _plan(planner, robot, q_init, goal, q_end, budget, seed, simplify)
+        witness = plan_witness(planner, robot, q_init, goal, q_end, budget, seed, simplify)
         if witness is None:
             return outcome
         why = certify(robot, world, goal, witness, q_init, shape_names=names).why
@@ -364,9 +362,11 @@ def _proven_path(planner, robot: RobotModel, world: CollisionWorld, q_init: np.n
     return outcome
 
 
-def _plan(planner, robot: RobotModel, q_init: np.ndarray, goal: GoalRegion,
-          q_end: np.ndarray | None, time_s: float, seed: int, simplify: bool) -> Witness | None:
-    """One RRTConnect run to ``q_end`` (None: to the region) as a witness, or None."""
+def plan_witness(planner, robot: RobotModel, q_init: np.ndarray, goal: GoalRegion,
+                 q_end: np.ndarray | None, time_s: float, seed: int, simplify: bool
+                 ) -> Witness | None:
+    """One RRTConnect run of ``planner`` (a ``planning.worker.Planner``) to ``q_end`` (None: to
+    the region) as a witness, or None."""
     result = planner.plan(q_init, goal, WITNESS_PLANNER, time_s, seed,
                           goal_configs=None if q_end is None else q_end[None])
     if not result.success:
@@ -384,6 +384,23 @@ def _plan(planner, robot: RobotModel, q_init: np.ndarray, goal: GoalRegion,
         'step_rad': WITNESS_STEP_RAD})
 
 
+def save_candidates(path: str | pathlib.Path, witnesses: tuple[Witness, ...]) -> None:
+    """Write candidate witnesses atomically (``{format: SET_FORMAT, witnesses: [...]}``, the
+    disk cache's file)."""
+    save_yaml_atomic(path, {'format': SET_FORMAT, 'witnesses': [w.to_data() for w in witnesses]})
+
+
+def load_candidates(path: str | pathlib.Path) -> tuple[Witness, ...]:
+    """The candidate witnesses of a file written by :func:`save_candidates`; ``SceneError``
+    naming the file (and the field) when it is not one, ``OSError`` when it cannot be read."""
+    data = read_yaml(pathlib.Path(path))
+    if not isinstance(data, dict) or data.get('format') != SET_FORMAT or \
+            not isinstance(data.get('witnesses'), list) or not data['witnesses']:
+        raise SceneError(f'{path}: not a {SET_FORMAT} file')
+    return tuple(Witness.from_data(w, f'{path}: witnesses[{i}]')
+                 for i, w in enumerate(data['witnesses']))
+
+
 def _from_disk(path: pathlib.Path, robot: RobotModel, world: CollisionWorld,
                q_init: np.ndarray, goal: GoalRegion) -> tuple[Witness, ...]:
     """The cached candidates of ``path`` if every one is a witness of this task (certified
@@ -391,12 +408,7 @@ def _from_disk(path: pathlib.Path, robot: RobotModel, world: CollisionWorld,
     if not path.is_file():
         return ()
     try:
-        data = read_yaml(path)
-        if not isinstance(data, dict) or data.get('format') != SET_FORMAT or \
-                not isinstance(data.get('witnesses'), list) or not data['witnesses']:
-            raise SceneError(f'{path}: not a {SET_FORMAT} file')
-        witnesses = tuple(Witness.from_data(w, f'{path}: witnesses[{i}]')
-                          for i, w in enumerate(data['witnesses']))
+        witnesses = load_candidates(path)
     except (SceneError, OSError) as exc:
         log.warning('witness cache: %s (searching again)', exc)
         return ()
@@ -412,12 +424,12 @@ def _from_disk(path: pathlib.Path, robot: RobotModel, world: CollisionWorld,
 def _to_disk(path: pathlib.Path, witnesses: tuple[Witness, ...]) -> None:
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
-        save_yaml_atomic(path, {'format': SET_FORMAT,
-                                'witnesses': [w.to_data() for w in witnesses]})
+        save_candidates(path, witnesses)
     except OSError as exc:  # a read-only home must not fail the attack
         log.warning('witness cache: cannot write %s (%s)', path, exc)
 
 
-__all__ = ['CACHE_ENV', 'WITNESS_STEP_RAD', 'Certified', 'Witness', 'certify', 'find_witnesses',
-           'load_witness', 'rare_clear_ends', 'object_shape_names', 'save_witness',
-           'witness_file', 'witness_states']
+__all__ = ['CACHE_ENV', 'SET_FORMAT', 'WITNESS_STEP_RAD', 'Certified', 'Witness', 'certify',
+           'find_witnesses', 'load_candidates', 'load_witness', 'object_shape_names',
+           'plan_witness', 'rare_clear_ends', 'save_candidates', 'save_witness',
+           'search_witnesses', 'witness_file', 'witness_states']

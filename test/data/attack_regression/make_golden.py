@@ -1,0 +1,178 @@
+"""Make the golden boxes of test/test_attack_regression.py: the boxes the ``task`` attack
+places on the five shipped scenes and on problem 0001 of each MotionBenchMaker family
+(test/data/mbm_real), pinned bit for bit so that a change that should not move a box (a
+refactoring) proves it does not.
+
+Inputs, kept beside this script:
+
+- ``witnesses/<task>.yaml``: each task's candidate witnesses (the witness search's candidate file,
+  ``planning.witness`` format ``advocc_witness_candidates``). The search is a timed planner run and
+  not reproducible, so its result is data here, handed to ``attack(..., witness=...)``.
+- the heatmaps are built by the test itself: robot-only, ``HEATMAP_SAMPLES`` samples from
+  ``HEATMAP_SEED`` (seeded and deterministic), one per robot (the shipped Panda and the
+  MotionBenchMaker Panda differ in their locked finger values).
+
+Output: ``golden.json``, the cases (task, method, policy, seed, budget) and for each the status,
+the box centres (JSON floats: ``repr``, exact) and the marginal masses.
+
+Regenerate (from the repository root, only when a change is meant to move the boxes):
+
+    PYTHONPATH=$PWD .venv/bin/python test/data/attack_regression/make_golden.py
+
+and, to search the witnesses of the tasks that have no ``witnesses/<task>.yaml`` (delete a file to
+search that task again; a planner run, and new witnesses change the inputs, so the boxes of its
+``solvable`` cases may move):
+
+    PYTHONPATH=$PWD .venv/bin/python test/data/attack_regression/make_golden.py --search-witnesses
+
+A task whose search finds no witness (MotionBenchMaker's cage problem 0001: RRTConnect finds no
+path within the search's budget) has no file; its cases run under ``paper`` instead (and one
+``solvable`` case pins the ``no_witness`` answer).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import pathlib
+import sys
+import tempfile
+
+HERE = pathlib.Path(__file__).resolve().parent
+REPO = HERE.parents[2]
+SHIPPED = ('table_pick', 'table_under_pick', 'bookshelf', 'box', 'cage')
+FAMILIES = ('bookshelf_small_panda', 'bookshelf_tall_panda', 'bookshelf_thin_panda', 'box_panda',
+            'cage_panda', 'table_pick_panda', 'table_under_pick_panda')
+HEATMAP_SAMPLES = 1000
+HEATMAP_SEED = 0
+BUDGET = 10
+SEEDS = (0, 1)
+OTHER_POLICIES = (('paper', 'table_pick', 0), ('paper', 'mbm_box_panda', 1),
+                  ('reachable', 'bookshelf', 0), ('reachable', 'mbm_table_pick_panda', 1))
+"""(policy, task, seed) of the cases beside the ``solvable`` ones."""
+FORMAT = 'advocc_attack_regression_1'
+
+
+def tasks() -> dict:
+    """Task name -> (scene path, request path or None), relative to the repository root."""
+    out = {name: (f'config/scenes/{name}.yaml', None) for name in SHIPPED}
+    for family in FAMILIES:
+        folder = f'test/data/mbm_real/{family}'
+        out[f'mbm_{family}'] = (f'{folder}/scene0001.yaml', f'{folder}/request0001.yaml')
+    return out
+
+
+def load_task(scene: str, request: str | None):
+    """(scene, robot, q_init) of one task."""
+    from advocc_ros.formats.mbm_scene import load_any_scene
+    from advocc_ros.kinematics.ik import start_configuration
+    from advocc_ros.model.robot import load_robot
+
+    loaded = load_any_scene(REPO / scene, REPO / request if request else None)
+    robot = load_robot(loaded.robot)
+    return loaded, robot, start_configuration(loaded, robot)
+
+
+def robot_heatmap(scene):
+    """The robot-only heatmap of ``scene``'s robot (the objects play no part)."""
+    from advocc_ros.heatmap import HeatmapConfig, build_heatmap
+
+    return build_heatmap(scene, HeatmapConfig(samples=HEATMAP_SAMPLES, robot_only=True),
+                         seed=HEATMAP_SEED)
+
+
+def witness_path(task: str) -> pathlib.Path:
+    return HERE / 'witnesses' / f'{task}.yaml'
+
+
+def cases() -> list[dict]:
+    """The ``solvable`` cases of every task with a witness (``paper`` without one), then
+    ``OTHER_POLICIES``."""
+    out = []
+    for task in tasks():
+        policy = 'solvable' if witness_path(task).is_file() else 'paper'
+        out += [{'task': task, 'method': 'task', 'policy': policy, 'seed': seed,
+                 'budget': BUDGET} for seed in SEEDS]
+        if policy == 'paper':
+            out.append({'task': task, 'method': 'task', 'policy': 'solvable', 'seed': 0,
+                        'budget': BUDGET})
+    out += [{'task': task, 'method': 'task', 'policy': policy, 'seed': seed, 'budget': BUDGET}
+            for policy, task, seed in OTHER_POLICIES]
+    return out
+
+
+def read_witnesses(path: pathlib.Path) -> tuple:
+    """The candidate witnesses of a file written by :func:`search_witnesses` (none without)."""
+    from advocc_ros.planning.witness import load_candidates
+
+    return load_candidates(path) if path.is_file() else ()
+
+
+def search_witnesses() -> None:
+    """Search the candidate witnesses, on the unattacked scene, of every task without a file,
+    and write them."""
+    from advocc_ros.planning.witness import find_witnesses, save_candidates
+
+    for name, (scene_path, request) in tasks().items():
+        if witness_path(name).is_file():
+            continue
+        scene, robot, q_init = load_task(scene_path, request)
+        witnesses = find_witnesses(robot, scene.objects, q_init, scene.goal)
+        if not witnesses:
+            print(f'{name}: the witness search found no witness', flush=True)
+            continue
+        save_candidates(witness_path(name), witnesses)
+        print(f'{name}: {len(witnesses)} candidate witnesses', flush=True)
+
+
+def run_case(case: dict, loaded: dict, heatmaps: dict):
+    """The attack of one case (no verdict: it does not move a box)."""
+    from advocc_ros.attack import attack
+
+    scene, robot, q_init = loaded[case['task']]
+    witnesses = read_witnesses(witness_path(case['task']))
+    return attack(heatmaps[robot.hash], robot, scene.objects, q_init, scene.goal,
+                  case['budget'], case['method'], goal_policy=case['policy'], seed=case['seed'],
+                  witness=witnesses, certify=False)
+
+
+def make_golden() -> dict:
+    loaded = {name: load_task(*paths) for name, paths in tasks().items()}
+    heatmaps = {}
+    for scene, robot, _ in loaded.values():
+        if robot.hash not in heatmaps:
+            heatmaps[robot.hash] = robot_heatmap(scene)
+    out = []
+    for case in cases():
+        result = run_case(case, loaded, heatmaps)
+        out.append(dict(case, status=result.status.value,
+                        centers=[[float(x) for x in c] for c in result.centers_m],
+                        masses=[float(m) for m in result.masses]))
+        print(f'{case["task"]} {case["policy"]} seed {case["seed"]}: {result.status.value}, '
+              f'{len(result.obstacles)} boxes', flush=True)
+    return {'format': FORMAT, 'tasks': {k: {'scene': s, 'request': r}
+                                        for k, (s, r) in tasks().items()},
+            'heatmap': {'samples': HEATMAP_SAMPLES, 'seed': HEATMAP_SEED, 'robot_only': True},
+            'cases': out}
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split('\n\n')[0])
+    parser.add_argument('--search-witnesses', action='store_true',
+                        help='search the witnesses again (a planner run) before the boxes')
+    args = parser.parse_args(argv)
+    with tempfile.TemporaryDirectory(prefix='advocc_golden_') as cache:
+        os.environ['ADVOCC_WITNESS_CACHE'] = cache  # neither read nor fill the user's cache
+        if args.search_witnesses:
+            search_witnesses()
+        golden = make_golden()
+    text = json.dumps(golden, indent=1) + '\n'
+    (HERE / 'golden.json').write_text(text)
+    print(f'wrote {HERE / "golden.json"}: {len(golden["cases"])} cases')
+    return 0
+
+
+if __name__ == '__main__':
+    sys.path.insert(0, str(REPO))
+    sys.exit(main())
