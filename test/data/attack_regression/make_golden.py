@@ -64,12 +64,14 @@ def tasks() -> dict:
 
 
 def load_task(scene: str, request: str | None):
-    """(scene, robot, q_init) of one task."""
+    """(scene, robot, q_init) of one task; a MotionBenchMaker request's joint goal in the
+    region form (the paper's, which these cases pin)."""
     from advocc_ros.formats.mbm_scene import load_any_scene
     from advocc_ros.kinematics.ik import start_configuration
     from advocc_ros.model.robot import load_robot
 
-    loaded = load_any_scene(REPO / scene, REPO / request if request else None)
+    loaded = load_any_scene(REPO / scene, REPO / request if request else None,
+                            goal_form='region' if request else None)
     robot = load_robot(loaded.robot)
     return loaded, robot, start_configuration(loaded, robot)
 
