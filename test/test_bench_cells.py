@@ -49,7 +49,8 @@ def test_cells_csv_holds_each_cell_of_the_run(tmp_path):
         rows = list(csv.DictReader(handle))
     assert tuple(rows[0]) == CELL_COLUMNS and len(rows) == 3
     base, dropped, task = rows
-    assert (dropped['budget'], dropped['psr_percent'], dropped['pt_ratio']) == ('3', '100', '1.66667')
+    assert (dropped['budget'], dropped['psr_percent'], dropped['pt_ratio']) == \
+        ('3', '100', '1.66667')
     assert (base['run'], base['seed'], base['method'], base['budget']) == \
         ('grid_seed7', '7', BASELINE, '0')
     assert (base['psr_percent'], base['first_solution_median_s'], base['pt_ratio'],
