@@ -53,6 +53,18 @@ def pytest_sessionstart(session):
 # or plans against a budget it must meet) runs while no other test runs: the other worker
 # waits (a readers-writer lock on a file in the run's temporary folder, writers first).
 
+SLOWEST_FIRST = ('test_dataset.py', 'test_collision_exact.py', 'test_orchestrator.py',
+                 'test_audit.py', 'test_task.py', 'test_workspace.py', 'test_solvable.py',
+                 'test_fuzz_parsers.py', 'test_perf_load.py', 'test_attack_nodes.py')
+"""The modules that took longest (``--durations``), handed out first so that the short ones
+even out the two workers' ends (``--no-loadscope-reorder`` keeps this order)."""
+
+
+def pytest_collection_modifyitems(config, items):
+    rank = {name: i for i, name in enumerate(SLOWEST_FIRST)}
+    items.sort(key=lambda item: rank.get(item.path.name, len(rank)))  # stable: module order kept
+
+
 @contextlib.contextmanager
 def _cpu_turn(config, alone: bool):
     """Hold the run's CPU lock: shared for an ordinary test, exclusive for a ``timing`` one."""

@@ -87,6 +87,7 @@ while True:
 '''
 
 
+@pytest.mark.timing  # the writer must finish a file within 0.2-0.8 s
 def test_obstacles_and_json_writers_killed_at_random(tmp_path):
     from advocc_ros.attack import load_obstacles
     out, js = tmp_path / 'obstacles.yaml', tmp_path / 'summary.json'

@@ -53,6 +53,7 @@ def test_goal_list_is_the_same_for_every_victim(panda, table_scene):
 
 
 @pytest.mark.processes
+@pytest.mark.timing  # plans within a budget and a watchdog
 def test_ompl_victim_plans_to_the_goal_list(task, panda):
     victim = make_victim('rrtconnect', VictimConfig(goal_configs=8, ompl_goal_list=True))
     try:
@@ -71,6 +72,7 @@ def test_ompl_victim_plans_to_the_goal_list(task, panda):
 
 
 @pytest.mark.processes
+@pytest.mark.timing  # plans within a budget and a watchdog
 def test_mplib_plans_the_unattacked_task(mplib, task, panda, table_scene):
     world = CollisionWorld(panda, table_scene.shapes)
     results = [mplib.plan(task, BUDGET_S, seed) for seed in range(4)]
@@ -88,6 +90,7 @@ def test_mplib_plans_the_unattacked_task(mplib, task, panda, table_scene):
 
 
 @pytest.mark.processes
+@pytest.mark.timing  # plans within a budget and a watchdog
 def test_mplib_goal_list_invalid_in_its_model(mplib, task, panda, table_scene):
     """Goals valid without a box, handed over with the box on them: MPlib's own model refuses
     every one, which is its own outcome, not a planning failure."""
@@ -101,6 +104,7 @@ def test_mplib_goal_list_invalid_in_its_model(mplib, task, panda, table_scene):
 
 
 @pytest.mark.processes
+@pytest.mark.timing  # plans within a budget and a watchdog
 def test_revalidation_catches_a_box_hidden_from_mplib(task, panda, table_scene):
     """A box our model has and MPlib does not see: its paths through it are MODEL_MISMATCH,
     never successes."""
@@ -124,6 +128,7 @@ def test_revalidation_catches_a_box_hidden_from_mplib(task, panda, table_scene):
 
 
 @pytest.mark.processes
+@pytest.mark.timing  # plans within a budget and a watchdog
 def test_mplib_dead_worker_is_an_internal_error(task, monkeypatch):
     """A worker that dies mid-request (it SIGKILLs itself on seed 77) or raises is an internal
     error, never a planning outcome; a fresh worker serves the next request."""
@@ -139,6 +144,7 @@ def test_mplib_dead_worker_is_an_internal_error(task, monkeypatch):
 
 
 @pytest.mark.processes
+@pytest.mark.timing  # plans within a budget and a watchdog
 def test_evaluate_runs_mplib_like_our_planners(table_scene):
     """``advocc evaluate --planner mplib``'s runner: the same records and table row."""
     from advocc_ros.evaluation.runner import evaluate_planner
