@@ -17,10 +17,6 @@ from advocc_ros.model.scene import SceneObject, objects_to_data
 
 POLICIES = ('paper', 'reachable', 'solvable')
 """Goal policies (``advocc_ros.attack.policy``): the one list of their names."""
-GOAL_FORMS = ('region',)
-"""Goal forms, what a task's goal is: ``region``, a goal region G (a plan may end at any
-collision-free configuration whose tool pose lies in G). The steps that depend on the form
-read ``Task.goal_form``, each in one place (docs/design.md)."""
 DEFAULT_METHOD = 'task'
 """The attack method of a request that names none: the paper's."""
 BOX_ID = re.compile(r'adv_\d+')
@@ -100,14 +96,16 @@ class Task:
     goal: GoalRegion
     policy: str = 'paper'
     """One of :data:`POLICIES`."""
-    goal_form: str = 'region'
-    """One of :data:`GOAL_FORMS`."""
 
     def __post_init__(self):
         if self.policy not in POLICIES:
             raise ValueError(f'goal policy {self.policy!r}: expected one of {list(POLICIES)}')
-        if self.goal_form not in GOAL_FORMS:
-            raise ValueError(f'goal form {self.goal_form!r}: expected one of {list(GOAL_FORMS)}')
+
+    @property
+    def goal_form(self) -> str:
+        """The goal's form (``model.goal.GOAL_FORMS``: ``region`` or ``joint``,
+        docs/goal_forms.md), data the steps branch on, each in one place."""
+        return self.goal.form
 
 
 class AttackStatus(enum.Enum):
