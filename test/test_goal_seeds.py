@@ -21,7 +21,8 @@ FAMILY = pathlib.Path(__file__).parent / 'data' / 'mbm' / 'families' / 'table_pi
 
 @pytest.fixture(scope='module')
 def task():
-    scene = load_any_scene(FAMILY / 'scene0001.yaml', FAMILY / 'request0001.yaml')
+    scene = load_any_scene(FAMILY / 'scene0001.yaml', FAMILY / 'request0001.yaml',
+                           goal_form='region')  # a region whose seed is the request's goal
     return scene, load_robot(scene.robot)
 
 

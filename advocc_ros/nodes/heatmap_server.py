@@ -81,6 +81,9 @@ _CONFIG_DOC = {  # description, then (low, high) or constraints AttackConfig che
     'd_safe_m': ('clearance of every box from the robot at start and from the goal region [m]',
                  (0.0, _INF)),
     'd_min_m': ('minimum distance between box centres [m]', (0.0, _INF)),
+    'victim_margin_m': ('distance every box keeps from the witness and a joint goal beyond the '
+                        'certificate\'s guard margin (room for victims\' collision models) [m]',
+                        (0.0, 0.05)),
     'max_budget': ('larger budgets are rejected', (1, INT_MAX)),
     'max_box_m': ('larger boxes are rejected [m]', '> 0'),
     'protect_goal_hand': ('also keep d_safe from the hand at one goal IK solution (not in the '
