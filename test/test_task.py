@@ -172,6 +172,46 @@ def test_task_blocks_the_goal_under_paper_and_spares_it_under_reachable(panda, h
         assert other.goal_valid_fraction >= 0.6
 
 
+def test_the_objective_has_goal_rows_only_where_the_goal_set_is_a_target(panda, heatmap, task):
+    """Under ``paper`` the rows are the goal tier, its deep copy and the passage; under
+    ``reachable`` the goal set is no target, so no goal row is built, only the passage (and the
+    goal guard's filter)."""
+    from advocc_ros.attack.methods import MethodContext
+    from advocc_ros.attack.objective import task_objective
+    from advocc_ros.attack.policy import apply_policy
+    from advocc_ros.attack.task import TaskOptions, task_sample
+    from advocc_ros.attack.types import Task
+
+    q, goal, objects = task
+    region = search_region(heatmap, panda, objects, q, goal)
+    for policy in ('paper', 'reachable'):
+        t = Task(panda, tuple(objects), q, goal, policy)
+        sample = task_sample(t, TaskOptions(), seed=0)
+        policed = apply_policy(t, region, AttackConfig(), (), sample.goals)
+        objective = task_objective(MethodContext.of(t, None, sample, policed), policed.region)
+        n_goal, n_path = len(sample.goals), len(sample.approaches)
+        assert n_goal > 0 and objective.passage_rows == n_path > 0
+        if policy == 'paper':
+            assert objective.goal_rows == n_goal and objective.feasible is None
+            assert objective.cover.shape[0] == 2 * n_goal + n_path
+        else:
+            assert objective.goal_rows == 0 and objective.feasible is not None
+            assert objective.cover.shape[0] == n_path
+            np.testing.assert_array_equal(objective.weights, objective.reported)
+        assert objective.cover.shape[1] == policed.region.candidates.sum()
+
+
+def test_the_task_names_its_policy_and_goal_form(panda, task):
+    from advocc_ros.attack.types import GOAL_FORMS, Task
+
+    q, goal, objects = task
+    assert Task(panda, tuple(objects), q, goal).goal_form == GOAL_FORMS[0] == 'region'
+    with pytest.raises(ValueError, match='goal policy'):
+        Task(panda, tuple(objects), q, goal, 'maybe')
+    with pytest.raises(ValueError, match='goal form'):
+        Task(panda, tuple(objects), q, goal, goal_form='somewhere')
+
+
 def test_bad_policy_and_pfa_under_reachable_are_clear_errors(panda, heatmap, task):
     q, goal, objects = task
     bad = attack(heatmap, panda, objects, q, goal, 1, 'task', goal_policy='nope')

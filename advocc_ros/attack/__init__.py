@@ -1,4 +1,5 @@
-"""The online phase: search region, coverage, attack methods and the obstacles file. No ROS.
+"""The online phase: the attack's pipeline, one module per step (docs/design.md, "The attack,
+step by step"), its methods and the obstacles file. No ROS.
 
 Methods are listed once, in ``advocc_ros.attack.methods.REGISTRY``; a method's module is
 imported on first use (``load_method``), so PFA (``advocc_ros.attack.pfa``) is not imported here.

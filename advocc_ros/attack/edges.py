@@ -4,8 +4,8 @@
 collision-free path from the start into the goal region on the unattacked scene), is found here,
 once per task, by the tool and never by the victim, and reported apart from the attack's time:
 
-1. the request is checked first (``validate_request``, the task check of ``model.task_check``
-   included): a refused task starts nothing;
+1. the request is checked first (``attack.request.validate_request``, the task check of
+   ``model.task_check`` included): a refused task starts nothing;
 2. the witness, when the ``solvable`` policy needs it or ``AttackConfig.search_witness`` asks for
    a verdict that can say ``certified``: ``planning.witness.find_witnesses``, one search in a
    fresh planning worker for the task's candidate witnesses, cached per task in the process and
