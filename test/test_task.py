@@ -202,14 +202,18 @@ def test_the_objective_has_goal_rows_only_where_the_goal_set_is_a_target(panda, 
 
 
 def test_the_task_names_its_policy_and_goal_form(panda, task):
-    from advocc_ros.attack.types import GOAL_FORMS, Task
+    """The goal form is the goal's own (one source), and an unknown one is refused there."""
+    import dataclasses
+
+    from advocc_ros.attack.types import Task
+    from advocc_ros.model.goal import GOAL_FORMS
 
     q, goal, objects = task
     assert Task(panda, tuple(objects), q, goal).goal_form == GOAL_FORMS[0] == 'region'
     with pytest.raises(ValueError, match='goal policy'):
         Task(panda, tuple(objects), q, goal, 'maybe')
-    with pytest.raises(ValueError, match='goal form'):
-        Task(panda, tuple(objects), q, goal, goal_form='somewhere')
+    with pytest.raises(ValueError, match='goal.form'):
+        dataclasses.replace(goal, form='somewhere')
 
 
 def test_bad_policy_and_pfa_under_reachable_are_clear_errors(panda, heatmap, task):
