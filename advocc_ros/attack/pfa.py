@@ -291,7 +291,7 @@ def _select(region: SearchRegion, budget: int, seed: int, cfg: AttackConfig,
         objective.close()
     K = pcfg.queries_per_placement
     best_fail = math.floor(result.best_score) / K if result.history else None
-    region.stats[name] = {
+    stats = {name: {
         'planner': planner_id, 'goal': 'exact pose' if exact else 'goal region',
         'queries': objective.used, 'query_budget': pcfg.queries, 'queries_per_placement': K,
         'query_time_s': pcfg.query_time_s, 'workers': int(options.planner.workers),
@@ -303,7 +303,7 @@ def _select(region: SearchRegion, budget: int, seed: int, cfg: AttackConfig,
         'best_path_increase': (result.best_score - math.floor(result.best_score)
                                if result.history else None),
         'planner_time_s': round(objective.planner_time_s, 3),
-        'optimise_s': round(time.perf_counter() - t0, 3)}
+        'optimise_s': round(time.perf_counter() - t0, 3)}}
     if objective.baseline_failures == K and len(cand):
         log.warning('%s: the unattacked task failed all %d baseline queries (%s, %.2g s); the '
                     'objective is saturated: raise the query time', name, K, planner_id,
@@ -312,7 +312,8 @@ def _select(region: SearchRegion, budget: int, seed: int, cfg: AttackConfig,
              objective.used, result.scored, best_fail, time.perf_counter() - t0)
     coverage = Coverage(region.weights, region.candidates, region.k,
                         region.d_min_m / region.grid.voxel_m)
-    return [(cand[row], coverage.cover(cand[row])) for row in result.best], decoder.rejected
+    return ([(cand[row], coverage.cover(cand[row])) for row in result.best], decoder.rejected,
+            stats)
 
 
 def _select_pfa(region, budget, seed, cfg, context):

@@ -61,7 +61,7 @@ class AuditConfig:
     method: str = DEFAULT_METHOD
     """Attack method (``advocc_ros.attack.methods.REGISTRY``); greedy ones give nested picks."""
     policy: str = AttackConfig.goal_policy
-    """Goal policy of the evaluated attack (``advocc_ros.attack.goals``): ``paper``,
+    """Goal policy of the evaluated attack (``advocc_ros.attack.policy``): ``paper``,
     ``reachable`` or ``solvable``; the goal-blocked answer always comes from a paper one."""
     seed: int = 0
     """Attack seed; trial k of every prefix uses seed ``seed + k``."""

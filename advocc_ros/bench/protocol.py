@@ -91,7 +91,7 @@ class BenchConfig:
     box_size_m: float = 0.0
     """Box edge [m]; 0: the heatmap server's default (0.05 m)."""
     goal_policy: str = 'paper'
-    """Goal policy of the coverage attacks: ``paper`` or ``reachable`` (``attack.goals``)."""
+    """Goal policy of the coverage attacks: ``paper`` or ``reachable`` (``attack.policy``)."""
     attack_timeout_s: float = 300.0
     """Longest wait for one attack [s]: the planner-in-the-loop methods (PFA, PFA++) need long
     ones."""
