@@ -25,16 +25,25 @@ from advocc_ros.commands.common import add_task_option_arg, describe, task_optio
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    from advocc_ros.dataset.driver import RunConfig
-    from advocc_ros.dataset.job import BuildConfig
-    from advocc_ros.dataset.problems import SPLITS, TRAIN_LAST
-
     group = sub.add_parser('dataset', help='certified hard-problem data sets (MotionBenchMaker '
                            'problems, attacked and measured, on Ray)', description=describe(
                                __doc__))
     verbs = group.add_subparsers(dest='verb', required=True)
-    p = verbs.add_parser('build', help='build or resume a data set', description=describe(
-        __doc__))
+    _add_build(verbs.add_parser('build', help='build or resume a data set',
+                                description=describe(__doc__)))
+    p = verbs.add_parser('summary', help='write the summary of a build folder again (what it '
+                         'holds so far)', description=describe(__doc__))
+    p.add_argument('out', metavar='DIR', help='a build\'s output folder (--out)')
+    p.add_argument('--json', action='store_true', help='print the summary as JSON')
+    p.set_defaults(func=_summary)
+
+
+def _add_build(p: argparse.ArgumentParser) -> None:
+    """The arguments of ``advocc dataset build``: selection, attack and victims, the run."""
+    from advocc_ros.dataset.driver import RunConfig
+    from advocc_ros.dataset.job import BuildConfig
+    from advocc_ros.dataset.problems import SPLITS, TRAIN_LAST
+
     build, run = BuildConfig(), RunConfig()
     p.add_argument('--problems', required=True, metavar='DIR',
                    help='folder of family folders (box_panda/sceneNNNN.yaml + requestNNNN.yaml)')
@@ -85,11 +94,6 @@ def register(sub: argparse._SubParsersAction) -> None:
                    'and recorded as timeout (default %(default)g s)')
     p.add_argument('--json', action='store_true', help='print the build record as JSON')
     p.set_defaults(func=_build)
-    p = verbs.add_parser('summary', help='write the summary of a build folder again (what it '
-                         'holds so far)', description=describe(__doc__))
-    p.add_argument('out', metavar='DIR', help='a build\'s output folder (--out)')
-    p.add_argument('--json', action='store_true', help='print the summary as JSON')
-    p.set_defaults(func=_summary)
 
 
 GOAL_FORM_CHOICES = ('joint', 'region', 'both')
