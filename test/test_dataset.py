@@ -207,6 +207,34 @@ def test_a_version_1_build_record_reads_as_its_first_run(tmp_path):
         store.read_build(tmp_path / 'gone')
 
 
+def test_the_summary_counts_the_witnesses_each_victims_checker_accepts(tmp_path):
+    """Per budget and family, of the evaluated attacks' witnesses: how many MPlib's own check
+    was asked about and how many it accepts (a witness a victim's checker calls blocked is no
+    solution for that victim)."""
+    from advocc_ros.dataset import store, summary
+
+    keys = ['box_panda/0001', 'box_panda/0002', 'box_panda/0003']
+    store.write_json(tmp_path / 'build.json', {
+        'format': store.BUILD_FORMAT, 'version': store.BUILD_VERSION,
+        'settings': {'build': {'budgets': [10], 'victims': ['mplib'], 'goal_form': 'joint'}},
+        'runs': [{'selection': {'problems': keys}}]})
+    for key, accepted in zip(keys, (True, False, None)):
+        family, number = key.split('/')
+        (tmp_path / key).mkdir(parents=True)
+        store.write_json(tmp_path / key / 'outcome.json', {
+            'family': family, 'problem': number, 'split': 'train', 'outcome': 'built'})
+        checks = {} if accepted is None else {'mplib': {'accepted': accepted}}
+        store.write_json(tmp_path / key / 'hardness.json', {
+            'unattacked': {'mplib': {'psr': 1.0}},
+            'attacks': {'10': {'all_victims_psr_le_20': accepted is not False,
+                               'witness_checks': checks, 'victims': {'mplib': {'psr': 0.1}}}}})
+    made = summary.summarise(tmp_path)
+    pooled = next(g for g in made['groups'] if g['family'] == 'all')
+    assert pooled['budgets']['10']['witness_checks'] == {'mplib': {'checked': 2, 'accepted': 1}}
+    assert '| M=10: witness accepted by mplib |' in summary.markdown(made)
+    assert '| 1 of 2 |' in summary.markdown(made)
+
+
 @pytest.mark.processes  # the child writes to the captured descriptors; git names the commit
 def test_a_tasks_output_and_logs_go_to_its_log(tmp_path, capfd):
     import logging

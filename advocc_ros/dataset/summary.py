@@ -11,7 +11,8 @@ split; ``all`` pools the families):
 - per budget M, over the problems whose budget-M attack was certified and evaluated: the share
   where *every* victim is at PSR <= 20 %, each victim's mean PSR, and the median PT ratio
   (attacked / unattacked median time to first solution, ``evaluation.hardness.pt_ratio``) over
-  victims and problems;
+  victims and problems; and per victim checker asked about the witnesses (``mplib``), how many
+  it accepts;
 - the victims' mean PSR on the unattacked problems, and the share of those already at PSR
   <= 20 % for every victim (MotionBenchMaker kept only problems its planner solves in 60 s;
   at a budget of a few seconds some are hard before any box): the line the attack starts from.
@@ -65,6 +66,7 @@ def _group(family: str, split: str, items: list[tuple[dict, dict | None]], budge
             'all_victims_psr_le_20': (sum(a['all_victims_psr_le_20'] for a in attacks)
                                       / len(attacks) if attacks else None),
             'median_pt_ratio': _median([c.get('pt_ratio') for v in victims for c in cells[v]]),
+            'witness_checks': _witness_checks(attacks),
             'victims': {v: {'mean_psr': _mean([c.get('psr') for c in cells[v]]),
                             'median_pt_ratio': _median([c.get('pt_ratio') for c in cells[v]])}
                         for v in victims}}
@@ -77,6 +79,18 @@ def _group(family: str, split: str, items: list[tuple[dict, dict | None]], budge
             'unattacked_evaluated': len(base),
             'unattacked_all_victims_psr_le_20': sum(base) / len(base) if base else None,
             'budgets': per_budget}
+
+
+def _witness_checks(attacks: list[dict]) -> dict:
+    """Per victim checker (``job.mplib_witness_check``): of the evaluated attacks' witnesses,
+    how many it was asked about and how many it accepts."""
+    out: dict = {}
+    for attack in attacks:
+        for checker, check in (attack.get('witness_checks') or {}).items():
+            counts = out.setdefault(checker, {'checked': 0, 'accepted': 0})
+            counts['checked'] += 1
+            counts['accepted'] += bool(check.get('accepted'))
+    return out
 
 
 def selected(out: pathlib.Path) -> list[str] | None:
@@ -215,9 +229,12 @@ def markdown(summary: dict) -> str:
              'all <= 20 %": the same share before any box (the baseline). Problems '
              '0001-0040 of each family are the train split, 0041-0100 the test split.', '',
              _made_text(summary['made']), '']
+    checkers = sorted({c for g in summary['groups'] for b in budgets
+                       for c in g['budgets'][b].get('witness_checks', {})})
     head = ['family', 'problems'] + outcomes + ['unattacked: all <= 20 %']
     for b in budgets:
         head += [f'M={b}: all <= 20 %', f'M={b}: PT ratio']
+        head += [f'M={b}: witness accepted by {c}' for c in checkers]
     for split in ('train', 'test'):
         rows = [g for g in summary['groups'] if g['split'] == split]
         if not rows:
@@ -234,6 +251,9 @@ def markdown(summary: dict) -> str:
                 cell = g['budgets'][b]
                 cells += [f'{_pct(cell["all_victims_psr_le_20"])} of {cell["evaluated"]}',
                           _num(cell['median_pt_ratio'])]
+                checks = cell.get('witness_checks', {})
+                cells += [f'{checks[c]["accepted"]} of {checks[c]["checked"]}' if c in checks
+                          else '–' for c in checkers]
             lines.append('| ' + ' | '.join(cells) + ' |')
         lines.append('')
     if summary['errors']:
