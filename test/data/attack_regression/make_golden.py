@@ -18,8 +18,9 @@ the box centres (JSON floats: ``repr``, exact) and the marginal masses.
 Bit for bit holds on one kind of CPU. numpy, OpenBLAS, glibc's libm and numba pick code paths
 by the CPU's vector instructions, and their last bits differ, so a borderline decision (an IK
 attempt's convergence, a goal sample's contact with a box) can go the other way: MotionBenchMaker
-table_pick's ``reachable`` case at seed 1 places boxes 8 and 10 of 10 one voxel apart on an
-AVX-512 Xeon and an AVX2 AMD EPYC (equal masses: the goal guard refused a different candidate).
+table_pick's ``reachable`` case at seed 1 places boxes 8 and 10 of 10 one voxel apart on the
+Intel Xeon the reference was made on and on an AVX2 AMD EPYC, with equal masses (higher-scored
+candidates are passed over by the goal guard's checks, and a different one on each CPU).
 A case the reference CPU and another disagree on holds that CPU's boxes under ``by_platform``
 (:func:`fp_platform`), added by ``--add-platform`` on that CPU.
 
