@@ -186,6 +186,36 @@ def test_the_policy_keeps_the_candidate_that_shields_the_fewest_goals(task):
     assert valid_goals(results[0].witness) <= valid_goals(worst)
 
 
+def test_with_a_victim_margin_the_kept_witness_keeps_it_from_the_scene(task):
+    """A victim margin ranks the candidates first by the clearance they keep from the task's
+    own objects (capped at the margin): of those that keep it, the one that shields the fewest
+    goals; when none does, the clearest. The clearances measured are in the stats."""
+    scene, robot, q0, heatmap = task
+    witnesses = find_witnesses(robot, scene.objects, q0, scene.goal)
+    world = CollisionWorld(robot, scene.shapes)
+    clear = np.array([world.scene_clearances(witness_states(
+        w.configurations(robot), witness_mod.WITNESS_STEP_RAD), 0.05).min() for w in witnesses])
+    assert len(witnesses) >= 2 and clear.min() < clear.max() < 0.05, clear
+
+    def kept(margin_m):
+        result = attack(heatmap, robot, scene.objects, q0, scene.goal, 10, 'task',
+                        AttackConfig(goal_policy='solvable', victim_margin_m=margin_m),
+                        witness=witnesses, certify=False)
+        return result.stats['witness_kept'], result.stats
+
+    shielded = kept(0.0)[1]['witness_shielded']
+    for margin_m in np.unique(clear)[:-1] + 1e-5:  # each a margin some candidates keep
+        index, stats = kept(float(margin_m))
+        keeping = [i for i in range(len(witnesses)) if clear[i] >= margin_m]
+        assert index == min(keeping, key=lambda i: shielded[i]), (margin_m, clear, shielded)
+        measured = stats['witness_scene_clearance_m']
+        assert measured[index] == pytest.approx(margin_m, abs=1e-6)
+        assert all(c is None or c == pytest.approx(min(clear[i], margin_m), abs=1e-6)
+                   for i, c in enumerate(measured))
+    index, stats = kept(float(clear.max()) + 1e-3)  # none keeps it: the clearest
+    assert index == int(np.argmax(clear)) and None not in stats['witness_scene_clearance_m']
+
+
 def test_the_policy_returns_a_narrower_region_and_the_goal_cover_of_it(task):
     """The policy step leaves its input alone: a new region without the candidates the kept
     witness's body touches, with the guard, and the goal sample's cover over exactly those

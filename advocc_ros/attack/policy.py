@@ -9,7 +9,8 @@ from, with the policy's guard (a check of each pick) and the candidates it drops
   ``AttackConfig.reachable_fraction`` of the task's fixed goal samples (``attack.goals``) valid;
 - ``solvable``: the task keeps a solution by construction. Of the witness search's candidates
   (``planning.witness``, found at the edges), the policy keeps the one that shields the fewest of
-  the task's goal samples (``choose_witness``), and refuses every box that comes within
+  the task's goal samples (``choose_witness``; with a victim margin, among those that keep it
+  from the scene), and refuses every box that comes within
   ``CertificateConfig.guard_margin_m`` (m) of the robot's body at any guard state of it: the
   witness cut at ``h = CertificateConfig.guard_step_rad(L)`` (L2), L the robot's motion bound.
   Every point of the path is within ``h / 2`` of a guard state, where a body point has moved at
@@ -71,8 +72,10 @@ def apply_policy(task: Task, region: SearchRegion, cfg: AttackConfig, witnesses:
                           cfg.reachable_fraction)
         return Policed(dataclasses.replace(region, guard=guard), {}, goal_guard=guard)
     if task.policy == 'solvable':
+        scene = shared_world(task.robot, [sh for o in task.objects for sh in o.shapes])
         return keep_witness(task.robot, region, witnesses, Q_goal,
-                            CERTIFICATE.guard_margin_m + cfg.victim_margin_m)
+                            CERTIFICATE.guard_margin_m + cfg.victim_margin_m,
+                            scene, cfg.victim_margin_m)
     return Policed(region, {})
 
 
@@ -177,42 +180,73 @@ class WitnessChoice:
     """The kept candidate's lattice mask (``WitnessBodies.touching``), when computed."""
     goal_cover: sparse.csr_matrix | None = None
     """The cover of the goal sample over the region's candidates, when computed."""
+    scene_clearance_m: list[float | None] = dataclasses.field(default_factory=list)
+    """Least scene clearance of each candidate measured, capped at the margin [m] (None: not
+    measured; empty: no margin asked)."""
 
 
 def choose_witness(robot: RobotModel, world: CollisionWorld, region: SearchRegion, witnesses,
-                   Q_goal) -> WitnessChoice:
+                   Q_goal, scene: CollisionWorld | None = None, scene_margin_m: float = 0.0
+                   ) -> WitnessChoice:
     """Which of the task's candidate witnesses the ``solvable`` policy keeps: the one whose
     guard shields the fewest goal configurations of ``Q_goal`` (the task's goal sample), i.e.
     leaves the fewest that no admitted candidate box covers on the lattice, so the boxes may
     cut the most of the goal set (earlier candidates win ties). A box beside one the body
     touches counts as refused too: the exact test works on the link hulls grown by the
-    clearance, which reach about a voxel beyond the lattice's solid links."""
-    if len(witnesses) == 1 or Q_goal is None or not len(Q_goal) or \
-            not region.candidates.any():
-        return WitnessChoice(0, [])
-    cover = cover_matrix(robot, world, Q_goal, region)
-    cols = cover.tocsc()
-    cand = tuple(np.argwhere(region.candidates).T)
-    shielded, masks = [], []
-    for witness in witnesses:
-        masks.append(witness_bodies(robot, world, witness).touching(region))
-        refused = ndimage.binary_dilation(masks[-1])[cand]
-        shielded.append(int((cols[:, ~refused].sum(axis=1) == 0).sum()))
-    kept = int(np.argmin(shielded))
-    return WitnessChoice(kept, shielded, masks[kept], cover)
+    clearance, which reach about a voxel beyond the lattice's solid links.
+
+    With ``scene_margin_m`` > 0 the candidates that keep that much from ``scene`` (the task's
+    own objects, which the boxes' margin cannot move) come first: a victim's checker calls a
+    path that grazes its scene closed (MPlib's FCL, below ~0.5 mm; docs/goal_forms.md).
+    Candidates are measured in the order above until one keeps the margin; when none does, the
+    one that keeps the most is kept."""
+    shielded, masks, cover = [], [], None
+    if len(witnesses) > 1 and Q_goal is not None and len(Q_goal) and region.candidates.any():
+        cover = cover_matrix(robot, world, Q_goal, region)
+        cols = cover.tocsc()
+        cand = tuple(np.argwhere(region.candidates).T)
+        for witness in witnesses:
+            masks.append(witness_bodies(robot, world, witness).touching(region))
+            refused = ndimage.binary_dilation(masks[-1])[cand]
+            shielded.append(int((cols[:, ~refused].sum(axis=1) == 0).sum()))
+    order = list(np.argsort(shielded, kind='stable')) if shielded else list(range(len(witnesses)))
+    clearance = _clear_of_scene(robot, scene, witnesses, order, scene_margin_m)
+    kept = int(order[0]) if not clearance else \
+        int(max(order, key=lambda i: -1.0 if clearance[i] is None else clearance[i]))
+    return WitnessChoice(kept, shielded, masks[kept] if masks else None, cover, clearance)
+
+
+def _clear_of_scene(robot: RobotModel, scene: CollisionWorld | None, witnesses, order,
+                    margin_m: float) -> list[float | None]:
+    """Least scene clearance, capped at ``margin_m``, of the candidates in ``order`` up to the
+    first that keeps the margin (at the witness search's step; None: not measured). Empty when
+    there is nothing to choose or no margin."""
+    if len(witnesses) < 2 or not margin_m > 0 or scene is None or not scene.shapes:
+        return []
+    clearance = [None] * len(witnesses)
+    for i in order:
+        states = witness_states(witnesses[i].configurations(robot), WITNESS_STEP_RAD)
+        clearance[i] = float(scene.scene_clearances(states, margin_m).min())
+        if clearance[i] >= margin_m:
+            break
+    return clearance
 
 
 def keep_witness(robot: RobotModel, region: SearchRegion, witnesses: tuple,
-                 Q_goal: np.ndarray | None, clearance_m: float = CERTIFICATE.guard_margin_m
-                 ) -> Policed:
-    """The ``solvable`` policy: the kept candidate (``choose_witness``), its guard (boxes keep
-    ``clearance_m`` from its body: the guard margin plus ``AttackConfig.victim_margin_m``), and
-    the region without the candidates its body touches on the lattice."""
+                 Q_goal: np.ndarray | None, clearance_m: float = CERTIFICATE.guard_margin_m,
+                 scene: CollisionWorld | None = None, scene_margin_m: float = 0.0) -> Policed:
+    """The ``solvable`` policy: the kept candidate (``choose_witness``, preferring those that
+    keep ``scene_margin_m`` from ``scene``), its guard (boxes keep ``clearance_m`` from its
+    body: the guard margin plus ``AttackConfig.victim_margin_m``), and the region without the
+    candidates its body touches on the lattice."""
     world = shared_world(robot)
-    choice = choose_witness(robot, world, region, witnesses, Q_goal)
+    choice = choose_witness(robot, world, region, witnesses, Q_goal, scene, scene_margin_m)
     stats = {} if len(witnesses) == 1 else dict(
         witness_candidates=len(witnesses), witness_kept=choice.kept,
         witness_shielded=choice.shielded)
+    if choice.scene_clearance_m:
+        stats['witness_scene_clearance_m'] = [None if c is None else round(c, 6)
+                                              for c in choice.scene_clearance_m]
     witness = witnesses[choice.kept]
     bodies = witness_bodies(robot, world, witness)
     touching = bodies.touching(region) if choice.touching is None else choice.touching

@@ -57,7 +57,8 @@ class AttackConfig:
     certificate's guard margin [m]: the continuous witness then keeps this much more than the
     certificate's floor from every box, room for the victims' own collision models, whose link
     meshes are larger than our hulls (MPlib's FCL calls witnesses 1-4 mm clear under coal
-    colliding)."""
+    colliding). The boxes cannot move the scene: of the candidate witnesses, the policy keeps
+    one that keeps this much from the scene when there is one (``attack.policy``)."""
     max_rejections: int = 500
     """Picks that fail the exact coal check before a method gives up (then PARTIAL)."""
     search_witness: bool = False

@@ -52,8 +52,9 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help='minimum distance between box centres [m] (default %(default)s)')
     p.add_argument('--victim-margin', type=float, default=defaults.victim_margin_m,
                    help='distance the boxes keep from the witness and a joint goal beyond the '
-                   'certificate\'s guard margin, room for the victims\' own collision models '
-                   '[m] (default %(default)s)')
+                   'certificate\'s guard margin, room for the victims\' own collision models; '
+                   'the kept witness is chosen for this clearance from the scene too [m] '
+                   '(default %(default)s)')
     g = p.add_argument_group('planner in the loop (pfa, pfa++)')
     g.add_argument('--planner', help='victim planner pfa++ queries: rrtconnect, prmstar, '
                    'bkpiece1 (default rrtconnect); pfa always queries rrtconnect')

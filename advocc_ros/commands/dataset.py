@@ -75,7 +75,8 @@ def _add_build(p: argparse.ArgumentParser) -> None:
                    'region form: "pos=X;rot=R" (default pos=0.02;rot=0.1)')
     p.add_argument('--victim-margin', type=float, default=build.victim_margin_m, metavar='M',
                    help='distance the boxes keep from the witness (and a joint goal) beyond the '
-                   'certificate\'s guard margin [m] (default %(default)g)')
+                   'certificate\'s guard margin, and from the scene the kept witness is '
+                   'chosen for [m] (default %(default)g)')
     add_task_option_arg(p)
     p.add_argument('--heatmap', metavar='FILE', help='robot-only heatmap to attack with '
                    '(default: built once per robot into OUT/heatmaps/)')

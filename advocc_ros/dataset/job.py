@@ -379,6 +379,9 @@ def _attack_entry(result, scene, robot, q_init, wall_s: float):
         entry.update(certificate='not certified on export', certificate_message=why)
         return entry, None
     entry['witness_waypoints'] = int(len(result.witness.waypoints))
+    clearance = result.stats.get('witness_scene_clearance_m')  # capped at the victim margin
+    entry['witness_scene_clearance_m'] = (clearance[result.stats['witness_kept']]
+                                          if clearance else None)
     return entry, attacked
 
 
