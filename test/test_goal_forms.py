@@ -139,6 +139,44 @@ def test_the_joint_form_attack_keeps_the_goal_configuration_clear(box_heatmap):
     assert result.goal_valid_fraction == 1.0
 
 
+def test_the_pocket_tier_closes_the_goals_pocket_first(box_heatmap):
+    """``pocket_tier=1`` makes the joint goal's pocket the objective's first tier: the boxes
+    cover at least as much of it as when it is weighed with the approaches (all of it but what
+    one box cannot reach is the greedy's first aim), and the region form is left as it was."""
+    from advocc_ros.attack import AttackConfig, attack
+    from advocc_ros.attack.configurations import cover_matrix
+    from advocc_ros.attack.region import search_region
+    from advocc_ros.attack.task import TaskOptions
+    from advocc_ros.kinematics.goal_batch import goal_pocket
+
+    scene, robot, q_init = _problem('box')
+    world = CollisionWorld(robot, scene.shapes)
+    pocket = goal_pocket(robot, world, scene.goal)
+    region = search_region(box_heatmap, robot, scene.objects, q_init, scene.goal, AttackConfig())
+    cover = cover_matrix(robot, world, pocket, region).tocsc()
+    centers = region.center_m(np.argwhere(region.candidates))  # the cover's columns
+
+    def covered(options):
+        result = attack(box_heatmap, robot, scene.objects, q_init, scene.goal, 4, 'task',
+                        AttackConfig(), certify=False, method_options=options)
+        assert result.status.ok, result.message
+        picks = [int(np.argmin(np.linalg.norm(centers - o.shapes[0].pose.position_m, axis=1)))
+                 for o in result.obstacles]
+        return int((cover[:, picks].sum(axis=1) > 0).sum()), result.stats
+
+    plain, plain_stats = covered(TaskOptions())
+    tiered, stats = covered(TaskOptions(pocket_tier=1))
+    assert len(pocket) > 0 and stats['task_goal_samples'] == len(pocket)
+    assert stats['task_goal_covered'] == tiered >= plain > 0
+    assert stats['task_approach_samples'] == plain_stats['task_approach_samples'] - len(pocket)
+    region_scene, _, _ = _problem('table_pick', 'region')
+    boxes = [attack(box_heatmap, robot, region_scene.objects, q_init, region_scene.goal, 2,
+                    'task', AttackConfig(), certify=False, method_options=options).obstacles
+             for options in (TaskOptions(), TaskOptions(pocket_tier=1))]
+    assert [o.shapes[0].pose.position_m for o in boxes[0]] == \
+        [o.shapes[0].pose.position_m for o in boxes[1]]
+
+
 def test_only_the_region_form_keeps_boxes_off_the_goal_region(box_heatmap):
     """The region form's C3 keeps d_safe (10 cm) from the goal region's position box; the joint
     form keeps the goal's body clear instead, so boxes may close in around the hand."""

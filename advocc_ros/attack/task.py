@@ -56,6 +56,11 @@ class TaskOptions:
     like approaches, so the boxes close the alternatives and leave a narrow passage."""
     tube_rad: float = 0.2
     """Standard deviation of the perturbation of witness states per joint [rad]."""
+    pocket_tier: int = 0
+    """Under the ``joint`` form, 1: the goal's pocket is the objective's first tier (each
+    configuration weight 1, like the ``region`` form's goal sample: the boxes first close the
+    pocket to the sliver the witness keeps); 0: the pocket is covered with the approaches,
+    weighted by w(q)."""
 
     def __post_init__(self):
         for name, (valid, allowed) in OPTION_VALUES.items():
@@ -72,6 +77,7 @@ OPTION_VALUES = {
     'detour_rad': (lambda v: 0 <= v < math.inf, 'a finite number >= 0'),
     'tube_samples': (lambda v: v >= 0, 'an integer >= 0'),
     'tube_rad': (lambda v: 0 <= v < math.inf, 'a finite number >= 0'),
+    'pocket_tier': (lambda v: v in (0, 1), '0 or 1'),
 }
 """What each :class:`TaskOptions` field accepts: (test, the words an error shows)."""
 
@@ -126,8 +132,9 @@ class TaskSample:
     """The configurations the ``task`` method covers, before the search region is known."""
 
     goals: np.ndarray
-    """(n, nq) the goal tier: the task's goal sample under the ``region`` form; none under
-    ``joint`` (the goal is kept, never covered)."""
+    """(n, nq) the goal tier: the task's goal sample under the ``region`` form; under
+    ``joint`` none (the goal is kept, never covered), or the goal's pocket with
+    ``TaskOptions.pocket_tier``."""
     approaches: np.ndarray
     """(k, nq) collision-free configurations on the final half of the approaches."""
     tube_noise: np.ndarray
@@ -153,16 +160,22 @@ def task_sample(task: Task, options: TaskOptions, seed: int) -> TaskSample:
     """The task sample (module docstring); ``seed`` draws the detours and the tube offsets.
     Under the ``joint`` form the approaches run to the goal configuration, the straight one and
     ``approach_goals x detours`` through perturbed midpoints, after the goal's pocket
-    (``kinematics.goal_batch.goal_pocket``): every path ends there."""
+    (``kinematics.goal_batch.goal_pocket``: every path ends there), which with
+    ``options.pocket_tier`` is the goal tier instead."""
     goals = goal_tier(task)
     world = shared_world(task.robot, [sh for o in task.objects for sh in o.shapes])
     rng = np.random.default_rng(seed)
+    tier = goals.Q
     if task.goal.is_joint:
         pocket = goal_pocket(task.robot, world, task.goal)
-        Q_app = np.concatenate([pocket, approach_samples(
+        Q_app = approach_samples(
             world, task.q_init, task.goal.configuration(task.robot.joint_names)[None],
             options.approach_points, options.detours * max(options.approach_goals, 1),
-            options.detour_rad, rng)])
+            options.detour_rad, rng)
+        if options.pocket_tier:
+            tier = pocket
+        else:
+            Q_app = np.concatenate([pocket, Q_app])
     else:
         pocket = goals.Q
         Q_app = approach_samples(world, task.q_init, goals.Q[:options.approach_goals],
@@ -170,8 +183,8 @@ def task_sample(task: Task, options: TaskOptions, seed: int) -> TaskSample:
                                  rng)
     shape = (options.tube_samples, task.robot.nq)
     noise = rng.normal(0.0, options.tube_rad, shape) if options.tube_samples else np.zeros(shape)
-    return TaskSample(goals.Q, Q_app, noise, {'task_goal_samples': len(goals.Q),
-                                              'task_goal_attempts': goals.attempts}, pocket)
+    return TaskSample(tier, Q_app, noise, {'task_goal_samples': len(tier),
+                                           'task_goal_attempts': goals.attempts}, pocket)
 
 
 __all__ = ['OPTION_VALUES', 'THREADS', 'TaskOptions', 'TaskSample', 'approach_samples',

@@ -109,6 +109,7 @@ _TASK_DOC = {
     'detour_rad': 'standard deviation of the midpoint perturbation per joint [rad]',
     'tube_samples': 'solvable: configurations drawn around the witness path',
     'tube_rad': 'solvable: perturbation of the witness states per joint [rad]',
+    'pocket_tier': 'joint goals, 1: the goal\'s pocket is the first tier (0: with the approaches)',
 }
 
 
