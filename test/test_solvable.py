@@ -186,6 +186,46 @@ def test_the_policy_keeps_the_candidate_that_shields_the_fewest_goals(task):
     assert valid_goals(results[0].witness) <= valid_goals(worst)
 
 
+def test_primitives_grow_by_the_margin_on_each_side():
+    from advocc_ros.model.scene import SceneObject
+    from advocc_ros.model.shapes import Shape
+
+    shapes = (Shape('box', (0.1, 0.2, 0.3)), Shape('sphere', (0.05,)),
+              Shape('cylinder', (0.2, 0.04)),
+              Shape('mesh', (), vertices=np.eye(3), faces=np.array([[0, 1, 2]])))
+    [grown] = witness_mod.grown_objects((SceneObject('o', shapes),), 0.004)
+    assert grown.id == 'o' and [sh.kind for sh in grown.shapes] == [sh.kind for sh in shapes]
+    np.testing.assert_allclose(grown.shapes[0].dims, (0.108, 0.208, 0.308))
+    np.testing.assert_allclose(grown.shapes[1].dims, (0.054,))
+    np.testing.assert_allclose(grown.shapes[2].dims, (0.208, 0.044))
+    assert grown.shapes[3] is shapes[3] and all(
+        a.pose == b.pose for a, b in zip(grown.shapes, shapes))
+
+
+def test_a_witness_search_with_a_clearance_keeps_it_from_the_scene(task):
+    """Planned among the scene's grown primitives and certified on the scene itself: every
+    candidate keeps the clearance (at the search's step), and the search without it does not
+    always; a clearance no path can keep falls back to the scene as it is."""
+    scene, robot, q0, _ = task
+    world = CollisionWorld(robot, scene.shapes)
+
+    def clearances(witnesses):
+        return np.array([world.scene_clearances(witness_states(
+            w.configurations(robot), witness_mod.WITNESS_STEP_RAD), 0.05).min()
+            for w in witnesses])
+
+    plain = clearances(find_witnesses(robot, scene.objects, q0, scene.goal))
+    margin_m = float(np.clip(plain.min() * 2, 0.002, 0.02))
+    assert plain.min() < margin_m
+    clear = find_witnesses(robot, scene.objects, q0, scene.goal, clearance_m=margin_m)
+    assert clear and clearances(clear).min() >= margin_m * (1 - 1e-3), clearances(clear)
+    assert all(certify(robot, world, scene.goal, w, q0).why is None for w in clear)
+    start_clearance = world.scene_clearances(q0[None], 1.0)[0]
+    fallback = find_witnesses(robot, scene.objects, q0, scene.goal,
+                              clearance_m=start_clearance + 0.01)  # the start is too close
+    assert np.array_equal(clearances(fallback), plain)
+
+
 def test_with_a_victim_margin_the_kept_witness_keeps_it_from_the_scene(task):
     """A victim margin ranks the candidates first by the clearance they keep from the task's
     own objects (capped at the margin): of those that keep it, the one that shields the fewest

@@ -45,13 +45,16 @@ class WitnessSearch:
     """Wall time of the search [s] (a cached witness: the cache lookup)."""
 
 
-def task_witness(robot: RobotModel, objects, q_init, goal: GoalRegion) -> WitnessSearch:
-    """The candidate witnesses of the task (module docstring); starts a planning worker unless
-    they are cached."""
-    from advocc_ros.planning.witness import find_witnesses
+def task_witness(robot: RobotModel, objects, q_init, goal: GoalRegion,
+                 clearance_m: float = 0.0) -> WitnessSearch:
+    """The candidate witnesses of the task (module docstring), planned ``clearance_m`` (the
+    victim margin) clear of the scene when they can be; starts a planning worker unless they
+    are cached."""
+    from advocc_ros.planning.witness import WITNESS_TIME_S, find_witnesses
 
     t0 = time.perf_counter()
-    witnesses = find_witnesses(robot, tuple(objects), np.asarray(q_init, dtype=float), goal)
+    witnesses = find_witnesses(robot, tuple(objects), np.asarray(q_init, dtype=float), goal,
+                               WITNESS_TIME_S, clearance_m)
     return WitnessSearch(witnesses, time.perf_counter() - t0)
 
 
@@ -75,7 +78,7 @@ def attack_task(heatmap, robot: RobotModel, objects, q_init, goal: GoalRegion, b
     except (AttackError, SceneError, RobotError):  # the core answers it; nothing was started
         return attack(heatmap, robot, objects, q_init, goal, budget, method, cfg,
                       certify=False, **options)
-    search = task_witness(robot, objects, q_init, goal)
+    search = task_witness(robot, objects, q_init, goal, cfg.victim_margin_m)
     result = attack(heatmap, robot, objects, q_init, goal, budget, method, cfg,
                     certify=certify, witness=search.witnesses, **options)
     stats = dict(result.stats, witness_search_ms=round(search.search_s * 1e3, 3))

@@ -144,7 +144,7 @@ def run_audit(scene, heatmap, cfg: AuditConfig = AuditConfig(),
     _check_request(scene, cfg)
     attack_cfg = attack_cfg or AttackConfig()
     t_start = time.perf_counter()
-    task, search = _task_under_audit(scene)
+    task, search = _task_under_audit(scene, attack_cfg.victim_margin_m)
     result = _attack(task, heatmap, cfg, cfg.policy, attack_cfg)
     log.info('audit %s: %d boxes (%s), evaluating prefixes', scene.name,
              len(result.obstacles), result.status.value)
@@ -178,9 +178,10 @@ def _check_request(scene, cfg: AuditConfig) -> None:
         raise ValueError(f'unknown attack method {cfg.method!r}; known: {list(REGISTRY)}')
 
 
-def _task_under_audit(scene):
+def _task_under_audit(scene, clearance_m: float):
     """``scene``'s task, refused when invalid (``model.task_check``), with its witnesses, and
-    the witness search that found them (one RRTConnect run on the unattacked scene, cached)."""
+    the witness search that found them (on the unattacked scene, ``clearance_m`` clear of it
+    when it can be, cached)."""
     from advocc_ros.attack.edges import task_witness
     from advocc_ros.kinematics.ik import start_configuration
     from advocc_ros.model.robot import load_robot
@@ -189,7 +190,7 @@ def _task_under_audit(scene):
     robot = load_robot(scene.robot)
     q_init = start_configuration(scene, robot)
     require_valid_task(robot, scene.objects, q_init, scene.goal)
-    search = task_witness(robot, scene.objects, q_init, scene.goal)
+    search = task_witness(robot, scene.objects, q_init, scene.goal, clearance_m)
     return _Task(scene, robot, q_init, search.witnesses), search
 
 

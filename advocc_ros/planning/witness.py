@@ -18,7 +18,10 @@ rarely land on (``rare_clear_ends``), then one into the region itself. Each run 
 scene (it grazes an object closer than the floor between two checked states, e.g. a grasp in a
 pocket a few mm wide) is dropped and the next seed tried, and when no target gave a proven path,
 the targets are tried once more without simplification (shortcuts pull a path taut against the
-objects).
+objects). With a clearance (``AttackConfig.victim_margin_m``: room for a victim's own collision
+model, whose checker calls a path that grazes its scene closed) the search plans among the
+scene's primitives grown by it (``grown_objects``) and certifies on the scene itself; when that
+finds nothing (a start or goal closer than that to the scene), it searches the scene as it is.
 
 The candidates are kept twice: in this process, and on disk (``model.cache.disk_cache_dir``)
 so that the next process (another ``advocc attack``, a restarted node) skips the search; a
@@ -49,6 +52,7 @@ from advocc_ros.model.collision import CollisionWorld
 from advocc_ros.model.robot import RobotModel
 from advocc_ros.model.goal import JOINT_TOLERANCE_RAD, GoalRegion
 from advocc_ros.model.scene import Scene, SceneObject, read_yaml, save_yaml_atomic, task_hash
+from advocc_ros.model.shapes import Shape
 from advocc_ros.model.pose import SceneError
 from advocc_ros.planning.certificate import CertificateConfig, PathCertificate, certify_path
 from advocc_ros.planning.types import PlanningConfig, PlanStatus
@@ -251,16 +255,17 @@ WITNESSES: BoundedCache = BoundedCache('witnesses', 32)
 
 
 def find_witnesses(robot: RobotModel, objects: tuple[SceneObject, ...] | list,
-                   q_init: np.ndarray, goal: GoalRegion, time_s: float = WITNESS_TIME_S
-                   ) -> tuple[Witness, ...]:
+                   q_init: np.ndarray, goal: GoalRegion, time_s: float = WITNESS_TIME_S,
+                   clearance_m: float = 0.0) -> tuple[Witness, ...]:
     """The task's candidate witnesses on the scene ``objects``, each certified there (empty
-    when the search found none), cached per task in this process and on disk (module
-    docstring)."""
+    when the search found none), planned ``clearance_m`` clear of its primitives when it can
+    be, cached per task in this process and on disk (module docstring)."""
     objects = tuple(objects)
     q_init = np.asarray(q_init, float)
     key = task_hash(robot.hash, objects, goal, np.round(q_init, 12).tolist(), time_s,
                     SET_FORMAT, WITNESS_PLANNER, WITNESS_SEED, WITNESS_STEP_RAD,
-                    'continuous', WITNESS_TRIES, END_CANDIDATES, END_CLEARANCE_M, END_TIME_S)
+                    'continuous', WITNESS_TRIES, END_CANDIDATES, END_CLEARANCE_M, END_TIME_S,
+                    *(('clearance', clearance_m) if clearance_m > 0 else ()))
     cached = WITNESSES.get(key)
     if cached is not None:
         return cached
@@ -268,6 +273,9 @@ def find_witnesses(robot: RobotModel, objects: tuple[SceneObject, ...] | list,
     disk = cache_dir / f'{key}.yaml' if cache_dir is not None else None
     world = CollisionWorld(robot, [sh for o in objects for sh in o.shapes])
     witnesses = _from_disk(disk, robot, world, q_init, goal) if disk is not None else ()
+    if not witnesses and clearance_m > 0:
+        witnesses = search_witnesses(robot, world, objects, q_init, goal, time_s,
+                                     grown_objects(objects, clearance_m))
     if not witnesses:
         witnesses = search_witnesses(robot, world, objects, q_init, goal, time_s)
         if not witnesses:  # not kept: a later call searches again
@@ -295,19 +303,23 @@ def rare_clear_ends(robot: RobotModel, world: CollisionWorld, objects: tuple[Sce
 
 def search_witnesses(robot: RobotModel, world: CollisionWorld,
                      objects: tuple[SceneObject, ...], q_init: np.ndarray, goal: GoalRegion,
-                     time_s: float = WITNESS_TIME_S) -> tuple[Witness, ...]:
+                     time_s: float = WITNESS_TIME_S,
+                     planned_among: tuple[SceneObject, ...] | None = None
+                     ) -> tuple[Witness, ...]:
     """The one search (module docstring), uncached (``find_witnesses`` caches it): RRTConnect
     to each rare clear end (``END_TIME_S`` each), then into the region (``time_s``, or
     ``END_TIME_S`` once an end was reached), each target on seeds ``WITNESS_SEED``, + 1, ...
     (up to ``WITNESS_TRIES``) until the certificate proves a path; a target without a path is
     left (another seed would spend its budget too). Simplified paths first; when no target gave
     a proven path, the targets whose paths were all unproven (pulled taut against an object)
-    once more without simplification."""
+    once more without simplification. The planner sees ``planned_among`` (default ``objects``),
+    the certificate ``objects``."""
     from advocc_ros.planning.worker import Planner
 
     targets = _targets(robot, world, objects, goal, time_s)
     names = object_shape_names(objects)
-    scene = Scene(name='witness', robot=robot.spec, objects=objects)
+    scene = Scene(name='witness', robot=robot.spec,
+                  objects=objects if planned_among is None else planned_among)
     for simplify in (True, False):
         config = PlanningConfig(time_budget_s=time_s, motion_step_rad=WITNESS_STEP_RAD,
                                 stop_at_first_solution=True, simplify=simplify,
@@ -326,6 +338,21 @@ def search_witnesses(robot: RobotModel, world: CollisionWorld,
     log.warning('no witness: every path found grazed an object closer than the certificate\'s '
                 'floor')
     return ()
+
+
+def grown_objects(objects: tuple[SceneObject, ...], margin_m: float
+                  ) -> tuple[SceneObject, ...]:
+    """``objects`` with every primitive grown by ``margin_m`` on each side (a box's edges by
+    ``2 margin``, a sphere's and a cylinder's radius by ``margin``, a cylinder's height by
+    ``2 margin``); meshes and clouds as they are. A configuration free of the grown primitives
+    keeps ``margin_m`` from the primitives themselves."""
+    def grow(shape: Shape) -> Shape:
+        m = margin_m
+        dims = {'box': lambda d: tuple(v + 2 * m for v in d), 'sphere': lambda d: (d[0] + m,),
+                'cylinder': lambda d: (d[0] + 2 * m, d[1] + m)}.get(shape.kind)
+        return dataclasses.replace(shape, dims=dims(shape.dims)) if dims else shape
+
+    return tuple(SceneObject(o.id, tuple(grow(sh) for sh in o.shapes)) for o in objects)
 
 
 def _targets(robot: RobotModel, world: CollisionWorld, objects: tuple[SceneObject, ...],
@@ -430,6 +457,6 @@ def _to_disk(path: pathlib.Path, witnesses: tuple[Witness, ...]) -> None:
 
 
 __all__ = ['CACHE_ENV', 'SET_FORMAT', 'WITNESS_STEP_RAD', 'Certified', 'Witness', 'certify',
-           'find_witnesses', 'load_candidates', 'load_witness', 'object_shape_names',
+           'find_witnesses', 'grown_objects', 'load_candidates', 'load_witness', 'object_shape_names',
            'plan_witness', 'rare_clear_ends', 'save_candidates', 'save_witness',
            'search_witnesses', 'witness_file', 'witness_states']
