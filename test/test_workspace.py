@@ -22,7 +22,7 @@ pytestmark = [pytest.mark.slow, pytest.mark.processes]
 # msg_defs/ is named as a second base path (README).
 BASE_PATHS = ('src', 'src/advocc_ros/msg_defs')
 EXECUTABLES = ('heatmap_server', 'attacker', 'planner_shim', 'orchestrator')
-_NOT_SOURCES = shutil.ignore_patterns('.git', '.venv', 'build', 'install', 'log', 'out',
+_NOT_SOURCES = shutil.ignore_patterns('.git', '.venv*', 'build', 'install', 'log', 'out',
                                       '__pycache__', '*.egg-info', '.pytest_cache', '.hypothesis')
 
 
