@@ -1,6 +1,6 @@
 """Shared fixtures: seeded RNGs, the Panda model, a small scene and its heatmap file, a unique
 ROS domain per test and an rclpy client on it; and how the suite shares the machine's CPUs when
-pytest-xdist runs it on several workers (``setup.cfg``: ``-n 2 --dist loadgroup``)."""
+pytest-xdist runs it on several workers (``setup.cfg``: ``-n 2 --dist loadfile``)."""
 
 import contextlib
 import fcntl
