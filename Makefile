@@ -24,8 +24,9 @@ ARENA_STAMP := $(ARENA_VENV)/.advocc-arena-installed
 # The venvs are independent: they install side by side (mostly downloads and unpacking).
 ENVS_JOBS ?= 4
 # uv installs the pinned wheels into the venvs: it downloads in parallel and links the files of
-# its one cache into all four, several times faster than pip (docs/install.md). pip installs
-# uv itself from PyPI into build/uv (a standalone binary, no venv of its own).
+# its one cache into all four, several times faster than pip (docs/install.md). The .venv's own
+# pip installs uv itself from PyPI into build/uv (a standalone binary): a system Python may
+# have no pip, or refuse installs outside a venv (PEP 668), but every venv has one.
 UV_VERSION ?= 0.13.9
 UV         := build/uv/bin/uv
 UV_INSTALL := $(UV) pip install --quiet --compile-bytecode
@@ -33,8 +34,8 @@ UV_INSTALL := $(UV) pip install --quiet --compile-bytecode
 install:
 	$(MAKE) --no-print-directory -j$(ENVS_JOBS) $(STAMP) $(MPLIB_STAMP) $(OMPL2_STAMP)
 
-$(UV):
-	$(PYTHON) -m pip install --quiet --disable-pip-version-check --target build/uv uv==$(UV_VERSION)
+$(UV): | $(PY)
+	$(PY) -m pip install --quiet --disable-pip-version-check --target build/uv uv==$(UV_VERSION)
 
 $(PY):
 	@$(PYTHON) -c 'import sys; assert sys.version_info[:2] == (3, 11), \
