@@ -120,3 +120,24 @@ def test_server_parameters_of_the_bench_setting():
         assert declared[f'task_{f.name}'] == f.default
     with pytest.raises(ValueError, match='unknown option'):
         task_parameters({'drawz': 1})
+
+
+def test_the_data_set_closes_a_joint_goals_pocket_first_unless_told_otherwise():
+    """``dataset build``'s task options default to ``pocket_tier=1`` (chosen on the train
+    split; the attack's own default stays 0); a given option overrides it, and
+    ``pocket_tier=0`` gives the settings of a folder built before that default."""
+    import argparse
+
+    from advocc_ros.commands import dataset
+
+    parser = argparse.ArgumentParser()
+    dataset.register(parser.add_subparsers(dest='command'))
+
+    def build_options(*more):
+        args = parser.parse_args(['dataset', 'build', '--problems', 'P', '--out', 'O', *more])
+        return dict(dataset._config(args)[0].task_options)
+
+    assert TaskOptions().pocket_tier == 0
+    assert build_options() == {'pocket_tier': 1}
+    assert build_options('--task-option', 'detours=0') == {'pocket_tier': 1, 'detours': 0}
+    assert build_options('--task-option', 'pocket_tier=0') == {}

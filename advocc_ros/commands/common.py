@@ -69,11 +69,15 @@ def add_attack_args(parser: argparse.ArgumentParser, methods=None) -> None:
                         help='attack seed (task, random, pfa, pfa++) (default %(default)s)')
 
 
-def add_task_option_arg(parser: argparse.ArgumentParser) -> None:
-    """Add the repeatable ``--task-option KEY=VALUE`` (``TaskOptions`` of method ``task``)."""
-    parser.add_argument('--task-option', action='append', default=[], metavar='KEY=VALUE',
+def add_task_option_arg(parser: argparse.ArgumentParser, defaults: tuple[str, ...] = ()
+                        ) -> None:
+    """Add the repeatable ``--task-option KEY=VALUE`` (``TaskOptions`` of method ``task``);
+    ``defaults`` (``KEY=VALUE`` items) come first, so a given option overrides them."""
+    parser.add_argument('--task-option', action='append', default=list(defaults),
+                        metavar='KEY=VALUE',
                         help='a setting of --method task (advocc_ros.attack.task.TaskOptions; '
-                             'YAML value, repeatable), e.g. tube_samples=512 or detours=0')
+                             'YAML value, repeatable), e.g. tube_samples=512 or detours=0'
+                             + (f' (default {" ".join(defaults)})' if defaults else ''))
 
 
 def task_options_from_args(args: argparse.Namespace, method: str):

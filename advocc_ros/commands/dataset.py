@@ -77,7 +77,7 @@ def _add_build(p: argparse.ArgumentParser) -> None:
                    help='distance the boxes keep from the witness (and a joint goal) beyond the '
                    'certificate\'s guard margin, and from the scene the kept witness is '
                    'chosen for [m] (default %(default)g)')
-    add_task_option_arg(p)
+    add_task_option_arg(p, tuple(f'{k}={v}' for k, v in build.task_options))
     p.add_argument('--heatmap', metavar='FILE', help='robot-only heatmap to attack with '
                    '(default: built once per robot into OUT/heatmaps/)')
     p.add_argument('--heatmap-samples', type=int, default=run.heatmap_samples,
