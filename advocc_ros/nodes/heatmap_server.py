@@ -82,8 +82,8 @@ _CONFIG_DOC = {  # description, then (low, high) or constraints AttackConfig che
                  (0.0, _INF)),
     'd_min_m': ('minimum distance between box centres [m]', (0.0, _INF)),
     'victim_margin_m': ('distance every box keeps from the witness and a joint goal beyond the '
-                        'certificate\'s guard margin (room for victims\' collision models), and the scene '
-                        'clearance the kept witness is chosen for [m]',
+                        'certificate\'s guard margin (room for victims\' collision models), '
+                        'and the scene clearance the kept witness is chosen for [m]',
                         (0.0, 0.05)),
     'max_budget': ('larger budgets are rejected', (1, INT_MAX)),
     'max_box_m': ('larger boxes are rejected [m]', '> 0'),

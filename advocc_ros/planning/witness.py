@@ -457,6 +457,6 @@ def _to_disk(path: pathlib.Path, witnesses: tuple[Witness, ...]) -> None:
 
 
 __all__ = ['CACHE_ENV', 'SET_FORMAT', 'WITNESS_STEP_RAD', 'Certified', 'Witness', 'certify',
-           'find_witnesses', 'grown_objects', 'load_candidates', 'load_witness', 'object_shape_names',
-           'plan_witness', 'rare_clear_ends', 'save_candidates', 'save_witness',
-           'search_witnesses', 'witness_file', 'witness_states']
+           'find_witnesses', 'grown_objects', 'load_candidates', 'load_witness',
+           'object_shape_names', 'plan_witness', 'rare_clear_ends', 'save_candidates',
+           'save_witness', 'search_witnesses', 'witness_file', 'witness_states']
