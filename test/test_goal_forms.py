@@ -151,7 +151,8 @@ def test_the_pocket_tier_closes_the_goals_pocket_first(box_heatmap):
 
     scene, robot, q_init = _problem('box')
     world = CollisionWorld(robot, scene.shapes)
-    pocket = goal_pocket(robot, world, scene.goal)
+    defaults = TaskOptions()
+    pocket = goal_pocket(robot, world, scene.goal, defaults.pocket_samples, defaults.pocket_rad)
     region = search_region(box_heatmap, robot, scene.objects, q_init, scene.goal, AttackConfig())
     cover = cover_matrix(robot, world, pocket, region).tocsc()
     centers = region.center_m(np.argwhere(region.candidates))  # the cover's columns
@@ -175,6 +176,28 @@ def test_the_pocket_tier_closes_the_goals_pocket_first(box_heatmap):
              for options in (TaskOptions(), TaskOptions(pocket_tier=1))]
     assert [o.shapes[0].pose.position_m for o in boxes[0]] == \
         [o.shapes[0].pose.position_m for o in boxes[1]]
+
+
+def test_a_larger_pocket_sample_holds_the_smaller_and_stays_around_the_goal():
+    """``pocket_samples`` draws more of the same stream (seed ``POCKET_SEED``): the smaller
+    pocket's configurations are the larger's first ones, every one is free, within the limits
+    and near the goal, and more of them are drawn at a larger ``pocket_rad``."""
+    from advocc_ros.kinematics.goal_batch import goal_pocket
+
+    scene, robot, _ = _problem('bookshelf_small')
+    world = CollisionWorld(robot, scene.shapes)
+    q_goal = scene.goal.configuration(robot.joint_names)
+    small = goal_pocket(robot, world, scene.goal, 256, 0.2)
+    large = goal_pocket(robot, world, scene.goal, 4096, 0.2)
+    assert 0 < len(small) < len(large) <= 4096
+    np.testing.assert_array_equal(large[:len(small)], small)
+    assert not world.collisions_batch(large).any()
+    assert np.all((large >= robot.lower) & (large <= robot.upper))
+    spread = np.abs(large - q_goal)
+    assert spread.max() < 0.2 * 6 and np.median(spread) < 0.2
+    assert np.median(np.abs(goal_pocket(robot, world, scene.goal, 4096, 0.4) - q_goal)) > \
+        np.median(spread)
+    assert len(goal_pocket(robot, world, scene.goal, 0, 0.2)) == 0
 
 
 def test_only_the_region_form_keeps_boxes_off_the_goal_region(box_heatmap):

@@ -29,6 +29,8 @@ def test_a_valid_mapping_gives_the_options_the_rest_default():
     ({'tube_samples': -1}, 'tube_samples must be an integer >= 0, got -1'),
     ({'detour_rad': float('nan')}, 'detour_rad must be a finite number >= 0, got nan'),
     ({'pocket_tier': 2}, 'pocket_tier must be 0 or 1, got 2'),
+    ({'pocket_samples': -5}, 'pocket_samples must be an integer >= 0, got -5'),
+    ({'pocket_rad': float('inf')}, 'pocket_rad must be a finite number >= 0, got inf'),
     ('detours=1', 'expected a mapping of option: value'),
 ])
 def test_unknown_options_wrong_types_and_bad_values_are_refused_by_name(mapping, words):

@@ -56,6 +56,12 @@ class TaskOptions:
     like approaches, so the boxes close the alternatives and leave a narrow passage."""
     tube_rad: float = 0.2
     """Standard deviation of the perturbation of witness states per joint [rad]."""
+    pocket_samples: int = 256
+    """Under the ``joint`` form: configurations drawn around the goal for its pocket
+    (``kinematics.goal_batch.goal_pocket``; those in collision with the scene are dropped, and
+    where the scene closes in on the hand that can be most of them)."""
+    pocket_rad: float = 0.2
+    """Standard deviation of the pocket's perturbation of the goal per joint [rad]."""
     pocket_tier: int = 0
     """Under the ``joint`` form, 1: the goal's pocket is the objective's first tier (each
     configuration weight 1, like the ``region`` form's goal sample: the boxes first close the
@@ -77,6 +83,8 @@ OPTION_VALUES = {
     'detour_rad': (lambda v: 0 <= v < math.inf, 'a finite number >= 0'),
     'tube_samples': (lambda v: v >= 0, 'an integer >= 0'),
     'tube_rad': (lambda v: 0 <= v < math.inf, 'a finite number >= 0'),
+    'pocket_samples': (lambda v: v >= 0, 'an integer >= 0'),
+    'pocket_rad': (lambda v: 0 <= v < math.inf, 'a finite number >= 0'),
     'pocket_tier': (lambda v: v in (0, 1), '0 or 1'),
 }
 """What each :class:`TaskOptions` field accepts: (test, the words an error shows)."""
@@ -167,7 +175,8 @@ def task_sample(task: Task, options: TaskOptions, seed: int) -> TaskSample:
     rng = np.random.default_rng(seed)
     tier = goals.Q
     if task.goal.is_joint:
-        pocket = goal_pocket(task.robot, world, task.goal)
+        pocket = goal_pocket(task.robot, world, task.goal, options.pocket_samples,
+                             options.pocket_rad)
         Q_app = approach_samples(
             world, task.q_init, task.goal.configuration(task.robot.joint_names)[None],
             options.approach_points, options.detours * max(options.approach_goals, 1),

@@ -125,21 +125,18 @@ def task_goals(robot: RobotModel, objects, goal: GoalRegion, n: int = TASK_GOALS
     return TASK_GOAL_SAMPLES.get_or_make(key, make)
 
 
-POCKET_SAMPLES = 256
-"""Size of a ``joint`` goal's pocket sample (:func:`goal_pocket`)."""
-POCKET_RAD = 0.2
-"""Standard deviation of the pocket's perturbation of the goal configuration per joint [rad]."""
 POCKET_SEED = 7_345_003
 """Seed of the pocket sample: part of the task, not of one attack."""
 
 
-def goal_pocket(robot: RobotModel, world: CollisionWorld, goal: GoalRegion) -> np.ndarray:
-    """(k <= ``POCKET_SAMPLES``, nq) collision-free configurations within the joint limits
-    around a ``joint`` goal (its configuration plus N(0, ``POCKET_RAD``) per joint, fixed seed):
+def goal_pocket(robot: RobotModel, world: CollisionWorld, goal: GoalRegion, samples: int,
+                rad: float) -> np.ndarray:
+    """(k <= ``samples``, nq) collision-free configurations within the joint limits around a
+    ``joint`` goal (its configuration plus N(0, ``rad``) per joint, seed ``POCKET_SEED``):
     where every path to the goal ends, so the boxes that cover them narrow its last passage."""
     q_goal = goal.configuration(robot.joint_names)
     rng = np.random.default_rng(POCKET_SEED)
-    Q = q_goal + rng.normal(0.0, POCKET_RAD, (POCKET_SAMPLES, robot.nq))
+    Q = q_goal + rng.normal(0.0, rad, (samples, robot.nq))
     Q = Q[np.all((Q >= robot.lower) & (Q <= robot.upper), axis=1)]
     return Q[~world.collisions_batch(Q, THREADS)] if len(Q) else Q
 
@@ -191,5 +188,5 @@ def rarest_first(Q: np.ndarray, k: int = RARITY_NEIGHBOUR) -> np.ndarray:
     return np.argsort(-kth, kind='stable')
 
 
-__all__ = ['ATTEMPTS_PER_SAMPLE', 'GoalDraw', 'POCKET_SAMPLES', 'TASK_GOALS', 'TASK_GOAL_SAMPLES',
+__all__ = ['ATTEMPTS_PER_SAMPLE', 'GoalDraw', 'POCKET_SEED', 'TASK_GOALS', 'TASK_GOAL_SAMPLES',
            'goal_pocket', 'planner_goals', 'rarest_first', 'task_goals']

@@ -109,6 +109,8 @@ _TASK_DOC = {
     'detour_rad': 'standard deviation of the midpoint perturbation per joint [rad]',
     'tube_samples': 'solvable: configurations drawn around the witness path',
     'tube_rad': 'solvable: perturbation of the witness states per joint [rad]',
+    'pocket_samples': 'joint goals: configurations drawn around the goal (its pocket)',
+    'pocket_rad': 'joint goals: perturbation of the goal in its pocket per joint [rad]',
     'pocket_tier': 'joint goals, 1: the goal\'s pocket is the first tier (0: with the approaches)',
 }
 
