@@ -162,11 +162,30 @@ def ros_env():
     return env
 
 
-@pytest.fixture(scope='module')
+def _run_folder(tmp_path_factory) -> pathlib.Path:
+    """The run's temporary folder that every xdist worker shares (a worker's own is
+    ``popen-gwN`` inside it); without xdist, this process's."""
+    base = tmp_path_factory.getbasetemp()
+    return base.parent if 'PYTEST_XDIST_WORKER' in os.environ else base
+
+
+@pytest.fixture(scope='session')
 def heatmap_file(tmp_path_factory, table_scene):
+    """table_pick's heatmap of 500 samples (seed 2), built once for the whole run: the first
+    worker to need it builds it under a lock, every module of both workers reads the same
+    file (none writes to it; a seeded build is the same on any worker)."""
     from advocc_ros.heatmap import HeatmapConfig, build_heatmap, save_heatmap
-    path = tmp_path_factory.mktemp('heatmap') / 'h500.npz'
-    save_heatmap(build_heatmap(table_scene, HeatmapConfig(samples=500), seed=2), path)
+    folder = _run_folder(tmp_path_factory) / 'shared_heatmap'
+    folder.mkdir(exist_ok=True)
+    path = folder / 'h500.npz'
+    with open(folder / 'build.lock', 'a') as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        try:
+            if not path.exists():  # save_heatmap writes atomically
+                save_heatmap(build_heatmap(table_scene, HeatmapConfig(samples=500), seed=2),
+                             path)
+        finally:
+            fcntl.flock(lock, fcntl.LOCK_UN)
     return path
 
 
