@@ -125,9 +125,10 @@ def test_server_parameters_of_the_bench_setting():
 
 
 def test_the_data_set_closes_a_joint_goals_pocket_first_unless_told_otherwise():
-    """``dataset build``'s task options default to ``pocket_tier=1`` (chosen on the train
-    split; the attack's own default stays 0); a given option overrides it, and
-    ``pocket_tier=0`` gives the settings of a folder built before that default."""
+    """``dataset build``'s task options default to ``pocket_tier=1`` and
+    ``pocket_samples=4096`` (chosen on the train split; the attack's own defaults stay 0 and
+    256); a given option overrides them, and the attack's defaults give the settings of a
+    folder built before."""
     import argparse
 
     from advocc_ros.commands import dataset
@@ -139,7 +140,10 @@ def test_the_data_set_closes_a_joint_goals_pocket_first_unless_told_otherwise():
         args = parser.parse_args(['dataset', 'build', '--problems', 'P', '--out', 'O', *more])
         return dict(dataset._config(args)[0].task_options)
 
-    assert TaskOptions().pocket_tier == 0
-    assert build_options() == {'pocket_tier': 1}
-    assert build_options('--task-option', 'detours=0') == {'pocket_tier': 1, 'detours': 0}
-    assert build_options('--task-option', 'pocket_tier=0') == {}
+    assert TaskOptions().pocket_tier == 0 and TaskOptions().pocket_samples == 256
+    built = {'pocket_tier': 1, 'pocket_samples': 4096}
+    assert build_options() == built
+    assert build_options('--task-option', 'detours=0') == dict(built, detours=0)
+    assert build_options('--task-option', 'pocket_samples=256') == {'pocket_tier': 1}
+    assert build_options('--task-option', 'pocket_tier=0',
+                         '--task-option', 'pocket_samples=256') == {}
