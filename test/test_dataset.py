@@ -389,9 +389,9 @@ def test_build_on_embedded_ray(built, problems):
 
 @pytest.mark.processes
 def test_both_goal_forms_are_data_sets_of_their_own(tmp_path, problems, robot_heatmap):
-    """--goal-form both: OUT/joint and OUT/region, each record and row naming its form; the
-    joint export's request holds the request's own goal configuration and nothing else, and
-    its witness ends there."""
+    """--goal-form both: OUT/joint and OUT/region, each record and row naming its form, built
+    on one Ray (started once: the same driver node); the joint export's request holds the
+    request's own goal configuration and nothing else, and its witness ends there."""
     from advocc_ros.formats.mbm_export import load_trajectory
     from advocc_ros.formats.mbm_request import load_request
     from advocc_ros.model.robot import load_robot
@@ -408,6 +408,8 @@ def test_both_goal_forms_are_data_sets_of_their_own(tmp_path, problems, robot_he
         assert attack['goal_form'] == form
         assert f',{form},built,' in (out / form / 'problems.csv').read_text()
         assert f'goal form `{form}`' in (out / form / 'summary.md').read_text()
+    [joint], [region] = (_build_record(out / form)['runs'] for form in ('joint', 'region'))
+    assert joint['cluster']['driver_node'] == region['cluster']['driver_node']
     key, _ = next(iter(_records(out / 'joint').items()))
     family, number = key.split('/')
     folder = out / 'joint' / key / 'm1'

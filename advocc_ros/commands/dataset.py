@@ -186,16 +186,18 @@ def _summary(args: argparse.Namespace) -> int:
 
 
 def _build(args: argparse.Namespace) -> int:
-    from advocc_ros.dataset.driver import Selection, build
+    from advocc_ros.dataset.driver import Cluster, Selection, build
 
     config, run = _config(args)
     selection = Selection(args.problems, _names(args.families) or None, args.split, args.limit,
                           args.seed)
     entries = {}
-    for form, out in form_folders(args.out, args.goal_form):
-        entries[form] = build(selection, out, dataclasses.replace(config, goal_form=form), run)
-        if not args.json:
-            _print_build(out, entries[form])
+    with Cluster(run) as cluster:  # one Ray for both forms
+        for form, out in form_folders(args.out, args.goal_form):
+            entries[form] = build(selection, out, dataclasses.replace(config, goal_form=form),
+                                  run, cluster=cluster)
+            if not args.json:
+                _print_build(out, entries[form])
     if args.json:
         print(json.dumps(entries, indent=1))
     return 0

@@ -97,12 +97,38 @@ class Selection:
                       self.seed)
 
 
+class Cluster:
+    """Ray for one or more builds of the same ``RunConfig``: connected or started when the first
+    build has work, shut down once at the end (``--goal-form both`` starts Ray once)."""
+
+    def __init__(self, run: RunConfig):
+        self.run = run
+        self._ray = None
+
+    def __enter__(self) -> Cluster:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        if self._ray is not None:
+            self._ray.shutdown()
+            self._ray = None
+
+    def ray(self):
+        if self._ray is None:
+            self._ray = _ray(self.run)
+        return self._ray
+
+
 def build(selection: Selection, out: str | pathlib.Path, config: BuildConfig,
-          run: RunConfig = RunConfig(), echo=None) -> dict:
+          run: RunConfig = RunConfig(), echo=None, cluster: Cluster | None = None) -> dict:
     """Build (or resume) the data set of ``selection`` into ``out``; this run's entry of
-    ``build.json`` with the ``summary`` of the selection. Progress goes to stderr."""
+    ``build.json`` with the ``summary`` of the selection. Progress goes to stderr. Without
+    ``cluster``, Ray is started (or connected) for this build alone."""
     from advocc_ros.dataset.summary import write_summary
 
+    if cluster is None:
+        with Cluster(run) as own:
+            return build(selection, out, config, run, echo, own)
     echo = echo or (lambda text: print(text, file=sys.stderr, flush=True))
     out = pathlib.Path(out)
     problems, todo, settings, given, hashes, scenes = _checked(selection, out, config, run)
@@ -123,7 +149,7 @@ def build(selection: Selection, out: str | pathlib.Path, config: BuildConfig,
                                           given, workers=available_cpus(), echo=echo)
                 entry['heatmaps'] = {h: settings['heatmap'].get('sha256') or file_sha256(
                     heatmap_path(out, h)) for h in heatmaps}
-                _run(todo, out, config, run, echo, entry, hashes, heatmaps)
+                _run(todo, out, config, cluster, echo, entry, hashes, heatmaps)
             entry['status'] = 'finished'
         except BaseException as exc:
             stopped = isinstance(exc, (KeyboardInterrupt, SystemExit))
@@ -259,24 +285,25 @@ def _slots(ray, cpus: float) -> int:
     return slots
 
 
-def _run(todo: list[Problem], out: pathlib.Path, config: BuildConfig, run: RunConfig, echo,
+def _run(todo: list[Problem], out: pathlib.Path, config: BuildConfig, cluster: Cluster, echo,
          entry: dict, hashes: dict, heatmaps: dict) -> None:
-    """Run ``todo`` on Ray, writing each result as it arrives; ``entry['counts']`` counts the
-    outcomes so far."""
+    """Run ``todo`` on ``cluster``, writing each result as it arrives; ``entry['counts']``
+    counts the outcomes so far."""
     from advocc_ros.progress import progress_bar
 
-    ray = _ray(run)
+    run = cluster.run
+    ray = cluster.ray()
     entry['counts'] = counts = {}
     pending: dict = {}
     bar = None
     try:
-        entry['cluster'] = {'address': run.ray_address or 'local',
+        node = ray.get_runtime_context().get_node_id()
+        entry['cluster'] = {'address': run.ray_address or 'local', 'driver_node': node,
                             'resources': ray.cluster_resources(),
                             'nodes': len([n for n in ray.nodes() if n.get('Alive')])}
         slots = _slots(ray, run.cpus_per_problem)
         task = _task(ray, run)
         refs = {h: ray.put(hm) for h, hm in heatmaps.items()}
-        node = ray.get_runtime_context().get_node_id()
         queue = collections.deque(todo)
         bar = progress_bar(len(todo), 'dataset', 'problem', file=sys.stderr)
         t0 = time.monotonic()
@@ -303,7 +330,6 @@ def _run(todo: list[Problem], out: pathlib.Path, config: BuildConfig, run: RunCo
                 ray.cancel(ref, force=True)
             except Exception:  # already finished or its node is gone
                 pass
-        ray.shutdown()
 
 
 def _task(ray, run: RunConfig):
