@@ -42,7 +42,8 @@ $(PY):
 	  "advocc_ros needs Python 3.11 (the ROS 2 Jazzy wheels are cp311); set PYTHON=..."'
 	$(PYTHON) -m venv $(VENV)
 
-# One stamp for the whole environment: pinned wheels, OMPL fix-up, interfaces, our package.
+# One stamp for the whole environment: pinned wheels, OMPL fix-up, interfaces, our package, and
+# its numba kernels compiled into numba's cache (~30 s once, not in a user's first attack).
 # ompl 1.7.0's wheel ships a stray second libompl next to the one its extensions link; loading
 # both destroys OMPL's statics twice and every interpreter segfaults at exit: remove the stray.
 $(STAMP): $(PY) setup.py setup.cfg package.xml Makefile $(MSGS) | $(UV)
@@ -50,6 +51,7 @@ $(STAMP): $(PY) setup.py setup.cfg package.xml Makefile $(MSGS) | $(UV)
 	rm -f $$($(PY) -c 'import sysconfig; print(sysconfig.get_paths()["purelib"])')/libompl.so*
 	msg_defs/build_into_venv.sh $(VENV) build/advocc_msgs
 	$(PY) -c 'import advocc_msgs.srv, rclpy, pinocchio, coal, ompl.geometric'
+	$(PY) -m advocc_ros.kernels
 	@echo "advocc_ros installed in $(VENV)"
 	touch $@
 
