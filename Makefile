@@ -3,6 +3,9 @@ PYTHON ?= $(shell command -v python3.11 || command -v python3)
 VENV   ?= .venv
 PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.advocc-installed
+WHEELS_STAMP  := $(VENV)/.advocc-wheels
+MSGS_STAMP    := $(VENV)/.advocc-msgs
+KERNELS_STAMP := $(VENV)/.advocc-kernels
 MSGS   := $(shell find msg_defs -type f | sort)
 OUT    ?= out/demo
 PYTEST_ARGS ?=
@@ -43,15 +46,25 @@ $(PY):
 	$(PYTHON) -m venv $(VENV)
 
 # One stamp for the whole environment: pinned wheels, OMPL fix-up, interfaces, our package, and
-# its numba kernels compiled into numba's cache (~30 s once, not in a user's first attack).
+# its numba kernels compiled into numba's cache (~30 s of one CPU once, not in a user's first
+# attack; it needs only the wheels, so it runs beside the interfaces' build).
 # ompl 1.7.0's wheel ships a stray second libompl next to the one its extensions link; loading
 # both destroys OMPL's statics twice and every interpreter segfaults at exit: remove the stray.
-$(STAMP): $(PY) setup.py setup.cfg package.xml Makefile $(MSGS) | $(UV)
+$(WHEELS_STAMP): $(PY) setup.py setup.cfg package.xml Makefile | $(UV)
 	$(UV_INSTALL) --python $(PY) -e '.[build,test,victims]'
 	rm -f $$($(PY) -c 'import sysconfig; print(sysconfig.get_paths()["purelib"])')/libompl.so*
+	touch $@
+
+$(MSGS_STAMP): $(WHEELS_STAMP) $(MSGS)
 	msg_defs/build_into_venv.sh $(VENV) build/advocc_msgs
+	touch $@
+
+$(KERNELS_STAMP): $(WHEELS_STAMP)
+	$(PY) -m advocc_ros.attack.kernels
+	touch $@
+
+$(STAMP): $(WHEELS_STAMP) $(MSGS_STAMP) $(KERNELS_STAMP)
 	$(PY) -c 'import advocc_msgs.srv, rclpy, pinocchio, coal, ompl.geometric'
-	$(PY) -m advocc_ros.kernels
 	@echo "advocc_ros installed in $(VENV)"
 	touch $@
 

@@ -1,5 +1,5 @@
-"""``python -m advocc_ros.kernels`` (run by ``make install``) compiles every numba kernel of the
-package into numba's cache: run into an empty cache folder, it leaves an entry for each
+"""``python -m advocc_ros.attack.kernels`` (run by ``make install``) compiles every numba kernel
+of the package into numba's cache: run into an empty cache folder, it leaves an entry for each
 ``@numba.njit`` function in the source, so a user's first heatmap or attack compiles none."""
 
 import os
@@ -31,7 +31,7 @@ def test_the_warm_up_compiles_every_kernel_of_the_package(tmp_path):
     kernels = _kernels()
     assert len(kernels) >= 15, kernels  # batch kinematics, heatmap, coverage, region, ...
     env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path))
-    proc = subprocess.run([sys.executable, '-m', 'advocc_ros.kernels'], cwd=REPO, env=env,
+    proc = subprocess.run([sys.executable, '-m', 'advocc_ros.attack.kernels'], cwd=REPO, env=env,
                           capture_output=True, text=True, timeout=900)
     assert proc.returncode == 0, proc.stderr[-3000:]
     assert 'numba kernels compiled and cached' in proc.stderr

@@ -1,12 +1,12 @@
 """Compile every numba kernel of the package once, into numba's on-disk cache.
 
 The kernels (``@numba.njit(cache=True)`` in kinematics.batch, heatmap.build and the attack's
-coverage, configurations and region modules) compile on their first call, about 30 s of one
-CPU; after that every process loads them from the cache in well under a second. ``make install``
-runs ``python -m advocc_ros.kernels``, so a user's first heatmap or attack does not pay the
-compilation. The smallest real heatmap and attack call every kernel with the types they are
-always called with (the attack starts no planner and writes no disk cache), and the goal-sample
-cache's check of a sample read back from disk calls the last two."""
+coverage, configurations and region modules) compile on their first call, about 30 s of one CPU;
+after that every process loads them from the cache in well under a second. ``make install`` runs
+``python -m advocc_ros.attack.kernels``, so a user's first heatmap or attack does not pay the
+compilation. The smallest real heatmap and attack call every kernel with the types they are always
+called with (the attack starts no planner and writes no disk cache), and the goal-sample cache's
+check of a sample read back from disk calls the last two."""
 
 from __future__ import annotations
 
