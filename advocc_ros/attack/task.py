@@ -32,7 +32,7 @@ from typing import Any, Mapping
 import numpy as np
 
 from advocc_ros.attack.types import Task
-from advocc_ros.kinematics.goal_batch import GoalDraw, goal_pocket, task_goals
+from advocc_ros.kinematics.goal_batch import TASK_GOALS, GoalDraw, goal_pocket, task_goals
 from advocc_ros.limits import worker_threads
 from advocc_ros.model.collision import CollisionWorld, shared_world
 
@@ -74,16 +74,23 @@ class TaskOptions:
             kind = int if isinstance(getattr(TaskOptions, name), int) else numbers.Real
             if isinstance(value, bool) or not isinstance(value, kind) or not valid(value):
                 raise ValueError(f'task options: {name} must be {allowed}, got {value!r}')
+        approach = self.approach_goals * (1 + self.detours) * self.approach_points
+        if approach > MAX_SAMPLES:
+            raise ValueError(f'task options: approach_goals x (1 + detours) x approach_points '
+                             f'is {approach} approach configurations; at most {MAX_SAMPLES}')
 
 
+MAX_SAMPLES = 65_536
+"""Most configurations one kind of the task sample may hold (the approaches, the tube, the
+pocket): 16 times the data set's pocket, and a bound on the memory a request can ask for."""
 OPTION_VALUES = {
-    'approach_goals': (lambda v: v >= 0, 'an integer >= 0'),
+    'approach_goals': (lambda v: 0 <= v <= TASK_GOALS, f'an integer in [0, {TASK_GOALS}]'),
     'approach_points': (lambda v: v >= 0, 'an integer >= 0'),
     'detours': (lambda v: v >= 0, 'an integer >= 0'),
     'detour_rad': (lambda v: 0 <= v < math.inf, 'a finite number >= 0'),
-    'tube_samples': (lambda v: v >= 0, 'an integer >= 0'),
+    'tube_samples': (lambda v: 0 <= v <= MAX_SAMPLES, f'an integer in [0, {MAX_SAMPLES}]'),
     'tube_rad': (lambda v: 0 <= v < math.inf, 'a finite number >= 0'),
-    'pocket_samples': (lambda v: v >= 0, 'an integer >= 0'),
+    'pocket_samples': (lambda v: 0 <= v <= MAX_SAMPLES, f'an integer in [0, {MAX_SAMPLES}]'),
     'pocket_rad': (lambda v: 0 <= v < math.inf, 'a finite number >= 0'),
     'pocket_tier': (lambda v: v in (0, 1), '0 or 1'),
 }
