@@ -10,7 +10,6 @@ check of a sample read back from disk calls the last two."""
 
 from __future__ import annotations
 
-import os
 import sys
 import time
 
@@ -26,7 +25,7 @@ def warm() -> float:
     from advocc_ros.heatmap import HeatmapConfig, build_heatmap
     from advocc_ros.kinematics.batch import ChainKinematics
     from advocc_ros.kinematics.ik import goal_box, start_configuration
-    from advocc_ros.model.cache import CACHE_ENV
+    from advocc_ros.model.cache import disk_cache_at
     from advocc_ros.model.robot import load_robot
     from advocc_ros.model.scene import load_scene
     from advocc_ros.paths import scene_path
@@ -36,16 +35,9 @@ def warm() -> float:
     robot = load_robot(scene.robot)
     q_init = start_configuration(scene, robot)
     heatmap = build_heatmap(scene, HeatmapConfig(samples=WARM_SAMPLES))
-    cache = os.environ.get(CACHE_ENV)
-    os.environ[CACHE_ENV] = 'off'  # nothing of the warm-up in the user's cache
-    try:
+    with disk_cache_at('off'):  # nothing of the warm-up in the user's cache
         result = attack(heatmap, robot, scene.objects, q_init, scene.goal, WARM_BUDGET, 'task',
                         goal_policy='paper', certify=False)
-    finally:
-        if cache is None:
-            os.environ.pop(CACHE_ENV)
-        else:
-            os.environ[CACHE_ENV] = cache
     if not result.status.ok:
         raise RuntimeError(f'the warm-up attack failed: {result.message}')
     chain = ChainKinematics(robot.model, robot.model.getFrameId(scene.goal.link))

@@ -60,7 +60,7 @@ def _core(heatmap, robot, scene, q, budgets, method, repeats, policy='paper',
     again (witness and samples cached); ``compute``, the core's own ``compute_s`` of the warm
     call."""
     from advocc_ros.attack.edges import attack_task
-    from advocc_ros.model.cache import CACHE_ENV, clear_task_caches
+    from advocc_ros.model.cache import clear_task_caches, disk_cache_at
     from advocc_ros.planning.witness import WITNESSES
 
     def run(budget: int, seed: int):
@@ -73,27 +73,20 @@ def _core(heatmap, robot, scene, q, budgets, method, repeats, policy='paper',
 
     run(budgets[0], 0)  # models, JIT
     out = {}
-    saved = os.environ.get(CACHE_ENV)
-    try:
-        for budget in budgets:
-            cold, warm, compute = [], [], []
-            for rep in range(max(repeats, 1)):
-                with tempfile.TemporaryDirectory(prefix='advocc_perf_cache_') as empty:
-                    os.environ[CACHE_ENV] = empty
-                    clear_task_caches()
-                    WITNESSES.clear()
-                    cold.append(run(budget, rep)[1])
-                    res, wall = run(budget, rep)
-                warm.append(wall)
-                compute.append(res.compute_s)
-            out[str(budget)] = {'cold': _stats_ms(cold), 'warm': _stats_ms(warm),
-                                'compute': _stats_ms(compute), 'boxes': len(res.obstacles),
-                                'status': res.status.value}
-    finally:
-        if saved is None:
-            os.environ.pop(CACHE_ENV, None)
-        else:
-            os.environ[CACHE_ENV] = saved
+    for budget in budgets:
+        cold, warm, compute = [], [], []
+        for rep in range(max(repeats, 1)):
+            with tempfile.TemporaryDirectory(prefix='advocc_perf_cache_') as empty, \
+                    disk_cache_at(empty):
+                clear_task_caches()
+                WITNESSES.clear()
+                cold.append(run(budget, rep)[1])
+                res, wall = run(budget, rep)
+            warm.append(wall)
+            compute.append(res.compute_s)
+        out[str(budget)] = {'cold': _stats_ms(cold), 'warm': _stats_ms(warm),
+                            'compute': _stats_ms(compute), 'boxes': len(res.obstacles),
+                            'status': res.status.value}
     return out
 
 

@@ -10,6 +10,7 @@ hash, task hash, point hash), never ``id()`` of an object that may be freed and 
 from __future__ import annotations
 
 import collections
+import contextlib
 import os
 import pathlib
 import threading
@@ -40,6 +41,21 @@ def disk_cache_dir() -> pathlib.Path | None:
     if value:
         return pathlib.Path(value)
     return user_cache_root() / 'witness'
+
+
+@contextlib.contextmanager
+def disk_cache_at(value: str):
+    """``$ADVOCC_WITNESS_CACHE`` set to ``value`` (a folder, or ``off``) inside the block, and
+    as it was after it."""
+    saved = os.environ.get(CACHE_ENV)
+    os.environ[CACHE_ENV] = value
+    try:
+        yield
+    finally:
+        if saved is None:
+            os.environ.pop(CACHE_ENV, None)
+        else:
+            os.environ[CACHE_ENV] = saved
 
 
 class BoundedCache(Generic[V]):
