@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from advocc_ros.heatmap import HeatmapConfig, build_heatmap
-from advocc_ros.heatmap.build import weight_config
+from advocc_ros.heatmap.config import weight_config
 from advocc_ros.model.robot import RobotSpec
 from advocc_ros.model.scene import scene_from_data
 
@@ -177,3 +177,23 @@ def test_a_named_command_loads_only_its_own_module():
         choices = next(a.choices for a in build_parser(argv)._actions if isinstance(
             getattr(a, 'choices', None), dict))
         assert list(choices) == COMMANDS
+
+
+@pytest.mark.processes
+def test_the_message_only_nodes_load_no_compiler():
+    """The planner shim and the attacker only convert messages and plan or ask: they start
+    without numba or scipy (``attack/`` and ``heatmap/`` load a name's module on first use), and
+    the attack package still hands out every name it lists."""
+    import subprocess
+    import sys
+    code = ('import sys, advocc_ros.nodes.planner_shim, advocc_ros.nodes.attacker; '
+            "print(sorted(m for m in ('numba', 'scipy') if m in sys.modules))")
+    out = subprocess.run([sys.executable, '-c', code], capture_output=True, text=True,
+                         check=True).stdout.strip()
+    assert out == '[]'
+    import advocc_ros.attack
+    import advocc_ros.heatmap
+    for package in (advocc_ros.attack, advocc_ros.heatmap):
+        assert all(getattr(package, name) is not None for name in package.__all__)
+        with pytest.raises(AttributeError, match='no attribute'):
+            getattr(package, 'no_such_name')

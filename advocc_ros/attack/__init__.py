@@ -2,27 +2,22 @@
 step by step"), its methods and the obstacles file. No ROS.
 
 Methods are listed once, in ``advocc_ros.attack.methods.REGISTRY``; a method's module is
-imported on first use (``load_method``), so PFA (``advocc_ros.attack.pfa``) is not imported here.
+imported on first use (``load_method``). Names here are loaded from their module on first use
+too: ``from advocc_ros.attack.types import AttackConfig`` (the nodes' message conversions)
+loads no compiled kernel.
 """
 
-from advocc_ros.attack.types import AttackConfig, AttackError, AttackResult, AttackStatus
-from advocc_ros.attack.coverage import (Accept, box_distance, box_half_voxels, box_sum,
-                                        greedy_cover, random_cover)
-from advocc_ros.attack.region import SearchRegion, robot_occupancy, search_region
-from advocc_ros.attack.methods import (CONTEXT_METHODS, KNOWN_METHODS, METHODS, MethodContext,
-                                       MethodSpec, REGISTRY, Selector, available_methods,
-                                       load_method, register_method)
-from advocc_ros.attack.api import attack
-from advocc_ros.attack.request import validate_request
-from advocc_ros.attack.obstacles import (OBSTACLES_FORMAT, OBSTACLES_VERSION, load_obstacles,
-                                         obstacles_data, obstacles_file_data, obstacles_meta,
-                                         save_obstacles)
+from advocc_ros import lazy_exports
 
-__all__ = [
-    'Accept', 'AttackConfig', 'AttackError', 'AttackResult', 'AttackStatus', 'CONTEXT_METHODS',
-    'KNOWN_METHODS', 'METHODS', 'MethodContext', 'MethodSpec', 'OBSTACLES_FORMAT',
-    'OBSTACLES_VERSION', 'REGISTRY', 'SearchRegion', 'Selector', 'attack', 'available_methods',
-    'box_distance', 'box_half_voxels', 'box_sum', 'greedy_cover', 'load_method',
-    'load_obstacles', 'obstacles_data', 'obstacles_file_data', 'obstacles_meta',
-    'random_cover', 'register_method', 'robot_occupancy', 'save_obstacles', 'search_region',
-    'validate_request']
+__getattr__, __all__ = lazy_exports(__name__, {
+    'types': ('AttackConfig', 'AttackError', 'AttackResult', 'AttackStatus'),
+    'coverage': ('Accept', 'box_distance', 'box_half_voxels', 'box_sum', 'greedy_cover',
+                 'random_cover'),
+    'region': ('SearchRegion', 'robot_occupancy', 'search_region'),
+    'methods': ('CONTEXT_METHODS', 'KNOWN_METHODS', 'METHODS', 'MethodContext', 'MethodSpec',
+                'REGISTRY', 'Selector', 'available_methods', 'load_method', 'register_method'),
+    'api': ('attack',),
+    'request': ('validate_request',),
+    'obstacles': ('OBSTACLES_FORMAT', 'OBSTACLES_VERSION', 'load_obstacles', 'obstacles_data',
+                  'obstacles_file_data', 'obstacles_meta', 'save_obstacles'),
+})

@@ -1,17 +1,21 @@
-"""The attack methods: one registry of names, selectors and what they need."""
+"""The attack methods: one registry of names, selectors and what they need.
+
+The registry itself loads no compiled kernel (the nodes validate method names with it); the
+selectors import the coverage kernels when they run."""
 
 from __future__ import annotations
 
 import dataclasses
 import importlib
 import logging
-from typing import Any, Callable
+from typing import TYPE_CHECKING, Any, Callable
 
 import numpy as np
 
-from advocc_ros.attack.coverage import greedy_cover, random_cover
-from advocc_ros.attack.region import SearchRegion
 from advocc_ros.attack.types import AttackConfig, Task
+
+if TYPE_CHECKING:
+    from advocc_ros.attack.region import SearchRegion
 
 log = logging.getLogger(__name__)
 
@@ -48,11 +52,13 @@ class MethodContext(Task):
 
 
 def _select_greedy(region: SearchRegion, budget: int, seed: int, cfg: AttackConfig):
+    from advocc_ros.attack.coverage import greedy_cover
     return greedy_cover(region.weights, region.candidates, region.k, budget,
                         region.d_min_m / region.grid.voxel_m, region.accept, cfg.max_rejections)
 
 
 def _select_random(region: SearchRegion, budget: int, seed: int, cfg: AttackConfig):
+    from advocc_ros.attack.coverage import random_cover
     return random_cover(region.weights, region.candidates, region.k, budget,
                         region.d_min_m / region.grid.voxel_m, np.random.default_rng(seed),
                         region.accept, cfg.max_rejections)

@@ -16,7 +16,7 @@ import pinocchio as pin
 from advocc_ros.attack.coverage import box_distance, box_half_voxels
 from advocc_ros.attack.types import AttackConfig
 from advocc_ros.heatmap import Heatmap, link_tables
-from advocc_ros.heatmap.build import HeatmapConfig, weight_config
+from advocc_ros.heatmap.config import HeatmapConfig, weight_config
 from advocc_ros.model.collision import coal_geometry, shared_world
 from advocc_ros.kinematics.ik import goal_configuration
 from advocc_ros.model.robot import RobotModel

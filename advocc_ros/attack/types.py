@@ -9,7 +9,7 @@ from typing import Any
 
 import numpy as np
 
-from advocc_ros.heatmap.build import HeatmapConfig
+from advocc_ros.heatmap.config import HeatmapConfig
 from advocc_ros.model.goal import GoalRegion
 from advocc_ros.model.robot import RobotModel
 from advocc_ros.model.scene import SceneObject, objects_to_data

@@ -22,7 +22,7 @@ import yaml
 
 from advocc_ros.attack.methods import REGISTRY
 from advocc_ros.attack.types import POLICIES
-from advocc_ros.heatmap.build import HeatmapConfig
+from advocc_ros.heatmap.config import HeatmapConfig
 from advocc_ros.limits import MAX_TRIALS
 from advocc_ros.planning.victims import OUTSIDE_LABELS
 
