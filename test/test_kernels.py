@@ -1,8 +1,9 @@
 """``python -m advocc_ros.attack.kernels`` (run by ``make install``) compiles every numba kernel
 of the package into numba's cache: after the warm-up, each ``@numba.njit`` function in the
-source is compiled in that process and its cache index is on disk, so a user's first heatmap or
-attack compiles none. After ``make install`` the warm-up loads them all from the cache (a few
-seconds); on a checkout whose cache is empty it compiles them (~30 s)."""
+source is compiled in that process, or reached from one that is (a kernel called only inside
+kernels is loaded from the cache with its callers), and its cache index is on disk, so a user's
+first heatmap or attack compiles none. After ``make install`` the warm-up loads them all from
+the cache (a few seconds); on a checkout whose cache is empty it compiles them (~30 s)."""
 
 import ast
 import json
