@@ -19,6 +19,7 @@ import signal
 import socket
 import subprocess
 import sys
+import tarfile
 import time
 
 import pytest
@@ -183,7 +184,8 @@ def test_a_version_1_build_record_reads_as_its_first_run(tmp_path):
     from advocc_ros.dataset import store
     from advocc_ros.dataset.heatmaps import file_sha256
 
-    published = json.loads((REPO / 'docs/results/mbm_dataset_train/build.json').read_text())
+    with tarfile.open(REPO / 'docs/results/mbm_dataset_train/hard_problems.tar.xz') as tar:
+        published = json.load(tar.extractfile('./build.json'))
     assert published['version'] == 1 and 'file' in published['settings']['heatmap']
     heatmap = tmp_path / 'robot.npz'
     heatmap.write_bytes(b'heatmap bytes')
