@@ -38,6 +38,7 @@ from typing import Any
 
 import numpy as np
 
+from advocc_ros.attack.exits import fewest_exits
 from advocc_ros.attack.methods import CONTEXT_METHODS, METHODS, REGISTRY, MethodContext
 from advocc_ros.attack.policy import apply_policy
 from advocc_ros.attack.region import search_region
@@ -140,17 +141,30 @@ def place_boxes(heatmap: Heatmap, task: Task, budget: int, method: str, cfg: Att
         stats.update(sample.stats, task_sampling_ms=round((time.perf_counter() - t) * 1e3, 1))
     region = search_region(heatmap, task.robot, task.objects, task.q_init, task.goal, cfg,
                            box_size_m)                                          # step 2
-    policed = apply_policy(task, region, cfg, witnesses,
-                           None if sample is None else sample.choice)           # step 3
-    extra = {}
-    if method in CONTEXT_METHODS:
-        extra['context'] = MethodContext.of(task, options, sample, policed)
-    picks, rejected, *more = METHODS[method](policed.region, budget, seed, cfg,
-                                             **extra)                           # steps 4-5
-    stats = {**region.stats, **policed.stats, **stats, **(more[0] if more else {}),
-             'rejected_picks': rejected}
-    obstacles = tuple(make_box(box_id(i), np.round(region.center_m(c), 9), (box_size_m,) * 3)
-                      for i, (c, _) in enumerate(picks))
+    choice = None if sample is None else sample.choice
+
+    def steps_3_to_5(kept: int | None = None) -> tuple:
+        policed = apply_policy(task, region, cfg, witnesses, choice, kept)      # step 3
+        extra = {}
+        if method in CONTEXT_METHODS:
+            extra['context'] = MethodContext.of(task, options, sample, policed)
+        picks, rejected, *more = METHODS[method](policed.region, budget, seed, cfg,
+                                                 **extra)                       # steps 4-5
+        return policed, picks, rejected, more[0] if more else {}
+
+    def boxes(placement: tuple) -> tuple[SceneObject, ...]:
+        return tuple(make_box(box_id(i), np.round(region.center_m(c), 9), (box_size_m,) * 3)
+                     for i, (c, _) in enumerate(placement[1]))
+
+    placement = steps_3_to_5()
+    if tries_exits(task, method, options, witnesses):
+        placement, exit_stats = fewest_exits(
+            task, witnesses, placement[0].stats.get('witness_kept', 0), placement,
+            steps_3_to_5, boxes, options.exit_rays, cfg.victim_margin_m)
+        stats.update(exit_stats)
+    policed, picks, rejected, method_stats = placement
+    stats = {**region.stats, **policed.stats, **stats, **method_stats, 'rejected_picks': rejected}
+    obstacles = boxes(placement)
     status, message = AttackStatus.SUCCESS, f'placed {len(obstacles)} boxes'
     if len(obstacles) < budget:
         status = AttackStatus.PARTIAL
@@ -161,6 +175,15 @@ def place_boxes(heatmap: Heatmap, task: Task, budget: int, method: str, cfg: Att
     return Placed(status, message, obstacles, tuple(float(m) for _, m in picks), stats, kept)
 
 
+def tries_exits(task: Task, method: str, options: Any, witnesses: tuple) -> bool:
+    """Whether step 3 is tried through steps 4-5 for each candidate witness
+    (``attack.exits``): ``task`` under ``solvable`` in the ``joint`` form, with
+    ``TaskOptions.exit_rays`` and more than one candidate."""
+    return (method == 'task' and task.policy == 'solvable' and task.goal.is_joint
+            and isinstance(options, TaskOptions) and options.exit_rays > 0
+            and len(witnesses) > 1)
+
+
 def _judged_witness(witnesses: tuple, solvable):
     """The witness a result reports: the one the verdict was proven with, else the first
     candidate."""
@@ -169,4 +192,4 @@ def _judged_witness(witnesses: tuple, solvable):
     return witnesses[0] if witnesses else None
 
 
-__all__ = ['Placed', 'attack', 'place_boxes']
+__all__ = ['Placed', 'attack', 'place_boxes', 'tries_exits']

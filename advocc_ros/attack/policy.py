@@ -63,10 +63,11 @@ class Policed:
 
 
 def apply_policy(task: Task, region: SearchRegion, cfg: AttackConfig, witnesses: tuple,
-                 Q_goal: np.ndarray | None) -> Policed:
+                 Q_goal: np.ndarray | None, kept: int | None = None) -> Policed:
     """The region under ``task.policy`` (module docstring). ``witnesses``: the candidate
     witnesses (``solvable`` needs at least one); ``Q_goal``: the task's goal sample (the
-    witness choice weighs the candidates on it)."""
+    witness choice weighs the candidates on it); ``kept``: keep this candidate instead of
+    choosing (``attack.exits`` tries them)."""
     if task.policy == 'reachable':
         guard = GoalGuard(goal_samples(task.robot, task.objects, task.goal), region.box_size_m,
                           cfg.reachable_fraction)
@@ -75,7 +76,7 @@ def apply_policy(task: Task, region: SearchRegion, cfg: AttackConfig, witnesses:
         scene = shared_world(task.robot, [sh for o in task.objects for sh in o.shapes])
         return keep_witness(task.robot, region, witnesses, Q_goal,
                             CERTIFICATE.guard_margin_m + cfg.victim_margin_m,
-                            scene, cfg.victim_margin_m)
+                            scene, cfg.victim_margin_m, kept)
     return Policed(region, {})
 
 
@@ -225,22 +226,31 @@ def _clear_of_scene(robot: RobotModel, scene: CollisionWorld | None, witnesses, 
         return []
     clearance = [None] * len(witnesses)
     for i in order:
-        states = witness_states(witnesses[i].configurations(robot), WITNESS_STEP_RAD)
-        clearance[i] = float(scene.scene_clearances(states, margin_m).min())
+        clearance[i] = scene_clearance(robot, scene, witnesses[i], margin_m)
         if clearance[i] >= margin_m:
             break
     return clearance
 
 
+def scene_clearance(robot: RobotModel, scene: CollisionWorld, witness: Witness,
+                    margin_m: float) -> float:
+    """Least clearance of ``witness`` from ``scene``, capped at ``margin_m`` [m], at the witness
+    search's step."""
+    states = witness_states(witness.configurations(robot), WITNESS_STEP_RAD)
+    return float(scene.scene_clearances(states, margin_m).min())
+
+
 def keep_witness(robot: RobotModel, region: SearchRegion, witnesses: tuple,
                  Q_goal: np.ndarray | None, clearance_m: float = CERTIFICATE.guard_margin_m,
-                 scene: CollisionWorld | None = None, scene_margin_m: float = 0.0) -> Policed:
+                 scene: CollisionWorld | None = None, scene_margin_m: float = 0.0,
+                 kept: int | None = None) -> Policed:
     """The ``solvable`` policy: the kept candidate (``choose_witness``, preferring those that
-    keep ``scene_margin_m`` from ``scene``), its guard (boxes keep ``clearance_m`` from its
-    body: the guard margin plus ``AttackConfig.victim_margin_m``), and the region without the
-    candidates its body touches on the lattice."""
+    keep ``scene_margin_m`` from ``scene``, or the candidate ``kept``), its guard (boxes keep
+    ``clearance_m`` from its body: the guard margin plus ``AttackConfig.victim_margin_m``),
+    and the region without the candidates its body touches on the lattice."""
     world = shared_world(robot)
-    choice = choose_witness(robot, world, region, witnesses, Q_goal, scene, scene_margin_m)
+    choice = (WitnessChoice(kept, []) if kept is not None else
+              choose_witness(robot, world, region, witnesses, Q_goal, scene, scene_margin_m))
     stats = {} if len(witnesses) == 1 else dict(
         witness_candidates=len(witnesses), witness_kept=choice.kept,
         witness_shielded=choice.shielded)
@@ -260,4 +270,5 @@ def keep_witness(robot: RobotModel, region: SearchRegion, witnesses: tuple,
 
 
 __all__ = ['GoalGuard', 'Policed', 'WITNESS_BODIES', 'WitnessBodies', 'WitnessChoice',
-           'WitnessGuard', 'apply_policy', 'choose_witness', 'keep_witness', 'witness_bodies']
+           'WitnessGuard', 'apply_policy', 'choose_witness', 'keep_witness', 'scene_clearance',
+           'witness_bodies']

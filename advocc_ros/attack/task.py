@@ -67,6 +67,11 @@ class TaskOptions:
     configuration weight 1, like the ``region`` form's goal sample: the boxes first close the
     pocket to the sliver the witness keeps); 0: the pocket is covered with the approaches,
     weighted by w(q)."""
+    exit_rays: int = 0
+    """Under the ``joint`` form and the ``solvable`` policy, > 0: the boxes are placed for every
+    candidate witness that keeps the victim margin from the scene, and the placement that
+    leaves the fewest of this many RRT steps from the goal collision-free is kept
+    (``attack.exits``); 0: the policy's choice alone."""
 
     def __post_init__(self):
         for name, (valid, allowed) in OPTION_VALUES.items():
@@ -93,6 +98,7 @@ OPTION_VALUES = {
     'pocket_samples': (lambda v: 0 <= v <= MAX_SAMPLES, f'an integer in [0, {MAX_SAMPLES}]'),
     'pocket_rad': (lambda v: 0 <= v < math.inf, 'a finite number >= 0'),
     'pocket_tier': (lambda v: v in (0, 1), '0 or 1'),
+    'exit_rays': (lambda v: 0 <= v <= MAX_SAMPLES, f'an integer in [0, {MAX_SAMPLES}]'),
 }
 """What each :class:`TaskOptions` field accepts: (test, the words an error shows)."""
 

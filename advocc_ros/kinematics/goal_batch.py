@@ -141,6 +141,43 @@ def goal_pocket(robot: RobotModel, world: CollisionWorld, goal: GoalRegion, samp
     return Q[~world.collisions_batch(Q, THREADS)] if len(Q) else Q
 
 
+RAY_RANGE_FRACTION = 0.2
+"""An RRT's step, as a fraction of the joint space's diagonal: OMPL's default ``range``
+(``SelfConfig::configurePlannerRange``), which RRTConnect and AORRTC take unless told."""
+RAY_STEP_RAD = 0.05
+"""Spacing of the configurations checked along a goal ray [rad]."""
+
+
+def goal_ray_ends(robot: RobotModel, q_goal: np.ndarray, rays: int) -> np.ndarray:
+    """(rays, nq) ends of an RRT's first steps from ``q_goal``: towards uniform states within
+    the joint limits, cut at OMPL's default range (:data:`RAY_RANGE_FRACTION`); seed
+    ``POCKET_SEED``, so a task's rays are the same each time."""
+    rng = np.random.default_rng(POCKET_SEED)
+    reach = RAY_RANGE_FRACTION * float(np.linalg.norm(robot.upper - robot.lower))
+    target = robot.lower + (robot.upper - robot.lower) * rng.random((rays, robot.nq))
+    offset = target - q_goal
+    length = np.linalg.norm(offset, axis=1)
+    return q_goal + offset * np.minimum(1.0, reach / np.maximum(length, 1e-12))[:, None]
+
+
+def free_rays(world: CollisionWorld, q_goal: np.ndarray, ends: np.ndarray,
+              step_rad: float = RAY_STEP_RAD) -> np.ndarray:
+    """Mask of the straight motions from ``q_goal`` to the rows of ``ends`` with no
+    configuration in collision every ``step_rad`` (the goal itself not checked), checked
+    outwards from the goal in batches, so that a ray costs the checks up to its first
+    collision (most hit something close to a goal the scene closes in on)."""
+    steps = np.maximum(np.ceil(np.linalg.norm(ends - q_goal, axis=1) / step_rad), 1)
+    free = np.ones(len(ends), dtype=bool)
+    for k in range(1, int(steps.max(initial=0)) + 1):
+        alive = np.flatnonzero(free & (steps >= k))
+        if not len(alive):
+            break
+        t = (k / steps[alive])[:, None]
+        Q = q_goal + t * (ends[alive] - q_goal)
+        free[alive[world.collisions_batch(Q, THREADS)]] = False
+    return free
+
+
 def _read(path: pathlib.Path, robot: RobotModel, goal: GoalRegion, collisions, n: int
           ) -> GoalDraw | None:
     """The sample kept in ``path`` if it still is one of this task (else None, with a warning
@@ -188,5 +225,6 @@ def rarest_first(Q: np.ndarray, k: int = RARITY_NEIGHBOUR) -> np.ndarray:
     return np.argsort(-kth, kind='stable')
 
 
-__all__ = ['ATTEMPTS_PER_SAMPLE', 'GoalDraw', 'POCKET_SEED', 'TASK_GOALS', 'TASK_GOAL_SAMPLES',
-           'goal_pocket', 'planner_goals', 'rarest_first', 'task_goals']
+__all__ = ['ATTEMPTS_PER_SAMPLE', 'GoalDraw', 'POCKET_SEED', 'RAY_RANGE_FRACTION', 'RAY_STEP_RAD',
+           'TASK_GOALS', 'TASK_GOAL_SAMPLES', 'free_rays', 'goal_pocket', 'goal_ray_ends',
+           'planner_goals', 'rarest_first', 'task_goals']

@@ -1,0 +1,83 @@
+"""Step 3, tried through steps 4-5 (``TaskOptions.exit_rays``, ``joint`` form, ``solvable``):
+the witness kept for the goal exits its boxes leave (docs/goal_forms.md).
+
+An RRT tree rooted at a joint goal grows only by a collision-free straight step (OMPL's default
+range) towards a uniform sample. While the boxes close the goal in, a planner that grows its
+smaller tree (AORRTC) spends most of its samples there and gets out after about 1/p of them, p
+the share of such steps that are free. The boxes may not touch the kept witness, so p is set by
+where that witness leaves the goal, and no property of the witness alone predicted it on the
+train split ([mbm_joint_train](../../docs/results/mbm_joint_train/README.md)). So the boxes are
+placed for each candidate witness that keeps the victim margin from the scene, and the
+placement whose goal leaves the fewest of ``exit_rays`` fixed steps free is kept (the policy's
+own choice wins ties). Only collision checks: no planner is queried.
+"""
+
+from __future__ import annotations
+
+from typing import Callable, TypeVar
+
+import numpy as np
+
+from advocc_ros.attack.policy import scene_clearance
+from advocc_ros.attack.types import Task
+from advocc_ros.kinematics.goal_batch import free_rays, goal_ray_ends
+from advocc_ros.model.collision import CollisionWorld, shared_world
+from advocc_ros.model.scene import SceneObject
+
+Placement = TypeVar('Placement')
+
+
+class GoalExits:
+    """The task's goal rays (``kinematics.goal_batch.goal_ray_ends``) that are free on the
+    unattacked scene, and how many of them a set of boxes leaves free."""
+
+    def __init__(self, task: Task, rays: int):
+        self.robot = task.robot
+        self.q_goal = task.goal.configuration(task.robot.joint_names)
+        scene = shared_world(task.robot, [sh for o in task.objects for sh in o.shapes])
+        ends = goal_ray_ends(task.robot, self.q_goal, rays)
+        self.ends = ends[free_rays(scene, self.q_goal, ends)]
+        self.rays = rays
+
+    def left_free(self, boxes: tuple[SceneObject, ...]) -> int:
+        """Rays free on the scene that ``boxes`` leave free (checked at the same states, so it
+        is the count on the scene with the boxes)."""
+        if not boxes or not len(self.ends):
+            return len(self.ends)
+        world = CollisionWorld(self.robot, [sh for o in boxes for sh in o.shapes])
+        return int(free_rays(world, self.q_goal, self.ends).sum())
+
+
+def margin_keepers(task: Task, witnesses: tuple, margin_m: float) -> list[int]:
+    """Indices of the candidate witnesses that keep ``margin_m`` from the task's scene (all of
+    them when there is no margin or no scene)."""
+    scene = shared_world(task.robot, [sh for o in task.objects for sh in o.shapes])
+    if not margin_m > 0 or not scene.shapes:
+        return list(range(len(witnesses)))
+    return [i for i, w in enumerate(witnesses)
+            if scene_clearance(task.robot, scene, w, margin_m) >= margin_m]
+
+
+def fewest_exits(task: Task, witnesses: tuple, chosen: int, first: Placement,
+                 place: Callable[[int], Placement],
+                 boxes_of: Callable[[Placement], tuple[SceneObject, ...]], rays: int,
+                 margin_m: float) -> tuple[Placement, dict]:
+    """The placement (``first``: for the policy's choice ``chosen``; ``place(k)``: for
+    candidate k) whose boxes leave the goal the fewest free rays, among the candidates that
+    keep ``margin_m`` from the scene; and the step's statistics."""
+    exits = GoalExits(task, rays)
+    tried = {chosen: (first, exits.left_free(boxes_of(first)))}
+    keepers = margin_keepers(task, witnesses, margin_m)
+    if chosen in keepers:
+        for k in keepers:
+            if k not in tried:
+                placement = place(k)
+                tried[k] = (placement, exits.left_free(boxes_of(placement)))
+    best = min(tried, key=lambda k: (tried[k][1], k != chosen))
+    stats = {'goal_exit_rays': rays, 'goal_exits_unattacked': len(exits.ends),
+             'witness_exits': {int(k): n for k, (_, n) in sorted(tried.items())},
+             'witness_kept_for_exits': int(best), 'goal_exits': tried[best][1]}
+    return tried[best][0], stats
+
+
+__all__ = ['GoalExits', 'fewest_exits', 'margin_keepers']
