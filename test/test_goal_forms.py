@@ -200,6 +200,65 @@ def test_a_larger_pocket_sample_holds_the_smaller_and_stays_around_the_goal():
     assert len(goal_pocket(robot, world, scene.goal, 0, 0.2)) == 0
 
 
+def test_goal_rays_are_rrt_steps_from_the_goal_and_free_ones_are_checked_outwards():
+    """``goal_ray_ends``: the same steps each time, each an RRT step (OMPL's default range) or
+    shorter towards a state within the limits; ``free_rays`` agrees with checking every state
+    of each motion, and a box around the hand closes them all."""
+    from advocc_ros.kinematics.goal_batch import (RAY_RANGE_FRACTION, RAY_STEP_RAD, free_rays,
+                                                  goal_ray_ends)
+
+    scene, robot, _ = _problem('box')
+    world = CollisionWorld(robot, scene.shapes)
+    q_goal = scene.goal.configuration(robot.joint_names)
+    ends = goal_ray_ends(robot, q_goal, 400)
+    np.testing.assert_array_equal(ends, goal_ray_ends(robot, q_goal, 400))
+    reach = np.linalg.norm(ends - q_goal, axis=1)
+    assert reach.max() <= RAY_RANGE_FRACTION * np.linalg.norm(robot.upper - robot.lower) + 1e-9
+    assert np.all((ends >= robot.lower - 1e-9) & (ends <= robot.upper + 1e-9))
+    free = free_rays(world, q_goal, ends)
+    brute = []
+    for end in ends:
+        n = max(int(np.ceil(np.linalg.norm(end - q_goal) / RAY_STEP_RAD)), 1)
+        brute.append(world.first_collision(q_goal + np.arange(1, n + 1)[:, None] / n
+                                           * (end - q_goal)) < 0)
+    np.testing.assert_array_equal(free, brute)
+    assert 0 < free.sum() < len(ends)  # the box the hand reaches into closes most, not all
+    boxed = CollisionWorld(robot, list(scene.shapes) + list(
+        make_box('cage', scene.goal.center.position_m, (0.3, 0.3, 0.3)).shapes))
+    assert not free_rays(boxed, q_goal, ends).any()
+
+
+def test_exit_rays_keeps_the_witness_whose_boxes_leave_the_goal_fewest_exits(box_heatmap):
+    """``exit_rays``: the boxes are placed for every candidate witness that keeps the margin,
+    and the placement kept is the one with the fewest free goal rays, a count the attack's
+    boxes reproduce; the witness it keeps is certified with them."""
+    from advocc_ros.attack import AttackConfig
+    from advocc_ros.attack.edges import attack_task
+    from advocc_ros.attack.exits import GoalExits
+    from advocc_ros.attack.task import TaskOptions
+    from advocc_ros.attack.types import Task
+
+    scene, robot, q_init = _problem('box')
+    cfg = AttackConfig(goal_policy='solvable', victim_margin_m=0.004)
+    result = attack_task(box_heatmap, robot, scene.objects, q_init, scene.goal, 4, 'task', cfg,
+                         method_options=TaskOptions(pocket_tier=1, exit_rays=4096))
+    assert result.status.ok, result.message
+    stats = result.stats
+    tried = stats['witness_exits']
+    assert len(tried) > 1 and stats['goal_exit_rays'] == 4096
+    assert stats['goal_exits'] == min(tried.values()) == tried[stats['witness_kept']]
+    assert stats['witness_kept_for_exits'] == stats['witness_kept']
+    task = Task(robot, scene.objects, q_init, scene.goal, 'solvable')
+    exits = GoalExits(task, 4096)
+    assert len(exits.ends) == stats['goal_exits_unattacked'] > stats['goal_exits']
+    assert exits.left_free(result.obstacles) == stats['goal_exits']
+    assert result.solvable.verdict.value == 'certified'
+    plain = attack_task(box_heatmap, robot, scene.objects, q_init, scene.goal, 4, 'task', cfg,
+                        method_options=TaskOptions(pocket_tier=1))
+    assert 'witness_exits' not in plain.stats
+    assert exits.left_free(plain.obstacles) >= stats['goal_exits']
+
+
 def test_only_the_region_form_keeps_boxes_off_the_goal_region(box_heatmap):
     """The region form's C3 keeps d_safe (10 cm) from the goal region's position box; the joint
     form keeps the goal's body clear instead, so boxes may close in around the hand."""

@@ -11,7 +11,8 @@ each a function from data to data in a module of its own, and gathers their stat
    ``solvable``;
 2. the search region, C1-C3 (``attack.region.search_region``);
 3. the goal policy (``attack.policy.apply_policy``; under ``solvable`` the witness and its
-   choice);
+   choice; in the ``joint`` form with ``TaskOptions.exit_rays``, steps 3-5 run for each
+   candidate witness and ``attack.exits.fewest_exits`` keeps one placement);
 4. and 5. the method (``attack.methods.REGISTRY``): for ``task`` its objective
    (``attack.objective``) and one greedy pass (``attack.greedy``); ``ours`` (the paper's
    heatmap-mass greedy), ``random``, ``pfa``, ``pfa++`` choose from the region their own way;

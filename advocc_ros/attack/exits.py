@@ -16,8 +16,6 @@ from __future__ import annotations
 
 from typing import Callable, TypeVar
 
-import numpy as np
-
 from advocc_ros.attack.policy import scene_clearance
 from advocc_ros.attack.types import Task
 from advocc_ros.kinematics.goal_batch import free_rays, goal_ray_ends

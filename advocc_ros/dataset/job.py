@@ -73,11 +73,13 @@ class BuildConfig:
     requests."""
     seed: int = 0
     """Attack seed; trial k of every victim uses seed ``seed + k``."""
-    task_options: tuple[tuple[str, Any], ...] = (('pocket_samples', 4096), ('pocket_tier', 1))
+    task_options: tuple[tuple[str, Any], ...] = (('exit_rays', 65536), ('pocket_samples', 4096),
+                                                 ('pocket_tier', 1))
     """``TaskOptions`` of the attack that differ from their defaults (key, value). The data
     set's default closes a joint goal's pocket first (``pocket_tier``), sampled 16 times as
-    densely as the attack's own default (``pocket_samples``), both chosen on the train split
-    (docs/results/mbm_joint_train)."""
+    densely as the attack's own default (``pocket_samples``), and keeps the witness whose boxes
+    leave the goal fewest free RRT steps (``exit_rays``, ``attack.exits``), all chosen on the
+    train split (docs/results/mbm_joint_train)."""
     goal_tol: str | None = None
     """Goal tolerance around a joint goal in the region form (``--goal-tol``; None: the
     default region)."""

@@ -112,6 +112,8 @@ _TASK_DOC = {
     'pocket_samples': 'joint goals: configurations drawn around the goal (its pocket)',
     'pocket_rad': 'joint goals: perturbation of the goal in its pocket per joint [rad]',
     'pocket_tier': 'joint goals, 1: the goal\'s pocket is the first tier (0: with the approaches)',
+    'exit_rays': 'joint goals, solvable: keep the witness whose boxes leave fewest of this many '
+                 'RRT steps from the goal free (0: off)',
 }
 
 
