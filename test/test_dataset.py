@@ -356,6 +356,7 @@ def test_build_on_embedded_ray(built, problems):
         hardness = json.loads((folder / 'hardness.json').read_text())
         attack = hardness['attacks']['1']
         assert attack['certificate'] == 'certified' and attack['boxes'] == 1
+        assert attack['witness_candidates'] >= 1 and 'goal_exits' not in attack  # exit_rays=0
         cell = attack['victims']['rrtconnect']
         assert cell['trials'] == 1 and 'first_solution_median_s' in cell and 'pt_ratio' in cell
         assert hardness['unattacked']['rrtconnect']['trials'] == 1

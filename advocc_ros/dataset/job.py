@@ -357,6 +357,10 @@ def mplib_witness_check(scene, robot, q_init, witness) -> dict:
             'accepted': not bool(colliding.any())}
 
 
+EXIT_STATS = ('goal_exit_rays', 'goal_exits_unattacked', 'goal_exits', 'witness_exits')
+"""The attack's statistics of ``attack.exits`` a hardness file keeps (when it chose by them)."""
+
+
 def _attack_entry(result, scene, robot, q_init, wall_s: float):
     """The hardness file's record of one attack, and the attacked scene when its witness is
     certified with the boxes (else None)."""
@@ -373,7 +377,9 @@ def _attack_entry(result, scene, robot, q_init, wall_s: float):
              'certificate_message': verdict.message if verdict is not None else '',
              'goal_valid_fraction': result.goal_valid_fraction, 'exported': None,
              'boxes_m': [[float(v) for v in o.shapes[0].pose.position_m]
-                         for o in result.obstacles], 'victims': {}}
+                         for o in result.obstacles], 'victims': {},
+             'witness_candidates': result.stats.get('witness_candidates', 1),
+             **{key: result.stats[key] for key in EXIT_STATS if key in result.stats}}
     if not result.status.ok or verdict is None or not verdict.certified:
         return entry, None
     attacked = scene.with_objects(result.obstacles)
