@@ -248,6 +248,8 @@ def test_exit_rays_keeps_the_witness_whose_boxes_leave_the_goal_fewest_exits(box
     assert len(tried) > 1 and stats['goal_exit_rays'] == 4096
     assert stats['goal_exits'] == min(tried.values()) == tried[stats['witness_kept']]
     assert stats['witness_kept_for_exits'] == stats['witness_kept']
+    clearance = stats['witness_scene_clearance_m']  # every candidate measured, capped at 4 mm
+    assert len(clearance) >= len(tried) and clearance[stats['witness_kept']] >= 0.004 - 1e-9
     task = Task(robot, scene.objects, q_init, scene.goal, 'solvable')
     exits = GoalExits(task, 4096)
     assert len(exits.ends) == stats['goal_exits_unattacked'] > stats['goal_exits']

@@ -46,14 +46,13 @@ class GoalExits:
         return int(free_rays(world, self.q_goal, self.ends).sum())
 
 
-def margin_keepers(task: Task, witnesses: tuple, margin_m: float) -> list[int]:
-    """Indices of the candidate witnesses that keep ``margin_m`` from the task's scene (all of
-    them when there is no margin or no scene)."""
+def scene_clearances(task: Task, witnesses: tuple, margin_m: float) -> list[float] | None:
+    """Each candidate witness's least clearance from the task's scene, capped at ``margin_m``
+    [m]; None when there is no margin or no scene (every candidate keeps it)."""
     scene = shared_world(task.robot, [sh for o in task.objects for sh in o.shapes])
     if not margin_m > 0 or not scene.shapes:
-        return list(range(len(witnesses)))
-    return [i for i, w in enumerate(witnesses)
-            if scene_clearance(task.robot, scene, w, margin_m) >= margin_m]
+        return None
+    return [scene_clearance(task.robot, scene, w, margin_m) for w in witnesses]
 
 
 def fewest_exits(task: Task, witnesses: tuple, chosen: int, first: Placement,
@@ -65,7 +64,8 @@ def fewest_exits(task: Task, witnesses: tuple, chosen: int, first: Placement,
     keep ``margin_m`` from the scene; and the step's statistics."""
     exits = GoalExits(task, rays)
     tried = {chosen: (first, exits.left_free(boxes_of(first)))}
-    keepers = margin_keepers(task, witnesses, margin_m)
+    clearance = scene_clearances(task, witnesses, margin_m)
+    keepers = [k for k in range(len(witnesses)) if clearance is None or clearance[k] >= margin_m]
     if chosen in keepers:
         for k in keepers:
             if k not in tried:
@@ -75,7 +75,9 @@ def fewest_exits(task: Task, witnesses: tuple, chosen: int, first: Placement,
     stats = {'goal_exit_rays': rays, 'goal_exits_unattacked': len(exits.ends),
              'witness_exits': {int(k): n for k, (_, n) in sorted(tried.items())},
              'witness_kept_for_exits': int(best), 'goal_exits': tried[best][1]}
+    if clearance is not None:
+        stats['witness_scene_clearance_m'] = [round(c, 6) for c in clearance]
     return tried[best][0], stats
 
 
-__all__ = ['GoalExits', 'fewest_exits', 'margin_keepers']
+__all__ = ['GoalExits', 'fewest_exits', 'scene_clearances']
