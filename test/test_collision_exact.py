@@ -2,7 +2,7 @@
 
 ``CollisionWorld.in_collision`` (broad phase, used for every state OMPL samples),
 ``collisions_batch`` and ``first_collision`` (the motion validator) against pinocchio's
-all-pairs ``computeCollisions`` over the same geometry model and SRDF pairs, on 100,000 random
+all-pairs ``computeCollisions`` over the same geometry model and SRDF pairs, on 40,000 random
 configurations per shipped scene. And the motion validator against OMPL's own
 ``DiscreteMotionValidator`` on random motions.
 """
@@ -18,7 +18,7 @@ from advocc_ros.model.robot import load_robot
 from advocc_ros.model.scene import load_scene
 
 SCENES = sorted((pathlib.Path(__file__).resolve().parents[1] / 'config' / 'scenes').glob('*.yaml'))
-N_CONFIGS = 100_000
+N_CONFIGS = 40_000
 
 
 def _all_pairs(world: CollisionWorld, Q: np.ndarray) -> np.ndarray:
@@ -30,7 +30,7 @@ def _all_pairs(world: CollisionWorld, Q: np.ndarray) -> np.ndarray:
                                                       False), dtype=bool)
 
 
-@pytest.mark.slow  # 100,000 configurations per scene, checked twice
+@pytest.mark.slow  # 40,000 configurations per scene, checked three times
 @pytest.mark.parametrize('path', SCENES, ids=[p.stem for p in SCENES])
 def test_broad_phase_matches_all_pairs(path):
     scene = load_scene(path)

@@ -391,41 +391,6 @@ def test_build_on_embedded_ray(built, problems):
     assert (out / 'summary.png').read_bytes()[:4] == b'\x89PNG'
 
 
-@pytest.mark.processes
-def test_both_goal_forms_are_data_sets_of_their_own(tmp_path, problems, robot_heatmap):
-    """--goal-form both: OUT/joint and OUT/region, each record and row naming its form, built
-    on one Ray (started once: the same driver node); the joint export's request holds the
-    request's own goal configuration and nothing else, and its witness ends there."""
-    from advocc_ros.formats.mbm_export import load_trajectory
-    from advocc_ros.formats.mbm_request import load_request
-    from advocc_ros.model.robot import load_robot
-
-    out = tmp_path / 'out'
-    run = _run(['--problems', problems, '--out', out, '--families', 'box', '--limit', 1,
-                '--heatmap', robot_heatmap] + TINY[:-2] + ['--goal-form', 'both'])
-    assert run.returncode == 0, run.stderr[-3000:]
-    for form in ('joint', 'region'):
-        assert _build_record(out / form)['settings']['build']['goal_form'] == form
-        [(key, record)] = _records(out / form).items()
-        assert record['outcome'] == 'built', record
-        attack = json.loads((out / form / key / 'hardness.json').read_text())['attacks']['1']
-        assert attack['goal_form'] == form
-        assert f',{form},built,' in (out / form / 'problems.csv').read_text()
-        assert f'goal form `{form}`' in (out / form / 'summary.md').read_text()
-    [joint], [region] = (_build_record(out / form)['runs'] for form in ('joint', 'region'))
-    assert joint['cluster']['driver_node'] == region['cluster']['driver_node']
-    key, _ = next(iter(_records(out / 'joint').items()))
-    family, number = key.split('/')
-    folder = out / 'joint' / key / 'm1'
-    robot = load_robot()
-    own = load_request(problems / family / f'request{number}.yaml', robot).goal
-    exported = load_request(folder / f'request{number}.yaml', robot)
-    assert exported.goal == own and exported.goal_region is None
-    names, waypoints = load_trajectory(folder / f'trajectory{number}.yaml')
-    assert [waypoints[-1][names.index(j)] for j in robot.joint_names] == \
-        pytest.approx([own[j] for j in robot.joint_names], abs=1e-9)
-
-
 @pytest.mark.processes  # the `built` fixture runs a build
 def test_every_table_row_names_its_making(built):
     """problems.csv: per problem, the unattacked row and the attacked one, each with its
@@ -699,7 +664,7 @@ def _stop(proc: subprocess.Popen) -> None:
 
 
 @pytest.mark.processes
-def test_build_on_a_two_node_ray_cluster(tmp_path, robot_heatmap):
+def test_both_goal_forms_build_on_a_two_node_ray_cluster(tmp_path, robot_heatmap):
     port = _free_port()
     # A token of the test's own for every process of this cluster (none is read from or
     # written to ~/.ray).
@@ -729,20 +694,53 @@ def test_build_on_a_two_node_ray_cluster(tmp_path, robot_heatmap):
         out = tmp_path / 'out'
         address = ['--ray-address', f'127.0.0.1:{port}']
         args = ['--problems', REAL, '--families', 'box,table_pick', '--out', out, '--heatmap',
-                robot_heatmap] + address + TINY
+                robot_heatmap] + address + TINY[:-2] + ['--goal-form', 'both']
         refused = _run(args, env=env)  # 2 CPUs per problem by default: no node has them
         assert refused.returncode == 2 and 'no node of the Ray cluster' in refused.stderr
+        assert not out.exists()  # refused before anything was written
         run = _run(args + ['--cpus-per-problem', 1], env=env)
         assert run.returncode == 0, run.stderr[-3000:]
-        records = _records(out)
-        assert [r['outcome'] for r in records.values()] == ['built', 'built'], records
-        # One CPU per node and two problems at once: one problem ran on each node.
-        assert len({r['provenance']['node'] for r in records.values()}) == 2, records
-        entry = _build_record(out)['runs'][-1]
-        assert entry['cluster']['nodes'] == 2 and entry['cluster']['resources']['CPU'] == 2
-        assert entry['timing']['victims_cpus_alone'] is False
-        for key in records:  # the logs came back with the results
-            assert 'attack at M=1' in (out / 'logs' / f'{key}.log').read_text()
+        for form in ('joint', 'region'):
+            records = _records(out / form)
+            assert [r['outcome'] for r in records.values()] == ['built', 'built'], records
+            # One CPU per node and two problems at once: one problem ran on each node.
+            assert len({r['provenance']['node'] for r in records.values()}) == 2, records
+            entry = _build_record(out / form)['runs'][-1]
+            assert entry['cluster']['nodes'] == 2 and entry['cluster']['resources']['CPU'] == 2
+            assert entry['timing']['victims_cpus_alone'] is False
+            for key in records:  # the logs came back with the results
+                assert 'attack at M=1' in (out / form / 'logs' / f'{key}.log').read_text()
+        _both_goal_forms(out)
     finally:
         for proc in reversed(nodes):
             _stop(proc)
+
+
+def _both_goal_forms(out: pathlib.Path) -> None:
+    """--goal-form both: OUT/joint and OUT/region, each record and row naming its form, built
+    on one Ray (started once: the same driver node); the joint export's request holds the
+    request's own goal configuration and nothing else, and its witness ends there."""
+    from advocc_ros.formats.mbm_export import load_trajectory
+    from advocc_ros.formats.mbm_request import load_request
+    from advocc_ros.model.robot import load_robot
+
+    for form in ('joint', 'region'):
+        assert _build_record(out / form)['settings']['build']['goal_form'] == form
+        for key, record in _records(out / form).items():
+            assert record['outcome'] == 'built', record
+            attack = json.loads((out / form / key / 'hardness.json').read_text())['attacks']['1']
+            assert attack['goal_form'] == form
+        assert f',{form},built,' in (out / form / 'problems.csv').read_text()
+        assert f'goal form `{form}`' in (out / form / 'summary.md').read_text()
+    [joint], [region] = (_build_record(out / form)['runs'] for form in ('joint', 'region'))
+    assert joint['cluster']['driver_node'] == region['cluster']['driver_node']
+    robot = load_robot()
+    for key in _records(out / 'joint'):
+        family, number = key.split('/')
+        folder = out / 'joint' / key / 'm1'
+        own = load_request(REAL / family / f'request{number}.yaml', robot).goal
+        exported = load_request(folder / f'request{number}.yaml', robot)
+        assert exported.goal == own and exported.goal_region is None
+        names, waypoints = load_trajectory(folder / f'trajectory{number}.yaml')
+        assert [waypoints[-1][names.index(j)] for j in robot.joint_names] == \
+            pytest.approx([own[j] for j in robot.joint_names], abs=1e-9)

@@ -132,6 +132,7 @@ def build(selection: Selection, out: str | pathlib.Path, config: BuildConfig,
     echo = echo or (lambda text: print(text, file=sys.stderr, flush=True))
     out = pathlib.Path(out)
     problems, todo, settings, given, hashes, scenes = _checked(selection, out, config, run)
+    slots = _slots(cluster.ray(), run.cpus_per_problem) if todo else 0  # refused: nothing written
     out.mkdir(parents=True, exist_ok=True)
     with store.locked(out):
         record = store.check_settings(out, settings) or {
@@ -149,7 +150,7 @@ def build(selection: Selection, out: str | pathlib.Path, config: BuildConfig,
                                           given, workers=available_cpus(), echo=echo)
                 entry['heatmaps'] = {h: settings['heatmap'].get('sha256') or file_sha256(
                     heatmap_path(out, h)) for h in heatmaps}
-                _run(todo, out, config, cluster, echo, entry, hashes, heatmaps)
+                _run(todo, out, config, cluster, slots, echo, entry, hashes, heatmaps)
             entry['status'] = 'finished'
         except BaseException as exc:
             stopped = isinstance(exc, (KeyboardInterrupt, SystemExit))
@@ -285,10 +286,10 @@ def _slots(ray, cpus: float) -> int:
     return slots
 
 
-def _run(todo: list[Problem], out: pathlib.Path, config: BuildConfig, cluster: Cluster, echo,
-         entry: dict, hashes: dict, heatmaps: dict) -> None:
-    """Run ``todo`` on ``cluster``, writing each result as it arrives; ``entry['counts']``
-    counts the outcomes so far."""
+def _run(todo: list[Problem], out: pathlib.Path, config: BuildConfig, cluster: Cluster,
+         slots: int, echo, entry: dict, hashes: dict, heatmaps: dict) -> None:
+    """Run ``todo`` on ``cluster``, ``slots`` problems at once, writing each result as it
+    arrives; ``entry['counts']`` counts the outcomes so far."""
     from advocc_ros.progress import progress_bar
 
     run = cluster.run
@@ -301,7 +302,6 @@ def _run(todo: list[Problem], out: pathlib.Path, config: BuildConfig, cluster: C
         entry['cluster'] = {'address': run.ray_address or 'local', 'driver_node': node,
                             'resources': ray.cluster_resources(),
                             'nodes': len([n for n in ray.nodes() if n.get('Alive')])}
-        slots = _slots(ray, run.cpus_per_problem)
         task = _task(ray, run)
         refs = {h: ray.put(hm) for h, hm in heatmaps.items()}
         queue = collections.deque(todo)
