@@ -697,7 +697,7 @@ def test_both_goal_forms_build_on_a_two_node_ray_cluster(tmp_path, robot_heatmap
                 robot_heatmap] + address + TINY[:-2] + ['--goal-form', 'both']
         refused = _run(args, env=env)  # 2 CPUs per problem by default: no node has them
         assert refused.returncode == 2 and 'no node of the Ray cluster' in refused.stderr
-        assert not out.exists()  # refused before anything was written
+        assert not (out / 'build.json').exists()  # refused before any record was written
         run = _run(args + ['--cpus-per-problem', 1], env=env)
         assert run.returncode == 0, run.stderr[-3000:]
         for form in ('joint', 'region'):

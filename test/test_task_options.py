@@ -36,6 +36,7 @@ def test_a_valid_mapping_gives_the_options_the_rest_default():
     ({'pocket_samples': 65537}, 'pocket_samples must be an integer in [0, 65536], got 65537'),
     ({'pocket_rad': float('inf')}, 'pocket_rad must be a finite number >= 0, got inf'),
     ({'exit_rays': 65537}, 'exit_rays must be an integer in [0, 65536], got 65537'),
+    ({'exit_rounds': 9}, 'exit_rounds must be an integer in [0, 8], got 9'),
     ('detours=1', 'expected a mapping of option: value'),
 ])
 def test_unknown_options_wrong_types_and_bad_values_are_refused_by_name(mapping, words):
@@ -130,10 +131,10 @@ def test_server_parameters_of_the_bench_setting():
 
 
 def test_the_data_set_closes_a_joint_goals_pocket_first_unless_told_otherwise():
-    """``dataset build``'s task options default to ``pocket_tier=1``, ``pocket_samples=4096``
-    and ``exit_rays=65536`` (chosen on the train split; the attack's own defaults stay 0, 256
-    and 0); a given option overrides them, and the attack's defaults give the settings of a
-    folder built before."""
+    """``dataset build``'s task options default to ``pocket_tier=1``, ``pocket_samples=4096``,
+    ``exit_rays=65536`` and ``exit_rounds=3`` (chosen on the train split; the attack's own
+    defaults stay 0, 256, 0 and 0); a given option overrides them, and the attack's defaults
+    give the settings of a folder built before."""
     import argparse
 
     from advocc_ros.commands import dataset
@@ -146,11 +147,12 @@ def test_the_data_set_closes_a_joint_goals_pocket_first_unless_told_otherwise():
         return dict(dataset._config(args)[0].task_options)
 
     assert TaskOptions().pocket_tier == 0 and TaskOptions().pocket_samples == 256
-    assert TaskOptions().exit_rays == 0
-    built = {'pocket_tier': 1, 'pocket_samples': 4096, 'exit_rays': 65536}
+    assert TaskOptions().exit_rays == 0 and TaskOptions().exit_rounds == 0
+    built = {'pocket_tier': 1, 'pocket_samples': 4096, 'exit_rays': 65536, 'exit_rounds': 3}
     assert build_options() == built
     assert build_options('--task-option', 'detours=0') == dict(built, detours=0)
     assert build_options('--task-option', 'pocket_samples=256') == \
-        {'pocket_tier': 1, 'exit_rays': 65536}
+        {'pocket_tier': 1, 'exit_rays': 65536, 'exit_rounds': 3}
     assert build_options('--task-option', 'pocket_tier=0', '--task-option', 'exit_rays=0',
-                         '--task-option', 'pocket_samples=256') == {}
+                         '--task-option', 'pocket_samples=256',
+                         '--task-option', 'exit_rounds=0') == {}

@@ -39,7 +39,7 @@ from typing import Any
 
 import numpy as np
 
-from advocc_ros.attack.exits import fewest_exits
+from advocc_ros.attack.exits import GoalExits, close_exits, fewest_exits
 from advocc_ros.attack.methods import CONTEXT_METHODS, METHODS, REGISTRY, MethodContext
 from advocc_ros.attack.policy import apply_policy
 from advocc_ros.attack.region import search_region
@@ -144,11 +144,13 @@ def place_boxes(heatmap: Heatmap, task: Task, budget: int, method: str, cfg: Att
                            box_size_m)                                          # step 2
     choice = None if sample is None else sample.choice
 
-    def steps_3_to_5(kept: int | None = None) -> tuple:
+    def steps_3_to_5(kept: int | None = None, closing: np.ndarray | None = None) -> tuple:
         policed = apply_policy(task, region, cfg, witnesses, choice, kept)      # step 3
         extra = {}
         if method in CONTEXT_METHODS:
-            extra['context'] = MethodContext.of(task, options, sample, policed)
+            used = sample if closing is None else dataclasses.replace(
+                sample, goals=np.concatenate([closing, sample.goals]))
+            extra['context'] = MethodContext.of(task, options, used, policed)
         picks, rejected, *more = METHODS[method](policed.region, budget, seed, cfg,
                                                  **extra)                       # steps 4-5
         return policed, picks, rejected, more[0] if more else {}
@@ -159,10 +161,15 @@ def place_boxes(heatmap: Heatmap, task: Task, budget: int, method: str, cfg: Att
 
     placement = steps_3_to_5()
     if tries_exits(task, method, options, witnesses):
+        exits = GoalExits(task, options.exit_rays)
         placement, exit_stats = fewest_exits(
-            task, witnesses, placement[0].stats.get('witness_kept', 0), placement,
-            steps_3_to_5, boxes, options.exit_rays, cfg.victim_margin_m)
-        stats.update(exit_stats)
+            task, exits, witnesses, placement[0].stats.get('witness_kept', 0), placement,
+            steps_3_to_5, boxes, cfg.victim_margin_m)
+        kept = exit_stats['witness_kept_for_exits']
+        placement, round_stats = close_exits(
+            exits, placement, exit_stats['goal_exits'],
+            lambda closing: steps_3_to_5(kept, closing), boxes, options.exit_rounds)
+        stats.update(exit_stats, **round_stats)
     policed, picks, rejected, method_stats = placement
     stats = {**region.stats, **policed.stats, **stats, **method_stats, 'rejected_picks': rejected}
     obstacles = boxes(placement)

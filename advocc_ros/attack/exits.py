@@ -16,9 +16,11 @@ from __future__ import annotations
 
 from typing import Callable, TypeVar
 
+import numpy as np
+
 from advocc_ros.attack.policy import scene_clearance
 from advocc_ros.attack.types import Task
-from advocc_ros.kinematics.goal_batch import free_rays, goal_ray_ends
+from advocc_ros.kinematics.goal_batch import RAY_STEP_RAD, free_rays, goal_ray_ends
 from advocc_ros.model.collision import CollisionWorld, shared_world
 from advocc_ros.model.scene import SceneObject
 
@@ -37,13 +39,24 @@ class GoalExits:
         self.ends = ends[free_rays(scene, self.q_goal, ends)]
         self.rays = rays
 
-    def left_free(self, boxes: tuple[SceneObject, ...]) -> int:
-        """Rays free on the scene that ``boxes`` leave free (checked at the same states, so it
-        is the count on the scene with the boxes)."""
+    def free_ends(self, boxes: tuple[SceneObject, ...]) -> np.ndarray:
+        """Ends of the rays free on the scene that ``boxes`` leave free (checked at the same
+        states, so they are the rays free on the scene with the boxes)."""
         if not boxes or not len(self.ends):
-            return len(self.ends)
+            return self.ends
         world = CollisionWorld(self.robot, [sh for o in boxes for sh in o.shapes])
-        return int(free_rays(world, self.q_goal, self.ends).sum())
+        return self.ends[free_rays(world, self.q_goal, self.ends)]
+
+    def left_free(self, boxes: tuple[SceneObject, ...]) -> int:
+        """How many rays free on the scene ``boxes`` leave free."""
+        return len(self.free_ends(boxes))
+
+    def states(self, ends: np.ndarray) -> np.ndarray:
+        """(n, nq) the states the rays to ``ends`` are checked at (the goal not included)."""
+        steps = np.maximum(np.ceil(np.linalg.norm(ends - self.q_goal, axis=1) / RAY_STEP_RAD), 1)
+        return np.concatenate([np.zeros((0, self.robot.nq))] + [
+            self.q_goal + (np.arange(1, k + 1) / k)[:, None] * (end - self.q_goal)
+            for end, k in zip(ends, steps.astype(int))])
 
 
 def scene_clearances(task: Task, witnesses: tuple, margin_m: float) -> list[float] | None:
@@ -55,14 +68,13 @@ def scene_clearances(task: Task, witnesses: tuple, margin_m: float) -> list[floa
     return [scene_clearance(task.robot, scene, w, margin_m) for w in witnesses]
 
 
-def fewest_exits(task: Task, witnesses: tuple, chosen: int, first: Placement,
-                 place: Callable[[int], Placement],
-                 boxes_of: Callable[[Placement], tuple[SceneObject, ...]], rays: int,
+def fewest_exits(task: Task, exits: GoalExits, witnesses: tuple, chosen: int,
+                 first: Placement, place: Callable[[int], Placement],
+                 boxes_of: Callable[[Placement], tuple[SceneObject, ...]],
                  margin_m: float) -> tuple[Placement, dict]:
     """The placement (``first``: for the policy's choice ``chosen``; ``place(k)``: for
-    candidate k) whose boxes leave the goal the fewest free rays, among the candidates that
-    keep ``margin_m`` from the scene; and the step's statistics."""
-    exits = GoalExits(task, rays)
+    candidate k) whose boxes leave the goal the fewest free ``exits``, among the candidates
+    that keep ``margin_m`` from the scene; and the step's statistics."""
     tried = {chosen: (first, exits.left_free(boxes_of(first)))}
     clearance = scene_clearances(task, witnesses, margin_m)
     keepers = [k for k in range(len(witnesses)) if clearance is None or clearance[k] >= margin_m]
@@ -72,7 +84,7 @@ def fewest_exits(task: Task, witnesses: tuple, chosen: int, first: Placement,
                 placement = place(k)
                 tried[k] = (placement, exits.left_free(boxes_of(placement)))
     best = min(tried, key=lambda k: (tried[k][1], k != chosen))
-    stats = {'goal_exit_rays': rays, 'goal_exits_unattacked': len(exits.ends),
+    stats = {'goal_exit_rays': exits.rays, 'goal_exits_unattacked': len(exits.ends),
              'witness_exits': {int(k): n for k, (_, n) in sorted(tried.items())},
              'witness_kept_for_exits': int(best), 'goal_exits': tried[best][1]}
     if clearance is not None:
@@ -81,3 +93,25 @@ def fewest_exits(task: Task, witnesses: tuple, chosen: int, first: Placement,
 
 
 __all__ = ['GoalExits', 'fewest_exits', 'scene_clearances']
+
+
+def close_exits(exits: GoalExits, first: Placement, left: int,
+                place: Callable[[np.ndarray], Placement],
+                boxes_of: Callable[[Placement], tuple[SceneObject, ...]],
+                rounds: int) -> tuple[Placement, dict]:
+    """Up to ``rounds`` placements more for the kept witness, ``place(states)`` with the
+    states along the rays left free so far joining the goal tier (a box that covers one of a
+    ray's states cuts it); the placement leaving the fewest ``exits`` free (``first``, which
+    leaves ``left``, on ties) and the free count of each round."""
+    best, fewest, current = first, left, first
+    closing = np.zeros((0, exits.robot.nq))
+    counts = [left]
+    for _ in range(rounds):
+        if not fewest:
+            break
+        closing = np.concatenate([closing, exits.states(exits.free_ends(boxes_of(current)))])
+        current = place(closing)
+        counts.append(exits.left_free(boxes_of(current)))
+        if counts[-1] < fewest:
+            best, fewest = current, counts[-1]
+    return best, {'goal_exits_by_round': counts, 'goal_exits': fewest}

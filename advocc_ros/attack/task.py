@@ -72,6 +72,10 @@ class TaskOptions:
     candidate witness that keeps the victim margin from the scene, and the placement that
     leaves the fewest of this many RRT steps from the goal collision-free is kept
     (``attack.exits``); 0: the policy's choice alone."""
+    exit_rounds: int = 0
+    """With ``exit_rays``: rounds of closing the kept placement's exits; in each, the states
+    along the rays its boxes leave free join the goal tier and the boxes are placed again, and
+    the placement leaving the fewest free is kept (``attack.exits.close_exits``); 0: none."""
 
     def __post_init__(self):
         for name, (valid, allowed) in OPTION_VALUES.items():
@@ -88,6 +92,8 @@ class TaskOptions:
 MAX_SAMPLES = 65_536
 """Most configurations one kind of the task sample may hold (the approaches, the tube, the
 pocket): 16 times the data set's pocket, and a bound on the memory a request can ask for."""
+MAX_EXIT_ROUNDS = 8
+"""Most rounds of closing exits a request may ask for (each places the boxes once more)."""
 OPTION_VALUES = {
     'approach_goals': (lambda v: 0 <= v <= TASK_GOALS, f'an integer in [0, {TASK_GOALS}]'),
     'approach_points': (lambda v: v >= 0, 'an integer >= 0'),
@@ -99,6 +105,7 @@ OPTION_VALUES = {
     'pocket_rad': (lambda v: 0 <= v < math.inf, 'a finite number >= 0'),
     'pocket_tier': (lambda v: v in (0, 1), '0 or 1'),
     'exit_rays': (lambda v: 0 <= v <= MAX_SAMPLES, f'an integer in [0, {MAX_SAMPLES}]'),
+    'exit_rounds': (lambda v: 0 <= v <= MAX_EXIT_ROUNDS, f'an integer in [0, {MAX_EXIT_ROUNDS}]'),
 }
 """What each :class:`TaskOptions` field accepts: (test, the words an error shows)."""
 

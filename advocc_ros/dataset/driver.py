@@ -132,9 +132,9 @@ def build(selection: Selection, out: str | pathlib.Path, config: BuildConfig,
     echo = echo or (lambda text: print(text, file=sys.stderr, flush=True))
     out = pathlib.Path(out)
     problems, todo, settings, given, hashes, scenes = _checked(selection, out, config, run)
-    slots = _slots(cluster.ray(), run.cpus_per_problem) if todo else 0  # refused: nothing written
     out.mkdir(parents=True, exist_ok=True)
     with store.locked(out):
+        slots = _slots(cluster.ray(), run.cpus_per_problem) if todo else 0  # before any record
         record = store.check_settings(out, settings) or {
             'format': store.BUILD_FORMAT, 'version': store.BUILD_VERSION, 'settings': settings,
             'runs': []}

@@ -73,13 +73,14 @@ class BuildConfig:
     requests."""
     seed: int = 0
     """Attack seed; trial k of every victim uses seed ``seed + k``."""
-    task_options: tuple[tuple[str, Any], ...] = (('exit_rays', 65536), ('pocket_samples', 4096),
-                                                 ('pocket_tier', 1))
+    task_options: tuple[tuple[str, Any], ...] = (('exit_rays', 65536), ('exit_rounds', 3),
+                                                 ('pocket_samples', 4096), ('pocket_tier', 1))
     """``TaskOptions`` of the attack that differ from their defaults (key, value). The data
     set's default closes a joint goal's pocket first (``pocket_tier``), sampled 16 times as
     densely as the attack's own default (``pocket_samples``), and keeps the witness whose boxes
-    leave the goal fewest free RRT steps (``exit_rays``, ``attack.exits``), all chosen on the
-    train split (docs/results/mbm_joint_train)."""
+    leave the goal fewest free RRT steps (``exit_rays``, ``attack.exits``), then closes the
+    steps left free in up to three rounds (``exit_rounds``), all chosen on the train split
+    (docs/results/mbm_joint_train)."""
     goal_tol: str | None = None
     """Goal tolerance around a joint goal in the region form (``--goal-tol``; None: the
     default region)."""
@@ -357,7 +358,8 @@ def mplib_witness_check(scene, robot, q_init, witness) -> dict:
             'accepted': not bool(colliding.any())}
 
 
-EXIT_STATS = ('goal_exit_rays', 'goal_exits_unattacked', 'goal_exits', 'witness_exits')
+EXIT_STATS = ('goal_exit_rays', 'goal_exits_unattacked', 'goal_exits', 'witness_exits',
+              'goal_exits_by_round')
 """The attack's statistics of ``attack.exits`` a hardness file keeps (when it chose by them)."""
 
 
