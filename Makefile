@@ -31,7 +31,10 @@ ENVS_JOBS ?= 4
 # pip installs uv itself from PyPI into build/uv (a standalone binary): a system Python may
 # have no pip, or refuse installs outside a venv (PEP 668), but every venv has one. No
 # --compile-bytecode: Python compiles the modules a process imports on first import, a fraction
-# of the four venvs' 22,000 files (compiling them all took 115 s of CPU, 60 s of a 2-core install).
+# of the four venvs' 22,000 files (compiling them all took 115 s of CPU, 60 s of a 2-core install),
+# and writes them once, so the install and the tests do not inherit PYTHONDONTWRITEBYTECODE
+# (set, every one of the tests' processes would compile its imports again).
+unexport PYTHONDONTWRITEBYTECODE
 UV_VERSION ?= 0.13.9
 UV         := build/uv/bin/uv
 UV_INSTALL := $(UV) pip install --quiet
