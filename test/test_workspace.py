@@ -80,6 +80,8 @@ def test_colcon_builds_both_packages_and_installs_the_executables(workspace):
 def _loaded_files(verbose_log: str) -> list[str]:
     """Files of advocc_ros and advocc_msgs that ``PYTHONVERBOSE=1`` says were imported."""
     found = re.findall(r"(?:code object from|loaded from) '?([^'\s]+)", verbose_log)
+    # bytecode written by an earlier import stands for its source: X/__pycache__/m.*.pyc -> X/m.py
+    found = [re.sub(r'/__pycache__/([^/.]+)\.[^/]*\.pyc$', r'/\1.py', f) for f in found]
     return [f for f in found if re.search(r'/advocc_(?:ros|msgs)/', f)]
 
 
