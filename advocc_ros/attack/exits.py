@@ -103,15 +103,17 @@ def close_exits(exits: GoalExits, first: Placement, left: int,
     states along the rays left free so far joining the goal tier (a box that covers one of a
     ray's states cuts it); the placement leaving the fewest ``exits`` free (``first``, which
     leaves ``left``, on ties) and the free count of each round."""
-    best, fewest, current = first, left, first
+    best, fewest = first, left
     closing = np.zeros((0, exits.robot.nq))
     counts = [left]
+    free = exits.free_ends(boxes_of(first)) if rounds and left else exits.ends[:0]
     for _ in range(rounds):
         if not fewest:
             break
-        closing = np.concatenate([closing, exits.states(exits.free_ends(boxes_of(current)))])
+        closing = np.concatenate([closing, exits.states(free)])
         current = place(closing)
-        counts.append(exits.left_free(boxes_of(current)))
+        free = exits.free_ends(boxes_of(current))  # counted once, closed in the next round
+        counts.append(len(free))
         if counts[-1] < fewest:
             best, fewest = current, counts[-1]
     return best, {'goal_exits_by_round': counts, 'goal_exits': fewest}
