@@ -259,17 +259,24 @@ def test_exit_rays_keeps_the_witness_whose_boxes_leave_the_goal_fewest_exits(box
                         method_options=TaskOptions(pocket_tier=1))
     assert 'witness_exits' not in plain.stats
     assert exits.left_free(plain.obstacles) >= stats['goal_exits']
-    # exit_rounds (one box leaves exits): the rays left free join the goal tier and the boxes
-    # are placed again; the first count is the kept witness's placement, the kept one leaves
-    # the fewest.
+    # exit_rounds (one box leaves exits): the rays left free become the top tier and the boxes
+    # are placed again, each round counted on a fresh draw; the first count is the kept
+    # witness's placement, the kept one leaves the fewest, a count its boxes reproduce on its
+    # draw, and the rays closed are cut (top tier) where a box can reach them.
     closed = attack_task(box_heatmap, robot, scene.objects, q_init, scene.goal, 1, 'task', cfg,
                          method_options=TaskOptions(pocket_tier=1, exit_rays=4096,
                                                     exit_rounds=2))
-    rounds = closed.stats['goal_exits_by_round']
-    assert len(rounds) == 3 and rounds[0] == closed.stats['witness_exits'][
-        closed.stats['witness_kept_for_exits']] > 0
-    assert closed.stats['goal_exits'] == min(rounds) == exits.left_free(closed.obstacles)
+    stats = closed.stats
+    rounds = stats['goal_exits_by_round']
+    assert len(rounds) == 3 and rounds[0] == stats['witness_exits'][
+        stats['witness_kept_for_exits']] > 0
+    kept = stats['goal_exits_round_kept']
+    assert stats['goal_exits'] == min(rounds) == rounds[kept] == exits.left_free(
+        closed.obstacles, kept)
     assert closed.solvable.verdict.value == 'certified'
+    fresh = GoalExits(task, 4096)
+    assert fresh.left_free((), 1) > 0 and not np.array_equal(
+        fresh.free_ends((), 1)[:8], fresh.ends[:8])  # a fresh draw is other rays
 
 
 def test_only_the_region_form_keeps_boxes_off_the_goal_region(box_heatmap):

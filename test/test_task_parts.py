@@ -59,16 +59,19 @@ def test_no_goals_or_no_points_give_no_approaches(table):
 
 
 @pytest.mark.parametrize('seed', range(20))
-def test_tier_weights_rank_goal_then_deep_then_approach(seed):
+def test_tier_weights_rank_exits_then_goal_then_deep_then_approach(seed):
     rng = np.random.default_rng(seed)
+    w_exit = np.ones(rng.integers(0, 50))
     w_goal = rng.uniform(WEIGHT_FLOOR, 1.0, rng.integers(1, 80))
     w_app = rng.uniform(0.0, 1.0, rng.integers(0, 700))
-    weights = lexicographic_weights(w_goal, w_app)
-    n = len(w_goal)
-    goal, deep, app = weights[:n], weights[n:2 * n], weights[2 * n:]
+    weights = lexicographic_weights(w_exit, w_goal, w_goal, w_app)
+    e, n = len(w_exit), len(w_goal)
+    exits, goal, deep, app = weights[:e], weights[e:e + n], weights[e + n:e + 2 * n], \
+        weights[e + 2 * n:]
     np.testing.assert_array_equal(app, w_app)
     assert deep.min() > app.sum()              # one deep row beats every approach
     assert goal.min() > deep.sum() + app.sum()  # one goal row beats everything below it
+    assert exits.min(initial=np.inf) > goal.sum() + deep.sum() + app.sum()
     # within a tier the order of w(q) is kept
     assert np.all(np.argsort(goal, kind='stable') == np.argsort(w_goal, kind='stable'))
 
@@ -122,3 +125,20 @@ def test_detour_paths_pass_through_their_perturbed_midpoint(table):
     assert len(Q) > len(Q_goal)
     for q in Q:
         assert np.linalg.norm(mids - q, axis=1).min() < 0.3
+
+
+def test_an_exit_ray_is_cut_when_a_box_covers_one_of_its_states():
+    """``ExitRays.cover``: one row a ray, 1 where the candidate covers any of its states (a
+    ray of many states weighs no more than a ray of one); ``join`` numbers the rays after."""
+    from scipy import sparse
+
+    from advocc_ros.attack.exits import ExitRays
+
+    rays = ExitRays(np.zeros((5, 7)), np.array([0, 0, 0, 1, 1]))
+    states = sparse.csr_matrix(np.array([[1, 0, 0], [1, 1, 0], [0, 0, 0],
+                                         [0, 0, 0], [0, 0, 1]], dtype=float))
+    np.testing.assert_array_equal(rays.cover(states).toarray(), [[1, 1, 0], [0, 0, 1]])
+    both = rays.join(ExitRays(np.zeros((2, 7)), np.array([0, 0])))
+    assert both.count == 3 and list(both.ray) == [0, 0, 0, 1, 1, 2, 2]
+    none = ExitRays(np.zeros((0, 7)), np.zeros(0, dtype=int))
+    assert none.count == 0 and none.cover(states[:0]).shape == (0, 3)

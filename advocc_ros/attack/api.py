@@ -39,7 +39,7 @@ from typing import Any
 
 import numpy as np
 
-from advocc_ros.attack.exits import GoalExits, close_exits, fewest_exits
+from advocc_ros.attack.exits import ExitRays, GoalExits, close_exits, fewest_exits
 from advocc_ros.attack.methods import CONTEXT_METHODS, METHODS, REGISTRY, MethodContext
 from advocc_ros.attack.policy import apply_policy
 from advocc_ros.attack.region import search_region
@@ -144,12 +144,11 @@ def place_boxes(heatmap: Heatmap, task: Task, budget: int, method: str, cfg: Att
                            box_size_m)                                          # step 2
     choice = None if sample is None else sample.choice
 
-    def steps_3_to_5(kept: int | None = None, closing: np.ndarray | None = None) -> tuple:
+    def steps_3_to_5(kept: int | None = None, closing: ExitRays | None = None) -> tuple:
         policed = apply_policy(task, region, cfg, witnesses, choice, kept)      # step 3
         extra = {}
         if method in CONTEXT_METHODS:
-            used = sample if closing is None else dataclasses.replace(
-                sample, goals=np.concatenate([closing, sample.goals]))
+            used = sample if closing is None else dataclasses.replace(sample, exits=closing)
             extra['context'] = MethodContext.of(task, options, used, policed)
         picks, rejected, *more = METHODS[method](policed.region, budget, seed, cfg,
                                                  **extra)                       # steps 4-5
@@ -160,7 +159,7 @@ def place_boxes(heatmap: Heatmap, task: Task, budget: int, method: str, cfg: Att
                      for i, (c, _) in enumerate(placement[1]))
 
     placement = steps_3_to_5()
-    if tries_exits(task, method, options, witnesses):
+    if tries_exits(task, method, options):
         exits = GoalExits(task, options.exit_rays)
         placement, exit_stats = fewest_exits(
             task, exits, witnesses, placement[0].stats.get('witness_kept', 0), placement,
@@ -183,13 +182,12 @@ def place_boxes(heatmap: Heatmap, task: Task, budget: int, method: str, cfg: Att
     return Placed(status, message, obstacles, tuple(float(m) for _, m in picks), stats, kept)
 
 
-def tries_exits(task: Task, method: str, options: Any, witnesses: tuple) -> bool:
+def tries_exits(task: Task, method: str, options: Any) -> bool:
     """Whether step 3 is tried through steps 4-5 for each candidate witness
     (``attack.exits``): ``task`` under ``solvable`` in the ``joint`` form, with
-    ``TaskOptions.exit_rays`` and more than one candidate."""
+    ``TaskOptions.exit_rays`` (one candidate: its exits counted, then closed in rounds)."""
     return (method == 'task' and task.policy == 'solvable' and task.goal.is_joint
-            and isinstance(options, TaskOptions) and options.exit_rays > 0
-            and len(witnesses) > 1)
+            and isinstance(options, TaskOptions) and options.exit_rays > 0)
 
 
 def _judged_witness(witnesses: tuple, solvable):

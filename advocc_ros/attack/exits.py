@@ -9,14 +9,19 @@ where that witness leaves the goal, and no property of the witness alone predict
 train split ([mbm_joint_train](../../docs/results/mbm_joint_train/README.md)). So the boxes are
 placed for each candidate witness that keeps the victim margin from the scene, and the
 placement whose goal leaves the fewest of ``exit_rays`` fixed steps free is kept (the policy's
-own choice wins ties). Only collision checks: no planner is queried.
+own choice wins ties). With ``TaskOptions.exit_rounds`` the steps that placement leaves free
+become the objective's top tier and the boxes are placed again (``close_exits``), each round
+counted on a fresh draw, since a count on the steps the boxes were placed to close flatters
+them. Only collision checks: no planner is queried.
 """
 
 from __future__ import annotations
 
+import dataclasses
 from typing import Callable, TypeVar
 
 import numpy as np
+from scipy import sparse
 
 from advocc_ros.attack.policy import scene_clearance
 from advocc_ros.attack.types import Task
@@ -27,36 +32,75 @@ from advocc_ros.model.scene import SceneObject
 Placement = TypeVar('Placement')
 
 
+@dataclasses.dataclass(frozen=True)
+class ExitRays:
+    """Goal rays for the boxes to close (``close_exits``): the states each ray is checked at
+    and the ray each state belongs to. A box that covers one state of a ray cuts it, so the
+    objective counts a ray once, covered when any of its states is (``cover``)."""
+
+    states: np.ndarray
+    """(n, nq) the rays' states, the goal not included."""
+    ray: np.ndarray
+    """(n,) int: the ray of each state, numbered 0, 1, ... in order."""
+
+    @property
+    def count(self) -> int:
+        return int(self.ray[-1]) + 1 if len(self.ray) else 0
+
+    def cover(self, state_cover: sparse.csr_matrix) -> sparse.csr_matrix:
+        """(rays, candidates) 0/1 from ``state_cover`` (states, candidates): candidate j cuts
+        ray i when it covers one of its states."""
+        if not self.count:
+            return sparse.csr_matrix((0, state_cover.shape[1]))
+        member = sparse.csr_matrix((np.ones(len(self.ray)), (self.ray, np.arange(len(self.ray)))),
+                                   shape=(self.count, len(self.ray)))
+        cut = (member @ state_cover).tocsr()
+        cut.data[:] = 1.0
+        return cut
+
+    def join(self, more: 'ExitRays') -> 'ExitRays':
+        """These rays and ``more``, renumbered after them."""
+        return ExitRays(np.concatenate([self.states, more.states]),
+                        np.concatenate([self.ray, more.ray + self.count]))
+
+
 class GoalExits:
     """The task's goal rays (``kinematics.goal_batch.goal_ray_ends``) that are free on the
-    unattacked scene, and how many of them a set of boxes leaves free."""
+    unattacked scene, and how many of them a set of boxes leaves free: draw 0 fixed (the
+    candidates' counts), a fresh draw for each round of ``close_exits`` (a count on the rays
+    the boxes were placed to close would flatter them)."""
 
     def __init__(self, task: Task, rays: int):
         self.robot = task.robot
         self.q_goal = task.goal.configuration(task.robot.joint_names)
-        scene = shared_world(task.robot, [sh for o in task.objects for sh in o.shapes])
+        self.scene = shared_world(task.robot, [sh for o in task.objects for sh in o.shapes])
         ends = goal_ray_ends(task.robot, self.q_goal, rays)
-        self.ends = ends[free_rays(scene, self.q_goal, ends)]
+        self.ends = ends[free_rays(self.scene, self.q_goal, ends)]
         self.rays = rays
 
-    def free_ends(self, boxes: tuple[SceneObject, ...]) -> np.ndarray:
-        """Ends of the rays free on the scene that ``boxes`` leave free (checked at the same
-        states, so they are the rays free on the scene with the boxes)."""
-        if not boxes or not len(self.ends):
-            return self.ends
+    def free_ends(self, boxes: tuple[SceneObject, ...], draw: int = 0) -> np.ndarray:
+        """Ends of the rays of ``draw`` free on the scene with ``boxes`` (draw 0: of those
+        free on the scene, checked at the same states; a later draw: the boxes checked first,
+        they end most rays within a few steps, then the scene on the rest)."""
         world = CollisionWorld(self.robot, [sh for o in boxes for sh in o.shapes])
-        return self.ends[free_rays(world, self.q_goal, self.ends)]
+        if not draw:
+            return self.ends[free_rays(world, self.q_goal, self.ends)] if boxes else self.ends
+        ends = goal_ray_ends(self.robot, self.q_goal, self.rays, draw)
+        ends = ends[free_rays(world, self.q_goal, ends)] if boxes else ends
+        return ends[free_rays(self.scene, self.q_goal, ends)]
 
-    def left_free(self, boxes: tuple[SceneObject, ...]) -> int:
-        """How many rays free on the scene ``boxes`` leave free."""
-        return len(self.free_ends(boxes))
+    def left_free(self, boxes: tuple[SceneObject, ...], draw: int = 0) -> int:
+        """How many rays of ``draw`` free on the scene ``boxes`` leave free."""
+        return len(self.free_ends(boxes, draw))
 
-    def states(self, ends: np.ndarray) -> np.ndarray:
-        """(n, nq) the states the rays to ``ends`` are checked at (the goal not included)."""
-        steps = np.maximum(np.ceil(np.linalg.norm(ends - self.q_goal, axis=1) / RAY_STEP_RAD), 1)
-        return np.concatenate([np.zeros((0, self.robot.nq))] + [
+    def rays_to(self, ends: np.ndarray) -> ExitRays:
+        """The rays to ``ends`` and the states they are checked at."""
+        steps = np.maximum(np.ceil(np.linalg.norm(ends - self.q_goal, axis=1) / RAY_STEP_RAD),
+                           1).astype(int)
+        states = np.concatenate([np.zeros((0, self.robot.nq))] + [
             self.q_goal + (np.arange(1, k + 1) / k)[:, None] * (end - self.q_goal)
-            for end, k in zip(ends, steps.astype(int))])
+            for end, k in zip(ends, steps)])
+        return ExitRays(states, np.repeat(np.arange(len(ends)), steps))
 
 
 def scene_clearances(task: Task, witnesses: tuple, margin_m: float) -> list[float] | None:
@@ -92,28 +136,30 @@ def fewest_exits(task: Task, exits: GoalExits, witnesses: tuple, chosen: int,
     return tried[best][0], stats
 
 
-__all__ = ['GoalExits', 'fewest_exits', 'scene_clearances']
-
-
 def close_exits(exits: GoalExits, first: Placement, left: int,
-                place: Callable[[np.ndarray], Placement],
+                place: Callable[[ExitRays], Placement],
                 boxes_of: Callable[[Placement], tuple[SceneObject, ...]],
                 rounds: int) -> tuple[Placement, dict]:
-    """Up to ``rounds`` placements more for the kept witness, ``place(states)`` with the
-    states along the rays left free so far joining the goal tier (a box that covers one of a
-    ray's states cuts it); the placement leaving the fewest ``exits`` free (``first``, which
-    leaves ``left``, on ties) and the free count of each round."""
-    best, fewest = first, left
-    closing = np.zeros((0, exits.robot.nq))
+    """Up to ``rounds`` placements more for the kept witness, ``place(rays)`` with the rays
+    found free so far to close (the objective's exit tier, above the goal tier), each counted
+    on a fresh draw of rays (round r: ``draw`` r) whose free rays join those to close; the
+    placement leaving the fewest free (``first``, which leaves ``left`` of draw 0, on ties),
+    and the count of each round."""
+    best, fewest, kept = first, left, 0
     counts = [left]
     free = exits.free_ends(boxes_of(first)) if rounds and left else exits.ends[:0]
-    for _ in range(rounds):
+    closing = exits.rays_to(free)
+    for draw in range(1, rounds + 1):
         if not fewest:
             break
-        closing = np.concatenate([closing, exits.states(free)])
         current = place(closing)
-        free = exits.free_ends(boxes_of(current))  # counted once, closed in the next round
+        free = exits.free_ends(boxes_of(current), draw)
+        closing = closing.join(exits.rays_to(free))
         counts.append(len(free))
         if counts[-1] < fewest:
-            best, fewest = current, counts[-1]
-    return best, {'goal_exits_by_round': counts, 'goal_exits': fewest}
+            best, fewest, kept = current, counts[-1], draw
+    return best, {'goal_exits_by_round': counts, 'goal_exits': fewest,
+                  'goal_exits_round_kept': kept}
+
+
+__all__ = ['ExitRays', 'GoalExits', 'close_exits', 'fewest_exits', 'scene_clearances']

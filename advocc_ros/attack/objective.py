@@ -4,6 +4,9 @@ covers and what covering them is worth (docs/design.md).
 A box covers a configuration when it holds a voxel the robot occupies there
 (``attack.configurations``: a sparse 0/1 cover matrix, configurations x candidates). Rows:
 
+- under the ``joint`` form with ``TaskOptions.exit_rounds``, the goal's exits (``attack.exits``):
+  the RRT steps from the goal a placement left free, one row a ray, covered when a box covers
+  one of its states;
 - the goal tier (the task sample's goal configurations), each the same weight: every plan ends
   in the goal set, and what the boxes leave of the sample is the share of goals a planner can
   still draw;
@@ -12,10 +15,11 @@ A box covers a configuration when it holds a voxel the robot occupies there
 - the passage: the sample's approaches and, under the ``solvable`` policy, the tube around the
   kept witness (its guard states plus the sample's offsets), weighted by the paper's w(q).
 
-One objective, lexicographic through its weights: a goal configuration outweighs all deep
-contacts, a deep contact all passage configurations. Every plan ends in the goal set, so the
-boxes first cut it to the sliver the policy must leave (under ``solvable``, around the witness's
-end, which the witness search places where planners rarely sample), then narrow the passage.
+One objective, lexicographic through its weights: an exit outweighs all goal configurations, a
+goal configuration all deep contacts, a deep contact all passage configurations. Every plan
+ends in the goal set, so the boxes first cut it to the sliver the policy must leave (under
+``solvable``, around the witness's end, which the witness search places where planners rarely
+sample), then narrow the passage.
 It is a weighted coverage, monotone and submodular, maximised by one lazy greedy pass
 (``attack.greedy``; guarantees in docs/greedy.md), so budgets nest. Under the ``reachable``
 policy the goal set is no target: the rows are the passage alone, and candidates that would leave
@@ -32,6 +36,7 @@ import numpy as np
 from scipy import sparse
 
 from advocc_ros.attack.configurations import cover_matrix
+from advocc_ros.attack.exits import ExitRays
 from advocc_ros.attack.greedy import greedy_pass
 from advocc_ros.attack.methods import MethodContext, register_method
 from advocc_ros.attack.policy import GoalGuard
@@ -57,24 +62,29 @@ class Objective:
     reported: np.ndarray
     """Each configuration's own weight, counted once (the masses a result reports)."""
     goal_rows: int
-    """The first rows: the goal tier (0 when the goal set is no target)."""
+    """The goal tier's rows, first after the exit rows (0 when the goal set is no target)."""
     passage_rows: int
     """The last rows: approaches and tube."""
     feasible: Callable[[], np.ndarray] | None = None
     """Candidates still allowed, asked before every pick (``reachable``), or None."""
+    exit_rows: int = 0
+    """The first rows, before the goal tier: goal rays to close (``attack.exits``)."""
 
 
-def lexicographic_weights(w_goal: np.ndarray, w_app: np.ndarray) -> np.ndarray:
-    """Weights of the three tiers (goal, deep goal, approach rows), scaled so that one goal
-    configuration outweighs every deep and approach row together, and one deep row every
-    approach row: the greedy then ranks candidates tier by tier. Exact when every goal weight is
-    at least :data:`WEIGHT_FLOOR`; below it the scale is capped (larger factors would round the
-    lower tiers out of the scores), and a tier-2 row of such a tiny weight may weigh less than
-    the approaches."""
-    unit = 1.0 / max(float(w_goal.min(initial=1.0)), WEIGHT_FLOOR)
-    w_deep = w_goal * (1.0 + w_app.sum()) * unit
-    scaled_goal = w_goal * (2.0 + w_app.sum() + w_deep.sum()) * unit
-    return np.concatenate([scaled_goal, w_deep, w_app])
+def lexicographic_weights(*tiers: np.ndarray) -> np.ndarray:
+    """The tiers' weights (top first) in one vector, each tier scaled so that one of its rows
+    outweighs every row below it together: the greedy then ranks candidates tier by tier. The
+    last tier keeps its weights, and the order of weights within a tier is kept. Exact when every
+    weight of a scaled tier is at least :data:`WEIGHT_FLOOR`; below it the scale is capped
+    (larger factors would round the lower tiers out of the scores)."""
+    scaled, below = [], 0.0
+    for k, w in enumerate(reversed(tiers)):
+        w = np.asarray(w, dtype=np.float64)
+        if k:
+            w = w * (1.0 + below) / max(float(w.min(initial=1.0)), WEIGHT_FLOOR)
+        scaled.append(w)
+        below += float(w.sum())
+    return np.concatenate(scaled[::-1])
 
 
 def goal_filter(guard: GoalGuard, sample_cover: sparse.csr_matrix) -> Callable[[], np.ndarray]:
@@ -121,11 +131,14 @@ def task_objective(context: MethodContext, region: SearchRegion) -> Objective:
 
 def goal_tiers(context: MethodContext, world: CollisionWorld, region: SearchRegion,
                Q_path: np.ndarray, w_path: np.ndarray) -> Objective:
-    """The three tiers (goal, deep goal, passage), the one place the goal form decides the
-    goal rows: under ``region`` the sample's goal configurations, each of weight 1."""
+    """The tiers (goal exits, goal, deep goal, passage), the one place the goal form decides
+    the goal rows: under ``region`` the sample's goal configurations, each of weight 1; under
+    ``joint`` the pocket (``TaskOptions.pocket_tier``) and, above it, the goal rays to close
+    (``attack.exits``), a ray covered when one of its states is."""
     Q_goal = context.sample.goals
-    n_goal = len(Q_goal)
-    R, t = placement_arrays(world, np.concatenate([Q_goal, Q_path]))
+    exits = context.sample.exits or ExitRays(np.zeros((0, context.robot.nq)), np.zeros(0, int))
+    n_goal, n_path = len(Q_goal), len(Q_path)
+    R, t = placement_arrays(world, np.concatenate([Q_goal, Q_path, exits.states]))
     goal = context.policed.goal_cover
     if goal is None or goal.shape[0] != n_goal:  # the choice weighed the pocket (joint form)
         goal = cover_matrix(context.robot, world, Q_goal, region,
@@ -133,11 +146,14 @@ def goal_tiers(context: MethodContext, world: CollisionWorld, region: SearchRegi
     deep = cover_matrix(context.robot, world, Q_goal, region, shrink=1,
                         placements=(R[:n_goal], t[:n_goal]))
     path = cover_matrix(context.robot, world, Q_path, region,
-                        placements=(R[n_goal:], t[n_goal:]))
+                        placements=(R[n_goal:n_goal + n_path], t[n_goal:n_goal + n_path]))
+    cut = exits.cover(cover_matrix(context.robot, world, exits.states, region,
+                                   placements=(R[n_goal + n_path:], t[n_goal + n_path:])))
     w_goal = np.ones(n_goal)
-    reported = np.concatenate([w_goal, np.zeros(n_goal), w_path])  # each configuration once
-    return Objective(sparse.vstack([goal, deep, path], format='csr'),
-                     lexicographic_weights(w_goal, w_path), reported, n_goal, len(Q_path))
+    reported = np.concatenate([np.zeros(exits.count), w_goal, np.zeros(n_goal), w_path])
+    return Objective(sparse.vstack([cut, goal, deep, path], format='csr'),
+                     lexicographic_weights(np.ones(exits.count), w_goal, w_goal, w_path),
+                     reported, n_goal, n_path, exit_rows=exits.count)
 
 
 def select_task(region: SearchRegion, budget: int, seed: int, cfg: AttackConfig,
@@ -152,8 +168,11 @@ def select_task(region: SearchRegion, budget: int, seed: int, cfg: AttackConfig,
     stats = {'task_approach_samples': objective.passage_rows,
              'task_approach_covered': int(covered[len(covered) - objective.passage_rows:].sum()),
              'task_cover_ms': round((t1 - t0) * 1e3, 1)}
+    first = objective.exit_rows
     if objective.goal_rows:
-        stats['task_goal_covered'] = int(covered[:objective.goal_rows].sum())
+        stats['task_goal_covered'] = int(covered[first:first + objective.goal_rows].sum())
+    if first:
+        stats.update(task_exit_rays=first, task_exits_cut=int(covered[:first].sum()))
     if len(placed.picks) < budget and placed.candidates and \
             not placed.rejected > cfg.max_rejections:
         stats['stop_reason'] = stop_reason(context, len(placed.picks), budget,

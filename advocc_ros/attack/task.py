@@ -73,9 +73,10 @@ class TaskOptions:
     leaves the fewest of this many RRT steps from the goal collision-free is kept
     (``attack.exits``); 0: the policy's choice alone."""
     exit_rounds: int = 0
-    """With ``exit_rays``: rounds of closing the kept placement's exits; in each, the states
-    along the rays its boxes leave free join the goal tier and the boxes are placed again, and
-    the placement leaving the fewest free is kept (``attack.exits.close_exits``); 0: none."""
+    """With ``exit_rays``: rounds of closing the kept placement's exits; in each, the rays its
+    boxes left free (every round's) are the objective's tier above the goal tier, the boxes are
+    placed again and counted on a fresh draw of rays, and the placement leaving the fewest free
+    is kept (``attack.exits.close_exits``); 0: none."""
 
     def __post_init__(self):
         for name, (valid, allowed) in OPTION_VALUES.items():
@@ -173,6 +174,9 @@ class TaskSample:
     choice: np.ndarray
     """(m, nq) what the witness choice weighs (``attack.policy.choose_witness``): the goal tier,
     or under ``joint`` the goal's pocket."""
+    exits: Any = None
+    """Goal rays for the boxes to close, the tier above the goal tier (``attack.exits``:
+    ``ExitRays``, ``TaskOptions.exit_rounds``), or None."""
 
 
 def goal_tier(task: Task) -> GoalDraw:

@@ -148,11 +148,13 @@ RAY_STEP_RAD = 0.05
 """Spacing of the configurations checked along a goal ray [rad]."""
 
 
-def goal_ray_ends(robot: RobotModel, q_goal: np.ndarray, rays: int) -> np.ndarray:
+def goal_ray_ends(robot: RobotModel, q_goal: np.ndarray, rays: int, draw: int = 0
+                  ) -> np.ndarray:
     """(rays, nq) ends of an RRT's first steps from ``q_goal``: towards uniform states within
     the joint limits, cut at OMPL's default range (:data:`RAY_RANGE_FRACTION`); seed
-    ``POCKET_SEED``, so a task's rays are the same each time."""
-    rng = np.random.default_rng(POCKET_SEED)
+    ``POCKET_SEED`` (and ``draw`` after 0), so a task's rays of a draw are the same each
+    time."""
+    rng = np.random.default_rng((POCKET_SEED, draw) if draw else POCKET_SEED)
     reach = RAY_RANGE_FRACTION * float(np.linalg.norm(robot.upper - robot.lower))
     target = robot.lower + (robot.upper - robot.lower) * rng.random((rays, robot.nq))
     offset = target - q_goal
