@@ -277,6 +277,17 @@ def test_exit_rays_keeps_the_witness_whose_boxes_leave_the_goal_fewest_exits(box
     fresh = GoalExits(task, 4096)
     assert fresh.left_free((), 1) > 0 and not np.array_equal(
         fresh.free_ends((), 1)[:8], fresh.ends[:8])  # a fresh draw is other rays
+    # A lone candidate has its exits counted and closed too, and the data set's record of it
+    # names its scene clearance.
+    from advocc_ros.attack.api import attack
+    from advocc_ros.dataset.job import _attack_entry
+
+    lone = attack(box_heatmap, robot, scene.objects, q_init, scene.goal, 1, 'task', cfg,
+                  method_options=TaskOptions(pocket_tier=1, exit_rays=4096, exit_rounds=1),
+                  witness=closed.witness)
+    assert list(lone.stats['witness_exits']) == [0] and len(lone.stats['goal_exits_by_round']) > 1
+    entry, attacked = _attack_entry(lone, scene, robot, q_init, 1.0)
+    assert attacked is not None and entry['witness_scene_clearance_m'] >= 0.004 - 1e-9
 
 
 def test_only_the_region_form_keeps_boxes_off_the_goal_region(box_heatmap):

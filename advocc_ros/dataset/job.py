@@ -393,8 +393,8 @@ def _attack_entry(result, scene, robot, q_init, wall_s: float):
         return entry, None
     entry['witness_waypoints'] = int(len(result.witness.waypoints))
     clearance = result.stats.get('witness_scene_clearance_m')  # capped at the victim margin
-    entry['witness_scene_clearance_m'] = (clearance[result.stats['witness_kept']]
-                                          if clearance else None)
+    entry['witness_scene_clearance_m'] = (clearance[result.stats.get('witness_kept', 0)]
+                                          if clearance else None)  # a lone candidate: 0
     return entry, attacked
 
 
