@@ -31,7 +31,7 @@ REAL = REPO / 'test' / 'data' / 'mbm_real'
 ADVOCC = [sys.executable, '-m', 'advocc_ros.cli']
 RAY = str(pathlib.Path(sys.executable).with_name('ray'))
 TINY = ['--task-option', 'exit_rays=0', '--budgets', '1', '--victims', 'rrtconnect',
-        '--trials', '1', '--time', '1', '--goal-form', 'joint']
+        '--trials', '1', '--time', '1', '--goal-form', 'joint', '--escape-rays', '500']
 """One box, one RRTConnect trial of 1 s, the joint goal form (one data set in OUT): the
 smallest build that runs every step. Without the data set's ``exit_rays`` (10-20 s a problem;
 test_goal_forms tests it)."""
@@ -132,6 +132,7 @@ def test_bad_input_is_a_clear_error(tmp_path, capsys):
             (['--problems', REAL, '--budgets', '5,x'], 'comma-separated integers'),
             (['--problems', REAL, '--budgets', '0'], 'each must be in'),
             (['--problems', REAL, '--trials', '0'], '--trials'),
+            (['--problems', REAL, '--escape-rays', '-1'], '--escape-rays must be in'),
             (['--problems', REAL, '--problem-timeout', '0'], '--problem-timeout > 0'),
             (['--problems', REAL, '--cpus-per-problem', '4096'], 'this process may use'),
             (['--problems', REAL, '--split', 'test'], 'no problems in split')]:
@@ -411,6 +412,10 @@ def test_every_table_row_names_its_making(built):
                           .read_text())['attacks']['1']
     assert rows[1]['certificate'] == 'certified' and rows[1]['boxes'] == '1'
     assert float(rows[1]['psr']) == attacked['victims']['rrtconnect']['psr']
+    escape = attacked['goal_escape']  # the joint goal's escape share, one box placed
+    assert escape['rays'] == 500 and escape['step_rad'] == 0.01 and 0 < escape['free'] <= 500
+    assert float(rows[1]['goal_escape_p']) == escape['free'] / 500
+    assert rows[0]['goal_escape_p'] == ''  # the unattacked row
 
 
 @pytest.mark.processes  # the `built` fixture runs a build

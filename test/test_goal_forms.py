@@ -226,6 +226,12 @@ def test_goal_rays_are_rrt_steps_from_the_goal_and_free_ones_are_checked_outward
     boxed = CollisionWorld(robot, list(scene.shapes) + list(
         make_box('cage', scene.goal.center.position_m, (0.3, 0.3, 0.3)).shapes))
     assert not free_rays(boxed, q_goal, ends).any()
+    from advocc_ros.attack.exits import escape_share  # the same steps, independent rays
+
+    open_ = escape_share(robot, scene.shapes, q_goal, 400, RAY_STEP_RAD)
+    assert open_['rays'] == 400 and 0 < open_['free'] < 400
+    assert not np.array_equal(goal_ray_ends(robot, q_goal, 400, 1000), ends)
+    assert escape_share(robot, boxed.shapes, q_goal, 400, RAY_STEP_RAD)['free'] == 0
 
 
 def test_exit_rays_keeps_the_witness_whose_boxes_leave_the_goal_fewest_exits(box_heatmap):

@@ -103,6 +103,21 @@ class GoalExits:
         return ExitRays(states, np.repeat(np.arange(len(ends)), steps))
 
 
+ESCAPE_DRAW = 1_000
+"""The draw of rays the escape share is measured on (``escape_share``): none of those the
+attack counts and closes (0 to ``attack.task.MAX_EXIT_ROUNDS``)."""
+
+
+def escape_share(robot, shapes: list, q_goal: np.ndarray, rays: int, step_rad: float) -> dict:
+    """How many of ``rays`` RRT steps from the joint goal ``q_goal`` (draw :data:`ESCAPE_DRAW`,
+    independent of the attack's) are free on ``shapes`` checked every ``step_rad`` (a victim's
+    step): p = free / rays. A tree rooted at the goal leaves it after about 1/p steps (AORRTC's
+    PSR in 5 s about 1 - exp(-25,000 p), docs/goal_forms.md)."""
+    ends = goal_ray_ends(robot, q_goal, rays, ESCAPE_DRAW)
+    free = free_rays(CollisionWorld(robot, list(shapes)), q_goal, ends, step_rad)
+    return {'rays': int(rays), 'free': int(free.sum()), 'step_rad': float(step_rad)}
+
+
 def scene_clearances(task: Task, witnesses: tuple, margin_m: float) -> list[float] | None:
     """Each candidate witness's least clearance from the task's scene, capped at ``margin_m``
     [m]; None when there is no margin or no scene (every candidate keeps it)."""
@@ -162,4 +177,5 @@ def close_exits(exits: GoalExits, first: Placement, left: int,
                   'goal_exits_round_kept': kept}
 
 
-__all__ = ['ExitRays', 'GoalExits', 'close_exits', 'fewest_exits', 'scene_clearances']
+__all__ = ['ESCAPE_DRAW', 'ExitRays', 'GoalExits', 'close_exits', 'escape_share', 'fewest_exits',
+           'scene_clearances']

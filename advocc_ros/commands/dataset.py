@@ -77,6 +77,9 @@ def _add_build(p: argparse.ArgumentParser) -> None:
                    help='distance the boxes keep from the witness (and a joint goal) beyond the '
                    'certificate\'s guard margin, and from the scene the kept witness is '
                    'chosen for [m] (default %(default)g)')
+    p.add_argument('--escape-rays', type=int, default=build.escape_rays, metavar='N',
+                   help='joint form: RRT steps from the goal each certified attack\'s escape '
+                   'share p is measured on, at the victims\' step (0: none) (default %(default)s)')
     add_task_option_arg(p, tuple(f'{k}={v}' for k, v in build.task_options))
     p.add_argument('--heatmap', metavar='FILE', help='robot-only heatmap to attack with '
                    '(default: built once per robot into OUT/heatmaps/)')
@@ -98,6 +101,8 @@ def _add_build(p: argparse.ArgumentParser) -> None:
 
 
 GOAL_FORM_CHOICES = ('joint', 'region', 'both')
+MAX_ESCAPE_RAYS = 10_000_000
+"""Most rays ``--escape-rays`` may ask for (a few minutes of collision checks)."""
 
 
 def form_folders(out: str, goal_form: str) -> list[tuple[str, str]]:
@@ -154,6 +159,8 @@ def _config(args: argparse.Namespace):
     given = () if options is None else tuple(
         (k, v) for k, v in dataclasses.asdict(options).items()
         if v != getattr(TaskOptions(), k))
+    if not 0 <= args.escape_rays <= MAX_ESCAPE_RAYS:
+        raise UserError(f'--escape-rays must be in 0..{MAX_ESCAPE_RAYS}')
     if not 0 <= args.victim_margin <= 0.05:
         raise UserError('--victim-margin must be in [0, 0.05] m')
     if args.max_retries < 0 or args.cpus_per_problem <= 0 or args.heatmap_samples < 1 \
@@ -163,7 +170,7 @@ def _config(args: argparse.Namespace):
     build = BuildConfig(budgets=tuple(sorted(set(budgets))), victims=victims,
                         trials=args.trials, time_s=args.time, seed=args.seed,
                         task_options=given, goal_tol=args.goal_tol,
-                        victim_margin_m=args.victim_margin)
+                        victim_margin_m=args.victim_margin, escape_rays=args.escape_rays)
     run = RunConfig(ray_address=args.ray_address, max_retries=args.max_retries,
                     cpus_per_problem=args.cpus_per_problem,
                     problem_timeout_s=args.problem_timeout,
