@@ -31,7 +31,7 @@ REAL = REPO / 'test' / 'data' / 'mbm_real'
 ADVOCC = [sys.executable, '-m', 'advocc_ros.cli']
 RAY = str(pathlib.Path(sys.executable).with_name('ray'))
 TINY = ['--task-option', 'exit_rays=0', '--budgets', '1', '--victims', 'rrtconnect',
-        '--trials', '1', '--time', '1', '--goal-form', 'joint', '--escape-rays', '500']
+        '--trials', '1', '--time', '1', '--escape-rays', '500', '--goal-form', 'joint']
 """One box, one RRTConnect trial of 1 s, the joint goal form (one data set in OUT): the
 smallest build that runs every step. Without the data set's ``exit_rays`` (10-20 s a problem;
 test_goal_forms tests it)."""

@@ -142,3 +142,33 @@ def test_an_exit_ray_is_cut_when_a_box_covers_one_of_its_states():
     assert both.count == 3 and list(both.ray) == [0, 0, 0, 1, 1, 2, 2]
     none = ExitRays(np.zeros((0, 7)), np.zeros(0, dtype=int))
     assert none.count == 0 and none.cover(states[:0]).shape == (0, 3)
+
+
+def test_exits_are_placed_for_after_a_draw_finds_some_and_counted_again_after_none():
+    """``close_exits`` on scripted counts: placement a leaves 3 exits on draw 0, so b is placed
+    to close them; b leaves none on draw 1, so b is counted again on draw 2 (2 left), and c is
+    placed for all 5 found; c leaves 1 on draw 3. b and c both leave 1 a draw: b, the
+    earlier, is kept."""
+    from advocc_ros.attack.exits import ExitRays, close_exits
+
+    class Scripted:
+        ends = np.zeros((0, 2))
+        counts = {('a', 0): 3, ('b', 1): 0, ('b', 2): 2, ('c', 3): 1}
+
+        def free_ends(self, boxes, draw=0):
+            return np.ones((self.counts[(boxes, draw)], 2))
+
+        def rays_to(self, ends):
+            return ExitRays(np.zeros((len(ends), 2)), np.arange(len(ends)))
+
+    closing, made = [], iter('bc')
+
+    def place(rays):
+        closing.append(rays.count)
+        return next(made)
+    kept, stats = close_exits(Scripted(), 'a', 3, place, lambda p: p, 3)
+    assert kept == 'b' and closing == [3, 5]
+    assert stats == {'goal_exits_by_round': [3, 0, 2, 1], 'goal_exits': 2,
+                     'goal_exit_draws_kept': [1, 2]}
+    assert close_exits(Scripted(), 'a', 3, place, lambda p: p, 0)[1] == {
+        'goal_exits_by_round': [3], 'goal_exits': 3, 'goal_exit_draws_kept': [0]}

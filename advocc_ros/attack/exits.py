@@ -12,7 +12,8 @@ placement whose goal leaves the fewest of ``exit_rays`` fixed steps free is kept
 own choice wins ties). With ``TaskOptions.exit_rounds`` the steps that placement leaves free
 become the objective's top tier and the boxes are placed again (``close_exits``), each round
 counted on a fresh draw, since a count on the steps the boxes were placed to close flatters
-them. Only collision checks: no planner is queried.
+them; a placement with no exit on its draw is counted again on the next. Only collision
+checks: no planner is queried.
 """
 
 from __future__ import annotations
@@ -155,26 +156,29 @@ def close_exits(exits: GoalExits, first: Placement, left: int,
                 place: Callable[[ExitRays], Placement],
                 boxes_of: Callable[[Placement], tuple[SceneObject, ...]],
                 rounds: int) -> tuple[Placement, dict]:
-    """Up to ``rounds`` placements more for the kept witness, ``place(rays)`` with the rays
-    found free so far to close (the objective's exit tier, above the goal tier), each counted
-    on a fresh draw of rays (round r: ``draw`` r) whose free rays join those to close; the
-    placement leaving the fewest free (``first``, which leaves ``left`` of draw 0, on ties),
-    and the count of each round."""
-    best, fewest, kept = first, left, 0
-    counts = [left]
+    """Up to ``rounds`` fresh draws of rays (round r: ``draw`` r), each counting the latest
+    placement for the kept witness. After a draw that finds exits the boxes are placed again,
+    ``place(rays)`` with every exit found so far to close (the objective's exit tier, above the
+    goal tier), and the new placement is counted on the next draw; after a draw that finds none
+    the same placement is counted again (no exit in one draw is not p = 0). The placement with
+    the fewest exits per draw it was counted on (``first``, which leaves ``left`` of draw 0,
+    on ties), and the counts."""
+    placed, found = [first], [[left]]  # per placement: its exits on each draw it was counted on
     free = exits.free_ends(boxes_of(first)) if rounds and left else exits.ends[:0]
     closing = exits.rays_to(free)
     for draw in range(1, rounds + 1):
-        if not fewest:
-            break
-        current = place(closing)
-        free = exits.free_ends(boxes_of(current), draw)
+        if len(free):
+            placed.append(place(closing))
+            found.append([])
+        free = exits.free_ends(boxes_of(placed[-1]), draw)
         closing = closing.join(exits.rays_to(free))
-        counts.append(len(free))
-        if counts[-1] < fewest:
-            best, fewest, kept = current, counts[-1], draw
-    return best, {'goal_exits_by_round': counts, 'goal_exits': fewest,
-                  'goal_exits_round_kept': kept}
+        found[-1].append(len(free))
+    kept = min(range(len(placed)), key=lambda i: (sum(found[i]) / len(found[i]), i))
+    first_draw = sum(len(f) for f in found[:kept])
+    return placed[kept], {'goal_exits_by_round': [n for f in found for n in f],
+                          'goal_exits': sum(found[kept]),
+                          'goal_exit_draws_kept': list(range(first_draw,
+                                                             first_draw + len(found[kept])))}
 
 
 __all__ = ['ESCAPE_DRAW', 'ExitRays', 'GoalExits', 'close_exits', 'escape_share', 'fewest_exits',

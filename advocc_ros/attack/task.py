@@ -73,10 +73,11 @@ class TaskOptions:
     leaves the fewest of this many RRT steps from the goal collision-free is kept
     (``attack.exits``); 0: the policy's choice alone."""
     exit_rounds: int = 0
-    """With ``exit_rays``: rounds of closing the kept placement's exits; in each, the rays its
-    boxes left free (every round's) are the objective's tier above the goal tier, the boxes are
-    placed again and counted on a fresh draw of rays, and the placement leaving the fewest free
-    is kept (``attack.exits.close_exits``); 0: none."""
+    """With ``exit_rays``: rounds of closing the kept placement's exits, each a fresh draw of
+    rays counting the latest placement; after a draw that finds exits the boxes are placed again
+    with every exit found so far as the objective's tier above the goal tier, after one that
+    finds none the placement is counted again; the placement with the fewest exits per draw is
+    kept (``attack.exits.close_exits``); 0: none."""
 
     def __post_init__(self):
         for name, (valid, allowed) in OPTION_VALUES.items():

@@ -372,7 +372,7 @@ def mplib_witness_check(scene, robot, q_init, witness) -> dict:
 
 
 EXIT_STATS = ('goal_exit_rays', 'goal_exits_unattacked', 'goal_exits', 'witness_exits',
-              'goal_exits_by_round', 'goal_exits_round_kept')
+              'goal_exits_by_round', 'goal_exit_draws_kept')
 """The attack's statistics of ``attack.exits`` a hardness file keeps (when it chose by them)."""
 
 

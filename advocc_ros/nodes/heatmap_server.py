@@ -114,8 +114,8 @@ _TASK_DOC = {
     'pocket_tier': 'joint goals, 1: the goal\'s pocket is the first tier (0: with the approaches)',
     'exit_rays': 'joint goals, solvable: keep the witness whose boxes leave fewest of this many '
                  'RRT steps from the goal free (0: off)',
-    'exit_rounds': 'with exit_rays: rounds of placing the boxes again to close the rays left '
-                   'free (the top tier), each counted on a fresh draw',
+    'exit_rounds': 'with exit_rays: fresh draws of rays, each counting the latest placement; '
+                   'after one that finds exits the boxes are placed again to close them',
 }
 
 
