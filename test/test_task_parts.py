@@ -166,9 +166,9 @@ def test_exits_are_placed_for_after_a_draw_finds_some_and_counted_again_after_no
     def place(rays):
         closing.append(rays.count)
         return next(made)
-    kept, stats = close_exits(Scripted(), 'a', 3, place, lambda p: p, 3)
+    kept, stats = close_exits(Scripted(), 'a', np.ones((3, 2)), place, lambda p: p, 3)
     assert kept == 'b' and closing == [3, 5]
     assert stats == {'goal_exits_by_round': [3, 0, 2, 1], 'goal_exits': 2,
                      'goal_exit_draws_kept': [1, 2]}
-    assert close_exits(Scripted(), 'a', 3, place, lambda p: p, 0)[1] == {
+    assert close_exits(Scripted(), 'a', np.ones((3, 2)), place, lambda p: p, 0)[1] == {
         'goal_exits_by_round': [3], 'goal_exits': 3, 'goal_exit_draws_kept': [0]}

@@ -161,12 +161,12 @@ def place_boxes(heatmap: Heatmap, task: Task, budget: int, method: str, cfg: Att
     placement = steps_3_to_5()
     if tries_exits(task, method, options):
         exits = GoalExits(task, options.exit_rays)
-        placement, exit_stats = fewest_exits(
+        placement, free, exit_stats = fewest_exits(
             task, exits, witnesses, placement[0].stats.get('witness_kept', 0), placement,
             steps_3_to_5, boxes, cfg.victim_margin_m)
         kept = exit_stats['witness_kept_for_exits']
         placement, round_stats = close_exits(
-            exits, placement, exit_stats['goal_exits'],
+            exits, placement, free,
             lambda closing: steps_3_to_5(kept, closing), boxes, options.exit_rounds)
         stats.update(exit_stats, **round_stats)
     policed, picks, rejected, method_stats = placement

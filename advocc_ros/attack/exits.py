@@ -131,28 +131,29 @@ def scene_clearances(task: Task, witnesses: tuple, margin_m: float) -> list[floa
 def fewest_exits(task: Task, exits: GoalExits, witnesses: tuple, chosen: int,
                  first: Placement, place: Callable[[int], Placement],
                  boxes_of: Callable[[Placement], tuple[SceneObject, ...]],
-                 margin_m: float) -> tuple[Placement, dict]:
+                 margin_m: float) -> tuple[Placement, np.ndarray, dict]:
     """The placement (``first``: for the policy's choice ``chosen``; ``place(k)``: for
     candidate k) whose boxes leave the goal the fewest free ``exits``, among the candidates
-    that keep ``margin_m`` from the scene; and the step's statistics."""
-    tried = {chosen: (first, exits.left_free(boxes_of(first)))}
+    that keep ``margin_m`` from the scene; the ends of the rays it leaves free (draw 0); and
+    the step's statistics."""
+    tried = {chosen: (first, exits.free_ends(boxes_of(first)))}
     clearance = scene_clearances(task, witnesses, margin_m)
     keepers = [k for k in range(len(witnesses)) if clearance is None or clearance[k] >= margin_m]
     if chosen in keepers:
         for k in keepers:
             if k not in tried:
                 placement = place(k)
-                tried[k] = (placement, exits.left_free(boxes_of(placement)))
-    best = min(tried, key=lambda k: (tried[k][1], k != chosen))
+                tried[k] = (placement, exits.free_ends(boxes_of(placement)))
+    best = min(tried, key=lambda k: (len(tried[k][1]), k != chosen))
     stats = {'goal_exit_rays': exits.rays, 'goal_exits_unattacked': len(exits.ends),
-             'witness_exits': {int(k): n for k, (_, n) in sorted(tried.items())},
-             'witness_kept_for_exits': int(best), 'goal_exits': tried[best][1]}
+             'witness_exits': {int(k): len(free) for k, (_, free) in sorted(tried.items())},
+             'witness_kept_for_exits': int(best), 'goal_exits': len(tried[best][1])}
     if clearance is not None:
         stats['witness_scene_clearance_m'] = [round(c, 6) for c in clearance]
-    return tried[best][0], stats
+    return tried[best][0], tried[best][1], stats
 
 
-def close_exits(exits: GoalExits, first: Placement, left: int,
+def close_exits(exits: GoalExits, first: Placement, free: np.ndarray,
                 place: Callable[[ExitRays], Placement],
                 boxes_of: Callable[[Placement], tuple[SceneObject, ...]],
                 rounds: int) -> tuple[Placement, dict]:
@@ -161,10 +162,9 @@ def close_exits(exits: GoalExits, first: Placement, left: int,
     ``place(rays)`` with every exit found so far to close (the objective's exit tier, above the
     goal tier), and the new placement is counted on the next draw; after a draw that finds none
     the same placement is counted again (no exit in one draw is not p = 0). The placement with
-    the fewest exits per draw it was counted on (``first``, which leaves ``left`` of draw 0,
-    on ties), and the counts."""
-    placed, found = [first], [[left]]  # per placement: its exits on each draw it was counted on
-    free = exits.free_ends(boxes_of(first)) if rounds and left else exits.ends[:0]
+    the fewest exits per draw it was counted on (``first``, which leaves the rays to ``free``
+    of draw 0, on ties), and the counts."""
+    placed, found = [first], [[len(free)]]  # per placement: its exits on each draw counted
     closing = exits.rays_to(free)
     for draw in range(1, rounds + 1):
         if len(free):
