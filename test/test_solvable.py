@@ -238,13 +238,15 @@ def test_with_a_victim_margin_the_kept_witness_keeps_it_from_the_scene(task):
     assert len(witnesses) >= 2 and clear.min() < clear.max() < 0.05, clear
 
     def kept(margin_m):
-        result = attack(heatmap, robot, scene.objects, q0, scene.goal, 10, 'task',
+        result = attack(heatmap, robot, scene.objects, q0, scene.goal, 2, 'task',  # any M: the
+                        # witness is chosen before the boxes are placed
                         AttackConfig(goal_policy='solvable', victim_margin_m=margin_m),
                         witness=witnesses, certify=False)
         return result.stats['witness_kept'], result.stats
 
     shielded = kept(0.0)[1]['witness_shielded']
-    for margin_m in np.unique(clear)[:-1] + 1e-5:  # each a margin some candidates keep
+    margins = np.unique(clear)[:-1] + 1e-5  # each a margin some candidates keep
+    for margin_m in np.unique(margins[[0, len(margins) // 2, -1]]):  # lowest, middle, highest
         index, stats = kept(float(margin_m))
         keeping = [i for i in range(len(witnesses)) if clear[i] >= margin_m]
         assert index == min(keeping, key=lambda i: shielded[i]), (margin_m, clear, shielded)
