@@ -239,7 +239,7 @@ def test_with_a_victim_margin_the_kept_witness_keeps_it_from_the_scene(task):
 
     def kept(margin_m):
         result = attack(heatmap, robot, scene.objects, q0, scene.goal, 2, 'task',  # any M: the
-                        # witness is chosen before the boxes are placed
+                        # witness is chosen before the boxes are placed (exit_rays is 0)
                         AttackConfig(goal_policy='solvable', victim_margin_m=margin_m),
                         witness=witnesses, certify=False)
         return result.stats['witness_kept'], result.stats
