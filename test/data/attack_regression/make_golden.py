@@ -115,6 +115,11 @@ def expected(case: dict, platform: str) -> dict:
     return case.get('by_platform', {}).get(platform, case)
 
 
+def outcomes(case: dict) -> list:
+    """Every CPU's pinned boxes for ``case``: the reference's, then ``by_platform``'s."""
+    return [case] + list(case.get('by_platform', {}).values())
+
+
 def outcome(result) -> dict:
     """The golden fields of an attack's result."""
     return {'status': result.status.value,
