@@ -588,6 +588,27 @@ def test_builds_stopped_by_sigint_and_kill_resume_to_a_fresh_builds_summary(
     assert _results(out) == _results(fresh)
 
 
+def test_a_ctrl_c_whose_interrupt_is_swallowed_is_remembered():
+    """Ray's waits run the handler and catch its KeyboardInterrupt (to return a status): the
+    build's loop still sees the Ctrl-C; an inherited SIG_IGN (a background job) stays."""
+    from advocc_ros.dataset import driver
+
+    old = signal.signal(signal.SIGINT, signal.default_int_handler)
+    try:
+        with driver._ctrl_c_kept():
+            assert not driver._SIGINT_SEEN.is_set()
+            with pytest.raises(KeyboardInterrupt):  # raised as by Python's own handler...
+                os.kill(os.getpid(), signal.SIGINT)
+                time.sleep(5)
+            assert driver._SIGINT_SEEN.is_set()  # ...and remembered
+        assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
+        with driver._ctrl_c_kept():
+            assert signal.getsignal(signal.SIGINT) is signal.SIG_IGN
+    finally:
+        signal.signal(signal.SIGINT, old)
+
+
 @pytest.mark.processes
 def test_a_hung_problem_times_out_a_killed_worker_is_retried_malformed_ones_refused(
         problems, robot_heatmap, tmp_path):

@@ -23,18 +23,23 @@ killed) and recorded as ``timeout``. A task whose worker process dies is retried
 (``max_retries``); what Ray reports after that is recorded as what it is (``classify``). Results
 are written as they arrive (``dataset.store``); a stopped build (Ctrl-C or SIGTERM: its entry says
 ``interrupted``; kill -9: it stays ``running``) resumes when run again with the same settings and
-``--out``.
+``--out``. A Ctrl-C is remembered as well as raised (``_ctrl_c_kept``) and the loop stops on the
+memory: Ray's waits run signal handlers themselves and catch the ``KeyboardInterrupt`` to return
+a status, and a CI build under load once ran on to its end after a Ctrl-C.
 """
 
 from __future__ import annotations
 
 import collections
+import contextlib
 import dataclasses
 import json
 import logging
 import os
 import pathlib
+import signal
 import sys
+import threading
 import time
 
 from advocc_ros.dataset import store
@@ -58,6 +63,7 @@ THREAD_ENV = ('ADVOCC_THREADS', 'OMP_NUM_THREADS', 'OPENBLAS_NUM_THREADS', 'MKL_
 (``limits.worker_threads``), OpenMP, the BLAS libraries and numba's parallel loops."""
 HEARTBEAT_S = 30.0
 """Longest wait for a result before the progress shows again [s]."""
+_SIGINT_SEEN = threading.Event()
 
 
 @dataclasses.dataclass(frozen=True)
@@ -150,7 +156,8 @@ def build(selection: Selection, out: str | pathlib.Path, config: BuildConfig,
                                           given, workers=available_cpus(), echo=echo)
                 entry['heatmaps'] = {h: settings['heatmap'].get('sha256') or file_sha256(
                     heatmap_path(out, h)) for h in heatmaps}
-                _run(todo, out, config, cluster, slots, echo, entry, hashes, heatmaps)
+                with _ctrl_c_kept():
+                    _run(todo, out, config, cluster, slots, echo, entry, hashes, heatmaps)
             entry['status'] = 'finished'
         except BaseException as exc:
             stopped = isinstance(exc, (KeyboardInterrupt, SystemExit))
@@ -315,6 +322,8 @@ def _run(todo: list[Problem], out: pathlib.Path, config: BuildConfig, cluster: C
                 ref = task.remote(problem_input(p), refs.get(hashes.get(p.key)), config, log_to)
                 pending[ref] = (p, time.monotonic(), provenance.now())
             results = _next_results(ray, pending, run)
+            if _SIGINT_SEEN.is_set():  # whatever swallowed its KeyboardInterrupt
+                raise KeyboardInterrupt
             for result in results:
                 _save(out, result, counts, bar)
             left = len(pending) + len(queue)
@@ -332,6 +341,28 @@ def _run(todo: list[Problem], out: pathlib.Path, config: BuildConfig, cluster: C
                 pass
 
 
+@contextlib.contextmanager
+def _ctrl_c_kept():
+    """SIGINT raises ``KeyboardInterrupt`` as Python's own handler does, and is remembered in
+    ``_SIGINT_SEEN``; only over Python's handler in the main thread (an inherited SIG_IGN, a
+    background job's, stays)."""
+    if threading.current_thread() is not threading.main_thread() \
+            or signal.getsignal(signal.SIGINT) is not signal.default_int_handler:
+        yield
+        return
+    _SIGINT_SEEN.clear()
+    old = signal.signal(signal.SIGINT, _remember_and_raise)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, old)
+
+
+def _remember_and_raise(signum, frame):
+    _SIGINT_SEEN.set()
+    raise KeyboardInterrupt
+
+
 def _task(ray, run: RunConfig):
     """``run_problem`` as a Ray task: ``cpus_per_problem`` CPUs, its threads capped at them
     (``THREAD_ENV`` in its worker's environment from the start, before numba or a BLAS reads
@@ -347,8 +378,7 @@ def _next_results(ray, pending: dict, run: RunConfig) -> list[dict]:
     limit), and a ``timeout`` result for every task past its limit (cancelled: its worker is
     killed). Takes them out of ``pending``."""
     nearest = min(t + run.problem_timeout_s for _, t, _ in pending.values())
-    ready, _ = ray.wait(list(pending), num_returns=1,
-                        timeout=max(0.0, min(HEARTBEAT_S, nearest - time.monotonic())))
+    ready = _wait_one(ray, list(pending), min(HEARTBEAT_S, nearest - time.monotonic()))
     results = [_result(ray, ref, pending.pop(ref), run) for ref in ready]
     for ref, (p, t, started) in list(pending.items()):
         if time.monotonic() - t < run.problem_timeout_s:
@@ -362,6 +392,17 @@ def _next_results(ray, pending: dict, run: RunConfig) -> list[dict]:
                               '(--problem-timeout): cancelled, its worker killed', run,
                               started))
     return results
+
+
+def _wait_one(ray, refs: list, timeout_s: float) -> list:
+    """``ray.wait`` for one of ``refs`` within ``timeout_s``, in steps of at most 1 s that end
+    early on a remembered Ctrl-C (``_ctrl_c_kept``)."""
+    deadline = time.monotonic() + max(0.0, timeout_s)
+    while True:
+        ready, _ = ray.wait(refs, num_returns=1,
+                            timeout=max(0.0, min(1.0, deadline - time.monotonic())))
+        if ready or _SIGINT_SEEN.is_set() or time.monotonic() >= deadline:
+            return ready
 
 
 def _result(ray, ref, task: tuple, run: RunConfig) -> dict:
