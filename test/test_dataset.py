@@ -589,8 +589,9 @@ def test_builds_stopped_by_sigint_and_kill_resume_to_a_fresh_builds_summary(
 
 
 def test_a_ctrl_c_whose_interrupt_is_swallowed_is_remembered():
-    """Ray's waits run the handler and catch its KeyboardInterrupt (to return a status): the
-    build's loop still sees the Ctrl-C; an inherited SIG_IGN (a background job) stays."""
+    """A KeyboardInterrupt caught by the code it was raised in (as a wait that runs signal
+    handlers itself may do): the build's loop still sees the Ctrl-C; an inherited SIG_IGN (a
+    background job's) stays."""
     from advocc_ros.dataset import driver
 
     old = signal.signal(signal.SIGINT, signal.default_int_handler)
