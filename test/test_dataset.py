@@ -416,6 +416,8 @@ def test_every_table_row_names_its_making(built):
     assert escape['rays'] == 500 and escape['step_rad'] == 0.01 and 0 < escape['free'] <= 500
     assert float(rows[1]['goal_escape_p']) == escape['free'] / 500
     assert rows[0]['goal_escape_p'] == ''  # the unattacked row
+    assert attacked['direct_motion'] == rows[1]['direct_motion'] == 'blocked'  # by the scene
+    assert int(rows[1]['witness_waypoints']) == attacked['witness_waypoints'] > 2
 
 
 @pytest.mark.processes  # the `built` fixture runs a build

@@ -288,6 +288,55 @@ def test_exit_rays_keeps_the_witness_whose_boxes_leave_the_goal_fewest_exits(box
     assert attacked is not None and entry['witness_scene_clearance_m'] >= 0.004 - 1e-9
 
 
+DIRECT = pathlib.Path(__file__).parent / 'data' / 'mbm_direct_motion' / 'table_pick_panda'
+
+
+def test_a_free_direct_motion_is_left_by_the_witness_and_cut_by_the_boxes(box_heatmap):
+    """On table_pick 0033 the straight motion from the start to the joint goal is free. A
+    witness on it would keep it open (no box may touch the witness) to every planner that tries
+    the direct connection first; the search plans around a cube on it instead, and the motion
+    is the objective's first row: the boxes cut it and the witness stays certified. Where the
+    scene blocks the motion (box 0001) there is no cube and no such row."""
+    from advocc_ros.attack import AttackConfig
+    from advocc_ros.attack.edges import attack_task
+    from advocc_ros.attack.task import TaskOptions
+    from advocc_ros.planning.witness import (direct_blocker, direct_motion_free, grown_objects,
+                                             search_witnesses, witness_states)
+
+    scene = load_any_scene(DIRECT / 'scene0033.yaml', DIRECT / 'request0033.yaml')
+    robot = load_robot(scene.robot)
+    q_init = start_configuration(scene, robot)
+    q_goal = scene.goal.configuration(robot.joint_names)
+    world = CollisionWorld(robot, scene.shapes)
+    assert direct_motion_free(world, q_init, q_goal)
+    blocker = direct_blocker(robot, world, q_init, scene.goal)
+    cube = CollisionWorld(robot, list(blocker.shapes))
+    assert not direct_motion_free(cube, q_init, q_goal)
+    plain = search_witnesses(robot, world, scene.objects, q_init, scene.goal,
+                             planned_among=grown_objects(scene.objects, 0.004))
+    assert len(plain[0].waypoints) == 2  # without the cube: the straight motion itself
+    cfg = AttackConfig(goal_policy='solvable', victim_margin_m=0.004)
+    result = attack_task(box_heatmap, robot, scene.objects, q_init, scene.goal, 4, 'task', cfg,
+                         method_options=TaskOptions(pocket_tier=1))
+    assert result.status.ok, result.message
+    assert result.stats['direct_motion'] == 'free' and result.stats['direct_motion_cut']
+    assert result.solvable.verdict.value == 'certified'
+    path = witness_states(result.witness.configurations(robot))
+    assert not cube.collisions_batch(path).any()
+    assert result.witness.source['direct_blocker_center_m'] == \
+        list(blocker.shapes[0].pose.position_m)
+    boxes = CollisionWorld(robot, [o.shapes[0] for o in result.obstacles])
+    assert not direct_motion_free(boxes, q_init, q_goal)
+    box, robot, q_init = _problem('box')
+    q_goal = box.goal.configuration(robot.joint_names)
+    blocked = CollisionWorld(robot, box.shapes)
+    assert not direct_motion_free(blocked, q_init, q_goal)
+    assert direct_blocker(robot, blocked, q_init, box.goal) is None
+    result = attack_task(box_heatmap, robot, box.objects, q_init, box.goal, 2, 'task', cfg,
+                         method_options=TaskOptions(pocket_tier=1))
+    assert result.stats['direct_motion'] == 'blocked' and 'direct_motion_cut' not in result.stats
+
+
 def test_only_the_region_form_keeps_boxes_off_the_goal_region(box_heatmap):
     """The region form's C3 keeps d_safe (10 cm) from the goal region's position box; the joint
     form keeps the goal's body clear instead, so boxes may close in around the hand."""

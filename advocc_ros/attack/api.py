@@ -8,7 +8,8 @@ runs the steps,
 each a function from data to data in a module of its own, and gathers their statistics:
 
 1. the task sample (``attack.task.task_sample``), when the method covers it or the policy is
-   ``solvable``;
+   ``solvable`` (in the ``joint`` form with the direct motion when the scene leaves it free: the
+   result says whether the boxes cut it, ``direct_motion_cut``);
 2. the search region, C1-C3 (``attack.region.search_region``);
 3. the goal policy (``attack.policy.apply_policy``; under ``solvable`` the witness and its
    choice; in the ``joint`` form with ``TaskOptions.exit_rays``, steps 3-5 run for each
@@ -45,7 +46,7 @@ from advocc_ros.attack.policy import apply_policy
 from advocc_ros.attack.region import search_region
 from advocc_ros.attack.request import box_size, validate_request
 from advocc_ros.attack.solvable import judge, witness_candidates
-from advocc_ros.attack.task import TaskOptions, task_sample
+from advocc_ros.attack.task import TaskOptions, direct_motion_cut, task_sample
 from advocc_ros.attack.types import (DEFAULT_METHOD, AttackConfig, AttackError, AttackResult,
                                      AttackStatus, Task, box_id)
 from advocc_ros.heatmap import Heatmap, link_tables
@@ -148,7 +149,8 @@ def place_boxes(heatmap: Heatmap, task: Task, budget: int, method: str, cfg: Att
         policed = apply_policy(task, region, cfg, witnesses, choice, kept)      # step 3
         extra = {}
         if method in CONTEXT_METHODS:
-            used = sample if closing is None else dataclasses.replace(sample, exits=closing)
+            used = sample if closing is None else dataclasses.replace(
+                sample, exits=closing if sample.exits is None else sample.exits.join(closing))
             extra['context'] = MethodContext.of(task, options, used, policed)
         picks, rejected, *more = METHODS[method](policed.region, budget, seed, cfg,
                                                  **extra)                       # steps 4-5
@@ -172,6 +174,8 @@ def place_boxes(heatmap: Heatmap, task: Task, budget: int, method: str, cfg: Att
     policed, picks, rejected, method_stats = placement
     stats = {**region.stats, **policed.stats, **stats, **method_stats, 'rejected_picks': rejected}
     obstacles = boxes(placement)
+    if sample is not None and sample.exits is not None:  # the direct motion was free
+        stats['direct_motion_cut'] = direct_motion_cut(task, obstacles)
     status, message = AttackStatus.SUCCESS, f'placed {len(obstacles)} boxes'
     if len(obstacles) < budget:
         status = AttackStatus.PARTIAL

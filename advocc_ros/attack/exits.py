@@ -96,12 +96,18 @@ class GoalExits:
 
     def rays_to(self, ends: np.ndarray) -> ExitRays:
         """The rays to ``ends`` and the states they are checked at."""
-        steps = np.maximum(np.ceil(np.linalg.norm(ends - self.q_goal, axis=1) / RAY_STEP_RAD),
-                           1).astype(int)
-        states = np.concatenate([np.zeros((0, self.robot.nq))] + [
-            self.q_goal + (np.arange(1, k + 1) / k)[:, None] * (end - self.q_goal)
-            for end, k in zip(ends, steps)])
-        return ExitRays(states, np.repeat(np.arange(len(ends)), steps))
+        return rays_from(self.q_goal, ends)
+
+
+def rays_from(q_goal: np.ndarray, ends: np.ndarray) -> ExitRays:
+    """The straight motions from ``q_goal`` to the rows of ``ends`` as rays, each checked every
+    ``RAY_STEP_RAD`` (its end included, the goal not)."""
+    steps = np.maximum(np.ceil(np.linalg.norm(ends - q_goal, axis=1) / RAY_STEP_RAD),
+                       1).astype(int)
+    states = np.concatenate([np.zeros((0, len(q_goal)))] + [
+        q_goal + (np.arange(1, k + 1) / k)[:, None] * (end - q_goal)
+        for end, k in zip(ends, steps)])
+    return ExitRays(states, np.repeat(np.arange(len(ends)), steps))
 
 
 ESCAPE_DRAW = 1_000
@@ -182,4 +188,4 @@ def close_exits(exits: GoalExits, first: Placement, free: np.ndarray,
 
 
 __all__ = ['ESCAPE_DRAW', 'ExitRays', 'GoalExits', 'close_exits', 'escape_share', 'fewest_exits',
-           'scene_clearances']
+           'rays_from', 'scene_clearances']

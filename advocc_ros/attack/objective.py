@@ -4,9 +4,10 @@ covers and what covering them is worth (docs/design.md).
 A box covers a configuration when it holds a voxel the robot occupies there
 (``attack.configurations``: a sparse 0/1 cover matrix, configurations x candidates). Rows:
 
-- under the ``joint`` form with ``TaskOptions.exit_rounds``, the goal's exits (``attack.exits``):
-  the RRT steps from the goal a placement left free, one row a ray, covered when a box covers
-  one of its states;
+- under the ``joint`` form, rays, one row each, covered when a box covers one of their states:
+  the direct motion from the start when the scene leaves it free (``attack.task.direct_motion``)
+  and, with ``TaskOptions.exit_rounds``, the goal's exits (``attack.exits``), the RRT steps from
+  the goal a placement left free;
 - the goal tier (the task sample's goal configurations), each the same weight: every plan ends
   in the goal set, and what the boxes leave of the sample is the share of goals a planner can
   still draw;
@@ -15,7 +16,7 @@ A box covers a configuration when it holds a voxel the robot occupies there
 - the passage: the sample's approaches and, under the ``solvable`` policy, the tube around the
   kept witness (its guard states plus the sample's offsets), weighted by the paper's w(q).
 
-One objective, lexicographic through its weights: an exit outweighs all goal configurations, a
+One objective, lexicographic through its weights: a ray outweighs all goal configurations, a
 goal configuration all deep contacts, a deep contact all passage configurations. Every plan
 ends in the goal set, so the boxes first cut it to the sliver the policy must leave (under
 ``solvable``, around the witness's end, which the witness search places where planners rarely
@@ -68,7 +69,8 @@ class Objective:
     feasible: Callable[[], np.ndarray] | None = None
     """Candidates still allowed, asked before every pick (``reachable``), or None."""
     exit_rows: int = 0
-    """The first rows, before the goal tier: goal rays to close (``attack.exits``)."""
+    """The first rows, before the goal tier: rays to close (the direct motion, the goal's
+    exits)."""
 
 
 def lexicographic_weights(*tiers: np.ndarray) -> np.ndarray:
@@ -133,8 +135,8 @@ def goal_tiers(context: MethodContext, world: CollisionWorld, region: SearchRegi
                Q_path: np.ndarray, w_path: np.ndarray) -> Objective:
     """The tiers (goal exits, goal, deep goal, passage), the one place the goal form decides
     the goal rows: under ``region`` the sample's goal configurations, each of weight 1; under
-    ``joint`` the pocket (``TaskOptions.pocket_tier``) and, above it, the goal rays to close
-    (``attack.exits``), a ray covered when one of its states is."""
+    ``joint`` the pocket (``TaskOptions.pocket_tier``) and, above it, the rays to close (the
+    direct motion, the goal's exits), a ray covered when one of its states is."""
     Q_goal = context.sample.goals
     exits = context.sample.exits or ExitRays(np.zeros((0, context.robot.nq)), np.zeros(0, int))
     n_goal, n_path = len(Q_goal), len(Q_path)

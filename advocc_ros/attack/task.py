@@ -15,7 +15,10 @@ else:
   the first goal configurations (straight, and through perturbed midpoints: plans rarely run
   straight in joint space);
 - the tube's perturbations: under the ``solvable`` policy the objective (``attack.objective``)
-  adds configurations around the kept witness, these offsets from its states.
+  adds configurations around the kept witness, these offsets from its states;
+- under the ``joint`` form, the *direct motion* when the scene leaves it free (``direct_motion``):
+  the straight joint motion from ``q_init`` to the goal, one row above every other, since PRM*,
+  VAMP and any planner that tries the direct connection first solve the task with it.
 
 One seeded stream draws the approaches' detours, then the tube's offsets, so a seed gives the
 same sample on any machine. ``TaskOptions`` shape it; the CLI, the heatmap server and the
@@ -31,10 +34,13 @@ from typing import Any, Mapping
 
 import numpy as np
 
+from advocc_ros.attack.exits import ExitRays, rays_from
 from advocc_ros.attack.types import Task
 from advocc_ros.kinematics.goal_batch import TASK_GOALS, GoalDraw, goal_pocket, task_goals
 from advocc_ros.limits import worker_threads
 from advocc_ros.model.collision import CollisionWorld, shared_world
+from advocc_ros.model.scene import SceneObject
+from advocc_ros.planning.witness import direct_motion_free
 
 
 @dataclasses.dataclass(frozen=True)
@@ -176,8 +182,9 @@ class TaskSample:
     """(m, nq) what the witness choice weighs (``attack.policy.choose_witness``): the goal tier,
     or under ``joint`` the goal's pocket."""
     exits: Any = None
-    """Goal rays for the boxes to close, the tier above the goal tier (``attack.exits``:
-    ``ExitRays``, ``TaskOptions.exit_rounds``), or None."""
+    """Rays for the boxes to close, the tier above the goal tier (``attack.exits.ExitRays``):
+    the direct motion (``direct_motion``), then the goal's exits of ``TaskOptions.exit_rounds``;
+    or None."""
 
 
 def goal_tier(task: Task) -> GoalDraw:
@@ -189,12 +196,33 @@ def goal_tier(task: Task) -> GoalDraw:
     return task_goals(task.robot, task.objects, task.goal)
 
 
+def direct_motion(task: Task, world: CollisionWorld) -> ExitRays | None:
+    """Under the ``joint`` form, the straight motion from ``q_init`` to the goal as one ray from
+    the goal, when ``world`` leaves it free (``planning.witness.direct_motion_free``, the test
+    of the witness search, which then plans around it: ``planning.witness.direct_blocker``);
+    else None. A box that covers one of its states cuts it."""
+    if not task.goal.is_joint:
+        return None
+    q_goal = task.goal.configuration(task.robot.joint_names)
+    if not direct_motion_free(world, task.q_init, q_goal):
+        return None
+    return rays_from(q_goal, task.q_init[None])
+
+
+def direct_motion_cut(task: Task, boxes: tuple[SceneObject, ...]) -> bool:
+    """Whether ``boxes`` block the straight motion from ``q_init`` to the joint goal (checked
+    as ``direct_motion`` checks it on the scene)."""
+    world = CollisionWorld(task.robot, [sh for o in boxes for sh in o.shapes])
+    return not direct_motion_free(world, task.q_init,
+                                  task.goal.configuration(task.robot.joint_names))
+
+
 def task_sample(task: Task, options: TaskOptions, seed: int) -> TaskSample:
     """The task sample (module docstring); ``seed`` draws the detours and the tube offsets.
     Under the ``joint`` form the approaches run to the goal configuration, the straight one and
     ``approach_goals x detours`` through perturbed midpoints, after the goal's pocket
     (``kinematics.goal_batch.goal_pocket``: every path ends there), which with
-    ``options.pocket_tier`` is the goal tier instead."""
+    ``options.pocket_tier`` is the goal tier instead; the direct motion when it is free."""
     goals = goal_tier(task)
     world = shared_world(task.robot, [sh for o in task.objects for sh in o.shapes])
     rng = np.random.default_rng(seed)
@@ -217,9 +245,12 @@ def task_sample(task: Task, options: TaskOptions, seed: int) -> TaskSample:
                                  rng)
     shape = (options.tube_samples, task.robot.nq)
     noise = rng.normal(0.0, options.tube_rad, shape) if options.tube_samples else np.zeros(shape)
-    return TaskSample(tier, Q_app, noise, {'task_goal_samples': len(tier),
-                                           'task_goal_attempts': goals.attempts}, pocket)
+    stats = {'task_goal_samples': len(tier), 'task_goal_attempts': goals.attempts}
+    direct = direct_motion(task, world)
+    if task.goal.is_joint:
+        stats['direct_motion'] = 'free' if direct is not None else 'blocked'
+    return TaskSample(tier, Q_app, noise, stats, pocket, direct)
 
 
 __all__ = ['OPTION_VALUES', 'THREADS', 'TaskOptions', 'TaskSample', 'approach_samples',
-           'goal_tier', 'task_options', 'task_sample']
+           'direct_motion', 'direct_motion_cut', 'goal_tier', 'task_options', 'task_sample']

@@ -395,6 +395,9 @@ def _attack_entry(result, scene, robot, q_init, wall_s: float):
                          for o in result.obstacles], 'victims': {},
              'witness_candidates': result.stats.get('witness_candidates', 1),
              **{key: result.stats[key] for key in EXIT_STATS if key in result.stats}}
+    if 'direct_motion' in result.stats:  # the joint form: 'blocked' by the scene, or free
+        entry['direct_motion'] = result.stats['direct_motion'] if 'direct_motion_cut' not in \
+            result.stats else 'cut' if result.stats['direct_motion_cut'] else 'open'
     if not result.status.ok or verdict is None or not verdict.certified:
         return entry, None
     attacked = scene.with_objects(result.obstacles)

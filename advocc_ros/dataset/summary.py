@@ -34,12 +34,14 @@ PROVENANCE_COLUMNS = ('commit', 'dirty', 'host', 'cpu', 'cpus', 'threads', 'vict
 """The columns of ``problems.csv`` that name a row's making (the problem's ``provenance``:
 ``load_*`` the 1-minute load average, ``versions`` ``name=version`` pairs)."""
 TABLE_COLUMNS = ('family', 'problem', 'split', 'goal_form', 'outcome', 'budget', 'certificate',
-                 'boxes', 'witness_accepted_by_mplib', 'goal_escape_p',
-                 'victim', 'trials', 'psr', 'psr_given_goals', 'no_goal_found',
+                 'boxes', 'witness_waypoints', 'direct_motion', 'witness_accepted_by_mplib',
+                 'goal_escape_p', 'victim', 'trials', 'psr', 'psr_given_goals', 'no_goal_found',
                  'first_solution_median_s', 'pt_ratio', 'unattacked_psr') + PROVENANCE_COLUMNS
 """``problems.csv``: budget 0 rows are the unattacked problem; a problem without a hardness
 record (refused, no witness, timeout, ...) has one row with its outcome only;
-``goal_escape_p``: the attacked joint goal's escape share (``BuildConfig.escape_rays``)."""
+``goal_escape_p``: the attacked joint goal's escape share (``BuildConfig.escape_rays``);
+``direct_motion`` (joint form): the straight motion from the start to the goal ``blocked`` by
+the scene, or free on it and ``cut`` by the boxes or left ``open``."""
 
 
 def _mean(values: list) -> float | None:
@@ -169,7 +171,10 @@ def table_rows(out: pathlib.Path, keys: list[str] | None = None) -> list[dict]:
             accepted = attack.get('witness_checks', {}).get('mplib', {}).get('accepted')
             escape = attack.get('goal_escape')
             head = dict(key, budget=int(budget), certificate=attack.get('certificate'),
-                        boxes=attack.get('boxes'), witness_accepted_by_mplib=accepted,
+                        boxes=attack.get('boxes'),
+                        witness_waypoints=attack.get('witness_waypoints'),
+                        direct_motion=attack.get('direct_motion'),
+                        witness_accepted_by_mplib=accepted,
                         goal_escape_p=escape['free'] / escape['rays'] if escape else None)
             for victim, cell in attack.get('victims', {}).items():
                 rows.append(dict(head, victim=victim, **_cell(cell),

@@ -22,6 +22,9 @@ objects). With a clearance (``AttackConfig.victim_margin_m``: room for a victim'
 model, whose checker calls a path that grazes its scene closed) the search plans among the
 scene's primitives grown by it (``grown_objects``) and certifies on the scene itself; when that
 finds nothing (a start or goal closer than that to the scene), it searches the scene as it is.
+When the straight motion from the start to a ``joint`` goal is free, the search first plans
+around a cube on it (``direct_blocker``): no box may touch the witness, so a witness on that
+motion would keep it open to every planner that tries the direct connection first.
 
 The candidates are kept twice: in this process, and on disk (``model.cache.disk_cache_dir``)
 so that the next process (another ``advocc attack``, a restarted node) skips the search; a
@@ -51,7 +54,8 @@ from advocc_ros.model.cache import CACHE_ENV, BoundedCache, disk_cache_dir
 from advocc_ros.model.collision import CollisionWorld
 from advocc_ros.model.robot import RobotModel
 from advocc_ros.model.goal import JOINT_TOLERANCE_RAD, GoalRegion
-from advocc_ros.model.scene import Scene, SceneObject, read_yaml, save_yaml_atomic, task_hash
+from advocc_ros.model.scene import (Scene, SceneObject, make_box, read_yaml, save_yaml_atomic,
+                                    task_hash)
 from advocc_ros.model.shapes import Shape
 from advocc_ros.model.pose import SceneError
 from advocc_ros.planning.certificate import CertificateConfig, PathCertificate, certify_path
@@ -250,6 +254,50 @@ def load_witness(path: str | pathlib.Path) -> Witness:
     return Witness.from_data(read_yaml(pathlib.Path(path)), str(path))
 
 
+DIRECT_BLOCK_M = 0.1
+"""Edge of the cube the search plans around when the straight motion to a joint goal is free
+[m] (``direct_blocker``): twice the attack's box, so that a box on the voxel grid near the
+cube's centre lies inside it, clear of the witness."""
+DIRECT_BLOCK_START_M = 0.1
+"""Least distance of that cube from the robot at the start [m]: the attack's d_safe (C3), so a
+box inside it is allowed."""
+DIRECT_BLOCK_GOAL_M = 0.02
+"""Least distance of that cube from the robot at the goal [m]: the goal's body is protected."""
+DIRECT_BLOCK_FRACTIONS = (0.5, 0.4, 0.6, 0.3, 0.7, 0.2, 0.8)
+"""Where along the straight motion the cube is tried, in this order."""
+
+
+def direct_motion_free(world: CollisionWorld, q_init: np.ndarray, q_goal: np.ndarray) -> bool:
+    """Whether the straight joint motion from ``q_init`` to ``q_goal`` is free in ``world``,
+    checked every ``WITNESS_STEP_RAD`` (``witness_states``)."""
+    return not world.collisions_batch(witness_states(np.stack([q_init, q_goal]))).any()
+
+
+def direct_blocker(robot: RobotModel, world: CollisionWorld, q_init: np.ndarray,
+                   goal: GoalRegion) -> SceneObject | None:
+    """A cube for the search to plan around when the straight motion from ``q_init`` to a
+    ``joint`` goal is free in ``world``, else None. A witness on that motion keeps it free (no
+    box may touch the witness), and PRM*, VAMP and any planner that tries the direct connection
+    first would solve the attacked task with it; planned around the cube, the witness leaves it
+    and a box may cut it there (``attack.task.direct_motion``). The cube (``DIRECT_BLOCK_M``) is
+    centred on the goal link's origin at the first of ``DIRECT_BLOCK_FRACTIONS`` of the motion
+    where it keeps ``DIRECT_BLOCK_START_M`` from the robot at the start and
+    ``DIRECT_BLOCK_GOAL_M`` at the goal; None when no fraction does."""
+    if not goal.is_joint:
+        return None
+    q_goal = goal.configuration(robot.joint_names)
+    if not direct_motion_free(world, q_init, q_goal):
+        return None
+    for t in DIRECT_BLOCK_FRACTIONS:
+        center = robot.ee_pose(q_init + t * (q_goal - q_init), link=goal.link).translation
+        cube = make_box('direct_motion_blocker', np.round(center, 9), (DIRECT_BLOCK_M,) * 3)
+        near = CollisionWorld(robot, list(cube.shapes)).scene_clearances(
+            np.stack([q_init, q_goal]), DIRECT_BLOCK_START_M)
+        if near[0] >= DIRECT_BLOCK_START_M and near[1] >= DIRECT_BLOCK_GOAL_M:
+            return cube
+    return None
+
+
 WITNESSES: BoundedCache = BoundedCache('witnesses', 32)
 """Task hash -> the candidate witnesses found in this process (a failed search is not kept)."""
 
@@ -259,30 +307,51 @@ def find_witnesses(robot: RobotModel, objects: tuple[SceneObject, ...] | list,
                    clearance_m: float = 0.0) -> tuple[Witness, ...]:
     """The task's candidate witnesses on the scene ``objects``, each certified there (empty
     when the search found none), planned ``clearance_m`` clear of its primitives when it can
-    be, cached per task in this process and on disk (module docstring)."""
+    be and around the direct motion's blocker when there is one (``direct_blocker``), cached
+    per task in this process and on disk (module docstring)."""
     objects = tuple(objects)
     q_init = np.asarray(q_init, float)
+    world = CollisionWorld(robot, [sh for o in objects for sh in o.shapes])
+    blocker = direct_blocker(robot, world, q_init, goal)
     key = task_hash(robot.hash, objects, goal, np.round(q_init, 12).tolist(), time_s,
                     SET_FORMAT, WITNESS_PLANNER, WITNESS_SEED, WITNESS_STEP_RAD,
                     'continuous', WITNESS_TRIES, END_CANDIDATES, END_CLEARANCE_M, END_TIME_S,
-                    *(('clearance', clearance_m) if clearance_m > 0 else ()))
+                    *(('clearance', clearance_m) if clearance_m > 0 else ()),
+                    *(('direct blocker', list(blocker.shapes[0].pose.position_m), DIRECT_BLOCK_M)
+                      if blocker is not None else ()))
     cached = WITNESSES.get(key)
     if cached is not None:
         return cached
     cache_dir = disk_cache_dir()
     disk = cache_dir / f'{key}.yaml' if cache_dir is not None else None
-    world = CollisionWorld(robot, [sh for o in objects for sh in o.shapes])
     witnesses = _from_disk(disk, robot, world, q_init, goal) if disk is not None else ()
-    if not witnesses and clearance_m > 0:
-        witnesses = search_witnesses(robot, world, objects, q_init, goal, time_s,
-                                     grown_objects(objects, clearance_m))
-    if not witnesses:
-        witnesses = search_witnesses(robot, world, objects, q_init, goal, time_s)
-        if not witnesses:  # not kept: a later call searches again
-            return ()
-        if disk is not None:
-            _to_disk(disk, witnesses)
+    searched = not witnesses
+    for planned_among in _search_scenes(objects, clearance_m, blocker):
+        if witnesses:
+            break
+        witnesses = search_witnesses(robot, world, objects, q_init, goal, time_s, planned_among)
+        if blocker is not None and blocker.id in (o.id for o in planned_among):
+            witnesses = tuple(dataclasses.replace(w, source=dict(
+                w.source, direct_blocker_center_m=list(blocker.shapes[0].pose.position_m)))
+                for w in witnesses)
+    if not witnesses:  # not kept: a later call searches again
+        return ()
+    if disk is not None and searched:
+        _to_disk(disk, witnesses)
     return WITNESSES.put(key, witnesses)
+
+
+def _search_scenes(objects: tuple[SceneObject, ...], clearance_m: float,
+                   blocker: SceneObject | None) -> list[tuple[SceneObject, ...]]:
+    """The scenes the search plans among, in the order tried: with the direct motion's blocker
+    (when there is one) before without, the scene grown by ``clearance_m`` (when > 0) before
+    the scene as it is."""
+    scenes = []
+    for extra in ((blocker,), ()) if blocker is not None else ((),):
+        if clearance_m > 0:
+            scenes.append(grown_objects(objects + extra, clearance_m))
+        scenes.append(objects + extra)
+    return scenes
 
 
 def rare_clear_ends(robot: RobotModel, world: CollisionWorld, objects: tuple[SceneObject, ...],
@@ -457,6 +526,7 @@ def _to_disk(path: pathlib.Path, witnesses: tuple[Witness, ...]) -> None:
 
 
 __all__ = ['CACHE_ENV', 'SET_FORMAT', 'WITNESS_STEP_RAD', 'Certified', 'Witness', 'certify',
-           'find_witnesses', 'grown_objects', 'load_candidates', 'load_witness',
-           'object_shape_names', 'plan_witness', 'rare_clear_ends', 'save_candidates',
-           'save_witness', 'search_witnesses', 'witness_file', 'witness_states']
+           'direct_blocker', 'direct_motion_free', 'find_witnesses', 'grown_objects',
+           'load_candidates', 'load_witness', 'object_shape_names', 'plan_witness',
+           'rare_clear_ends', 'save_candidates', 'save_witness', 'search_witnesses',
+           'witness_file', 'witness_states']
