@@ -291,6 +291,27 @@ def test_exit_rays_keeps_the_witness_whose_boxes_leave_the_goal_fewest_exits(box
 DIRECT = pathlib.Path(__file__).parent / 'data' / 'mbm_direct_motion' / 'table_pick_panda'
 
 
+def test_where_the_hand_hardly_moves_the_direct_motions_cube_goes_on_another_joint():
+    """On bookshelf_small 0034 the direct motion turns the arm 3.9 rad while the hand moves a
+    few cm: a cube on the hand touches the robot at the start or at the goal wherever it is put,
+    so it goes on a joint that moves (the first of the joints' origins, last joint first)."""
+    from advocc_ros.planning.witness import (DIRECT_BLOCK_GOAL_M, DIRECT_BLOCK_START_M,
+                                             direct_blocker, direct_motion_free)
+
+    folder = DIRECT.parent / 'bookshelf_small_panda'
+    scene = load_any_scene(folder / 'scene0034.yaml', folder / 'request0034.yaml')
+    robot = load_robot(scene.robot)
+    q_init = start_configuration(scene, robot)
+    q_goal = scene.goal.configuration(robot.joint_names)
+    blocker = direct_blocker(robot, CollisionWorld(robot, scene.shapes), q_init, scene.goal)
+    cube = CollisionWorld(robot, list(blocker.shapes))
+    assert not direct_motion_free(cube, q_init, q_goal)
+    near = cube.scene_clearances(np.stack([q_init, q_goal]), 1.0)
+    assert near[0] >= DIRECT_BLOCK_START_M and near[1] >= DIRECT_BLOCK_GOAL_M
+    hand = robot.ee_pose(0.5 * (q_init + q_goal), link=scene.goal.link).translation
+    assert np.abs(np.array(blocker.shapes[0].pose.position_m) - hand).max() > 0.05
+
+
 def test_a_free_direct_motion_is_left_by_the_witness_and_cut_by_the_boxes(box_heatmap):
     """On table_pick 0033 the straight motion from the start to the joint goal is free. A
     witness on it would keep it open (no box may touch the witness) to every planner that tries

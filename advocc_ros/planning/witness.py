@@ -49,6 +49,7 @@ import pathlib
 import typing
 
 import numpy as np
+import pinocchio as pin
 
 from advocc_ros.model.cache import CACHE_ENV, BoundedCache, disk_cache_dir
 from advocc_ros.model.collision import CollisionWorld
@@ -280,22 +281,32 @@ def direct_blocker(robot: RobotModel, world: CollisionWorld, q_init: np.ndarray,
     box may touch the witness), and PRM*, VAMP and any planner that tries the direct connection
     first would solve the attacked task with it; planned around the cube, the witness leaves it
     and a box may cut it there (``attack.task.direct_motion``). The cube (``DIRECT_BLOCK_M``) is
-    centred on the goal link's origin at the first of ``DIRECT_BLOCK_FRACTIONS`` of the motion
-    where it keeps ``DIRECT_BLOCK_START_M`` from the robot at the start and
-    ``DIRECT_BLOCK_GOAL_M`` at the goal; None when no fraction does."""
+    centred on the robot at the first of ``DIRECT_BLOCK_FRACTIONS`` of the motion, and there on
+    the first of its points (``_body_points``), where it keeps ``DIRECT_BLOCK_START_M`` from
+    the robot at the start and ``DIRECT_BLOCK_GOAL_M`` at the goal; None when none does."""
     if not goal.is_joint:
         return None
     q_goal = goal.configuration(robot.joint_names)
     if not direct_motion_free(world, q_init, q_goal):
         return None
     for t in DIRECT_BLOCK_FRACTIONS:
-        center = robot.ee_pose(q_init + t * (q_goal - q_init), link=goal.link).translation
-        cube = make_box('direct_motion_blocker', np.round(center, 9), (DIRECT_BLOCK_M,) * 3)
-        near = CollisionWorld(robot, list(cube.shapes)).scene_clearances(
-            np.stack([q_init, q_goal]), DIRECT_BLOCK_START_M)
-        if near[0] >= DIRECT_BLOCK_START_M and near[1] >= DIRECT_BLOCK_GOAL_M:
-            return cube
+        for center in _body_points(robot, q_init + t * (q_goal - q_init), goal.link):
+            cube = make_box('direct_motion_blocker', np.round(center, 9), (DIRECT_BLOCK_M,) * 3)
+            near = CollisionWorld(robot, list(cube.shapes)).scene_clearances(
+                np.stack([q_init, q_goal]), DIRECT_BLOCK_START_M)
+            if near[0] >= DIRECT_BLOCK_START_M and near[1] >= DIRECT_BLOCK_GOAL_M:
+                return cube
     return None
+
+
+def _body_points(robot: RobotModel, q: np.ndarray, link: str) -> list[np.ndarray]:
+    """Points on the robot at ``q`` where ``direct_blocker`` tries its cube: the origin of
+    ``link`` (the hand), then the joints' origins from the last to the first (where the hand
+    hardly moves, the elbow may)."""
+    data = robot.create_data()
+    pin.forwardKinematics(robot.model, data, q)
+    return [robot.ee_pose(q, link=link).translation] + [
+        data.oMi[j].translation.copy() for j in range(robot.model.njoints - 1, 0, -1)]
 
 
 WITNESSES: BoundedCache = BoundedCache('witnesses', 32)
