@@ -295,17 +295,19 @@ def test_where_the_hand_hardly_moves_the_direct_motions_cube_goes_on_another_joi
     """On bookshelf_small 0034 the direct motion turns the arm 3.9 rad while the hand moves a
     few cm: a cube on the hand touches the robot at the start or at the goal wherever it is put,
     so it goes on a joint that moves (the first of the joints' origins, last joint first)."""
-    from advocc_ros.planning.witness import (DIRECT_BLOCK_GOAL_M, DIRECT_BLOCK_START_M,
-                                             direct_blocker, direct_motion_free)
+    from advocc_ros.planning.direct_motion import (DIRECT_BLOCK_GOAL_M, DIRECT_BLOCK_START_M,
+                                                   direct_blocker, direct_motion_free)
+    from advocc_ros.planning.witness import WITNESS_STEP_RAD as STEP
 
     folder = DIRECT.parent / 'bookshelf_small_panda'
     scene = load_any_scene(folder / 'scene0034.yaml', folder / 'request0034.yaml')
     robot = load_robot(scene.robot)
     q_init = start_configuration(scene, robot)
     q_goal = scene.goal.configuration(robot.joint_names)
-    blocker = direct_blocker(robot, CollisionWorld(robot, scene.shapes), q_init, scene.goal)
+    blocker = direct_blocker(robot, CollisionWorld(robot, scene.shapes), q_init, scene.goal,
+                             STEP)
     cube = CollisionWorld(robot, list(blocker.shapes))
-    assert not direct_motion_free(cube, q_init, q_goal)
+    assert not direct_motion_free(cube, q_init, q_goal, STEP)
     near = cube.scene_clearances(np.stack([q_init, q_goal]), 1.0)
     assert near[0] >= DIRECT_BLOCK_START_M and near[1] >= DIRECT_BLOCK_GOAL_M
     hand = robot.ee_pose(0.5 * (q_init + q_goal), link=scene.goal.link).translation
@@ -321,7 +323,8 @@ def test_a_free_direct_motion_is_left_by_the_witness_and_cut_by_the_boxes(box_he
     from advocc_ros.attack import AttackConfig
     from advocc_ros.attack.edges import attack_task
     from advocc_ros.attack.task import TaskOptions
-    from advocc_ros.planning.witness import (direct_blocker, direct_motion_free, grown_objects,
+    from advocc_ros.planning.direct_motion import direct_blocker, direct_motion_free
+    from advocc_ros.planning.witness import (WITNESS_STEP_RAD as STEP, grown_objects,
                                              search_witnesses, witness_states)
 
     scene = load_any_scene(DIRECT / 'scene0033.yaml', DIRECT / 'request0033.yaml')
@@ -329,10 +332,10 @@ def test_a_free_direct_motion_is_left_by_the_witness_and_cut_by_the_boxes(box_he
     q_init = start_configuration(scene, robot)
     q_goal = scene.goal.configuration(robot.joint_names)
     world = CollisionWorld(robot, scene.shapes)
-    assert direct_motion_free(world, q_init, q_goal)
-    blocker = direct_blocker(robot, world, q_init, scene.goal)
+    assert direct_motion_free(world, q_init, q_goal, STEP)
+    blocker = direct_blocker(robot, world, q_init, scene.goal, STEP)
     cube = CollisionWorld(robot, list(blocker.shapes))
-    assert not direct_motion_free(cube, q_init, q_goal)
+    assert not direct_motion_free(cube, q_init, q_goal, STEP)
     plain = search_witnesses(robot, world, scene.objects, q_init, scene.goal,
                              planned_among=grown_objects(scene.objects, 0.004))
     assert len(plain[0].waypoints) == 2  # without the cube: the straight motion itself
@@ -347,12 +350,12 @@ def test_a_free_direct_motion_is_left_by_the_witness_and_cut_by_the_boxes(box_he
     assert result.witness.source['direct_blocker_center_m'] == \
         list(blocker.shapes[0].pose.position_m)
     boxes = CollisionWorld(robot, [o.shapes[0] for o in result.obstacles])
-    assert not direct_motion_free(boxes, q_init, q_goal)
+    assert not direct_motion_free(boxes, q_init, q_goal, STEP)
     box, robot, q_init = _problem('box')
     q_goal = box.goal.configuration(robot.joint_names)
     blocked = CollisionWorld(robot, box.shapes)
-    assert not direct_motion_free(blocked, q_init, q_goal)
-    assert direct_blocker(robot, blocked, q_init, box.goal) is None
+    assert not direct_motion_free(blocked, q_init, q_goal, STEP)
+    assert direct_blocker(robot, blocked, q_init, box.goal, STEP) is None
     result = attack_task(box_heatmap, robot, box.objects, q_init, box.goal, 2, 'task', cfg,
                          method_options=TaskOptions(pocket_tier=1))
     assert result.stats['direct_motion'] == 'blocked' and 'direct_motion_cut' not in result.stats

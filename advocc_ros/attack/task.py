@@ -40,7 +40,8 @@ from advocc_ros.kinematics.goal_batch import TASK_GOALS, GoalDraw, goal_pocket, 
 from advocc_ros.limits import worker_threads
 from advocc_ros.model.collision import CollisionWorld, shared_world
 from advocc_ros.model.scene import SceneObject
-from advocc_ros.planning.witness import direct_motion_free
+from advocc_ros.planning.direct_motion import direct_motion_free
+from advocc_ros.planning.witness import WITNESS_STEP_RAD
 
 
 @dataclasses.dataclass(frozen=True)
@@ -198,13 +199,13 @@ def goal_tier(task: Task) -> GoalDraw:
 
 def direct_motion(task: Task, world: CollisionWorld) -> ExitRays | None:
     """Under the ``joint`` form, the straight motion from ``q_init`` to the goal as one ray from
-    the goal, when ``world`` leaves it free (``planning.witness.direct_motion_free``, the test
-    of the witness search, which then plans around it: ``planning.witness.direct_blocker``);
+    the goal, when ``world`` leaves it free (``planning.direct_motion.direct_motion_free``, the
+    test of the witness search, which then plans around it: ``direct_blocker`` there);
     else None. A box that covers one of its states cuts it."""
     if not task.goal.is_joint:
         return None
     q_goal = task.goal.configuration(task.robot.joint_names)
-    if not direct_motion_free(world, task.q_init, q_goal):
+    if not direct_motion_free(world, task.q_init, q_goal, WITNESS_STEP_RAD):
         return None
     return rays_from(q_goal, task.q_init[None])
 
@@ -214,7 +215,8 @@ def direct_motion_cut(task: Task, boxes: tuple[SceneObject, ...]) -> bool:
     as ``direct_motion`` checks it on the scene)."""
     world = CollisionWorld(task.robot, [sh for o in boxes for sh in o.shapes])
     return not direct_motion_free(world, task.q_init,
-                                  task.goal.configuration(task.robot.joint_names))
+                                  task.goal.configuration(task.robot.joint_names),
+                                  WITNESS_STEP_RAD)
 
 
 def task_sample(task: Task, options: TaskOptions, seed: int) -> TaskSample:

@@ -23,8 +23,8 @@ model, whose checker calls a path that grazes its scene closed) the search plans
 scene's primitives grown by it (``grown_objects``) and certifies on the scene itself; when that
 finds nothing (a start or goal closer than that to the scene), it searches the scene as it is.
 When the straight motion from the start to a ``joint`` goal is free, the search first plans
-around a cube on it (``direct_blocker``): no box may touch the witness, so a witness on that
-motion would keep it open to every planner that tries the direct connection first.
+around a cube on it (``planning.direct_motion``): no box may touch the witness, so a witness on
+that motion would keep it open to every planner that tries the direct connection first.
 
 The candidates are kept twice: in this process, and on disk (``model.cache.disk_cache_dir``)
 so that the next process (another ``advocc attack``, a restarted node) skips the search; a
@@ -49,17 +49,16 @@ import pathlib
 import typing
 
 import numpy as np
-import pinocchio as pin
 
 from advocc_ros.model.cache import CACHE_ENV, BoundedCache, disk_cache_dir
 from advocc_ros.model.collision import CollisionWorld
 from advocc_ros.model.robot import RobotModel
 from advocc_ros.model.goal import JOINT_TOLERANCE_RAD, GoalRegion
-from advocc_ros.model.scene import (Scene, SceneObject, make_box, read_yaml, save_yaml_atomic,
-                                    task_hash)
+from advocc_ros.model.scene import Scene, SceneObject, read_yaml, save_yaml_atomic, task_hash
 from advocc_ros.model.shapes import Shape
 from advocc_ros.model.pose import SceneError
 from advocc_ros.planning.certificate import CertificateConfig, PathCertificate, certify_path
+from advocc_ros.planning.direct_motion import DIRECT_BLOCK_M, direct_blocker
 from advocc_ros.planning.types import PlanningConfig, PlanStatus
 
 log = logging.getLogger(__name__)
@@ -255,60 +254,6 @@ def load_witness(path: str | pathlib.Path) -> Witness:
     return Witness.from_data(read_yaml(pathlib.Path(path)), str(path))
 
 
-DIRECT_BLOCK_M = 0.1
-"""Edge of the cube the search plans around when the straight motion to a joint goal is free
-[m] (``direct_blocker``): twice the attack's box, so that a box on the voxel grid near the
-cube's centre lies inside it, clear of the witness."""
-DIRECT_BLOCK_START_M = 0.1
-"""Least distance of that cube from the robot at the start [m]: the attack's d_safe (C3), so a
-box inside it is allowed."""
-DIRECT_BLOCK_GOAL_M = 0.02
-"""Least distance of that cube from the robot at the goal [m]: the goal's body is protected."""
-DIRECT_BLOCK_FRACTIONS = (0.5, 0.4, 0.6, 0.3, 0.7, 0.2, 0.8)
-"""Where along the straight motion the cube is tried, in this order."""
-
-
-def direct_motion_free(world: CollisionWorld, q_init: np.ndarray, q_goal: np.ndarray) -> bool:
-    """Whether the straight joint motion from ``q_init`` to ``q_goal`` is free in ``world``,
-    checked every ``WITNESS_STEP_RAD`` (``witness_states``)."""
-    return not world.collisions_batch(witness_states(np.stack([q_init, q_goal]))).any()
-
-
-def direct_blocker(robot: RobotModel, world: CollisionWorld, q_init: np.ndarray,
-                   goal: GoalRegion) -> SceneObject | None:
-    """A cube for the search to plan around when the straight motion from ``q_init`` to a
-    ``joint`` goal is free in ``world``, else None. A witness on that motion keeps it free (no
-    box may touch the witness), and PRM*, VAMP and any planner that tries the direct connection
-    first would solve the attacked task with it; planned around the cube, the witness leaves it
-    and a box may cut it there (``attack.task.direct_motion``). The cube (``DIRECT_BLOCK_M``) is
-    centred on the robot at the first of ``DIRECT_BLOCK_FRACTIONS`` of the motion, and there on
-    the first of its points (``_body_points``), where it keeps ``DIRECT_BLOCK_START_M`` from
-    the robot at the start and ``DIRECT_BLOCK_GOAL_M`` at the goal; None when none does."""
-    if not goal.is_joint:
-        return None
-    q_goal = goal.configuration(robot.joint_names)
-    if not direct_motion_free(world, q_init, q_goal):
-        return None
-    for t in DIRECT_BLOCK_FRACTIONS:
-        for center in _body_points(robot, q_init + t * (q_goal - q_init), goal.link):
-            cube = make_box('direct_motion_blocker', np.round(center, 9), (DIRECT_BLOCK_M,) * 3)
-            near = CollisionWorld(robot, list(cube.shapes)).scene_clearances(
-                np.stack([q_init, q_goal]), DIRECT_BLOCK_START_M)
-            if near[0] >= DIRECT_BLOCK_START_M and near[1] >= DIRECT_BLOCK_GOAL_M:
-                return cube
-    return None
-
-
-def _body_points(robot: RobotModel, q: np.ndarray, link: str) -> list[np.ndarray]:
-    """Points on the robot at ``q`` where ``direct_blocker`` tries its cube: the origin of
-    ``link`` (the hand), then the joints' origins from the last to the first (where the hand
-    hardly moves, the elbow may)."""
-    data = robot.create_data()
-    pin.forwardKinematics(robot.model, data, q)
-    return [robot.ee_pose(q, link=link).translation] + [
-        data.oMi[j].translation.copy() for j in range(robot.model.njoints - 1, 0, -1)]
-
-
 WITNESSES: BoundedCache = BoundedCache('witnesses', 32)
 """Task hash -> the candidate witnesses found in this process (a failed search is not kept)."""
 
@@ -318,12 +263,12 @@ def find_witnesses(robot: RobotModel, objects: tuple[SceneObject, ...] | list,
                    clearance_m: float = 0.0) -> tuple[Witness, ...]:
     """The task's candidate witnesses on the scene ``objects``, each certified there (empty
     when the search found none), planned ``clearance_m`` clear of its primitives when it can
-    be and around the direct motion's blocker when there is one (``direct_blocker``), cached
+    be and around the direct motion's cube when there is one (``planning.direct_motion``), cached
     per task in this process and on disk (module docstring)."""
     objects = tuple(objects)
     q_init = np.asarray(q_init, float)
     world = CollisionWorld(robot, [sh for o in objects for sh in o.shapes])
-    blocker = direct_blocker(robot, world, q_init, goal)
+    blocker = direct_blocker(robot, world, q_init, goal, WITNESS_STEP_RAD)
     key = task_hash(robot.hash, objects, goal, np.round(q_init, 12).tolist(), time_s,
                     SET_FORMAT, WITNESS_PLANNER, WITNESS_SEED, WITNESS_STEP_RAD,
                     'continuous', WITNESS_TRIES, END_CANDIDATES, END_CLEARANCE_M, END_TIME_S,
@@ -537,7 +482,7 @@ def _to_disk(path: pathlib.Path, witnesses: tuple[Witness, ...]) -> None:
 
 
 __all__ = ['CACHE_ENV', 'SET_FORMAT', 'WITNESS_STEP_RAD', 'Certified', 'Witness', 'certify',
-           'direct_blocker', 'direct_motion_free', 'find_witnesses', 'grown_objects',
-           'load_candidates', 'load_witness', 'object_shape_names', 'plan_witness',
+           'find_witnesses', 'grown_objects', 'load_candidates', 'load_witness',
+           'object_shape_names', 'plan_witness',
            'rare_clear_ends', 'save_candidates', 'save_witness', 'search_witnesses',
            'witness_file', 'witness_states']
