@@ -27,7 +27,7 @@ ARENA_STAMP := $(ARENA_VENV)/.advocc-arena-installed
 # The venvs are independent: they install side by side (mostly downloads and unpacking).
 ENVS_JOBS ?= 4
 # uv installs the pinned wheels into the venvs: it downloads in parallel and links the files of
-# its one cache into all four, several times faster than pip (docs/install.md). The .venv's own
+# its one cache into all four, several times faster than pip (docs/usage.md, "How the install works"). The .venv's own
 # pip installs uv itself from PyPI into build/uv (a standalone binary): a system Python may
 # have no pip, or refuse installs outside a venv (PEP 668), but every venv has one. No
 # --compile-bytecode: Python compiles the modules a process imports on first import, a fraction
