@@ -24,8 +24,9 @@ killed) and recorded as ``timeout``. A task whose worker process dies is retried
 are written as they arrive (``dataset.store``); a stopped build (Ctrl-C or SIGTERM: its entry says
 ``interrupted``; kill -9: it stays ``running``) resumes when run again with the same settings and
 ``--out``. A Ctrl-C is remembered as well as raised (``_ctrl_c_kept``) and the loop stops on the
-memory: Ray's waits run signal handlers themselves, from C++, and a CI build under load once ran
-on to its end after a Ctrl-C (where that interrupt was lost is not known).
+memory: Ray's waits run signal handlers themselves, from C++. A build started with SIGINT ignored
+(a shell's background job, and what it starts) ignores Ctrl-C as any program then does; SIGTERM
+stops it.
 """
 
 from __future__ import annotations
