@@ -17,7 +17,7 @@ else:
 - the tube's perturbations: under the ``solvable`` policy the objective (``attack.objective``)
   adds configurations around the kept witness, these offsets from its states;
 - under the ``joint`` form, the *direct motion* when the scene leaves it free (``direct_motion``):
-  the straight joint motion from ``q_init`` to the goal, one row above every other, since PRM*,
+  the straight joint motion from ``q_init`` to the goal, a row of the top tier, since PRM*,
   VAMP and any planner that tries the direct connection first solve the task with it.
 
 One seeded stream draws the approaches' detours, then the tube's offsets, so a seed gives the
