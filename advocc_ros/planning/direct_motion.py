@@ -9,11 +9,10 @@ witness), so the witness search first plans around a cube on it (``direct_blocke
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 import pinocchio as pin
 
+from advocc_ros.kinematics.goal_batch import free_rays
 from advocc_ros.model.collision import CollisionWorld
 from advocc_ros.model.goal import GoalRegion
 from advocc_ros.model.robot import RobotModel
@@ -35,11 +34,9 @@ DIRECT_BLOCK_FRACTIONS = (0.5, 0.4, 0.6, 0.3, 0.7, 0.2, 0.8)
 def direct_motion_free(world: CollisionWorld, q_init: np.ndarray, q_goal: np.ndarray,
                        step_rad: float) -> bool:
     """Whether the straight joint motion from ``q_init`` to ``q_goal`` is free in ``world``,
-    checked every ``step_rad`` (the motion cut into ``ceil(length / step)`` equal parts, both
-    ends included: the witness search's rule)."""
-    n = max(int(math.ceil(np.linalg.norm(q_goal - q_init) / step_rad)), 1)
-    t = np.arange(n + 1, dtype=float) / n
-    return not world.collisions_batch(q_init + t[:, None] * (q_goal - q_init)).any()
+    checked every ``step_rad``: the goal ray to the start (``kinematics.goal_batch.free_rays``;
+    the goal itself is the task check's)."""
+    return bool(free_rays(world, q_goal, q_init[None], step_rad)[0])
 
 
 def direct_blocker(robot: RobotModel, world: CollisionWorld, q_init: np.ndarray,
