@@ -178,6 +178,30 @@ def test_the_pocket_tier_closes_the_goals_pocket_first(box_heatmap):
         [o.shapes[0].pose.position_m for o in boxes[1]]
 
 
+def test_the_tube_tier_moves_the_witness_tube_into_the_goal_tier(box_heatmap):
+    """``tube_tier=1``: the configurations around the kept witness leave the passage for the
+    goal tier (weight 1 each, beside the pocket), so the boxes cover them as they close the
+    goal in, and another placement results; the witness stays certified."""
+    from advocc_ros.attack import AttackConfig
+    from advocc_ros.attack.edges import attack_task
+    from advocc_ros.attack.task import TaskOptions
+
+    scene, robot, q_init = _problem('box')
+    cfg = AttackConfig(goal_policy='solvable', victim_margin_m=0.004)
+    results = [attack_task(box_heatmap, robot, scene.objects, q_init, scene.goal, 4, 'task', cfg,
+                           method_options=TaskOptions(pocket_tier=1, tube_samples=1024,
+                                                      tube_tier=tier))
+               for tier in (0, 1)]
+    for result in results:
+        assert result.status.ok and result.solvable.verdict.value == 'certified', result.message
+    plain, tiered = (r.stats for r in results)
+    tube = plain['task_approach_samples'] - tiered['task_approach_samples']
+    assert 0 < tube <= 1024  # the free ones of the tube's 1024 offsets
+    assert tiered['task_goal_covered'] > plain['task_goal_covered']
+    assert [o.shapes[0].pose.position_m for o in results[0].obstacles] != \
+        [o.shapes[0].pose.position_m for o in results[1].obstacles]
+
+
 def test_a_larger_pocket_sample_holds_the_smaller_and_stays_around_the_goal():
     """``pocket_samples`` draws more of the same stream (seed ``POCKET_SEED``): the smaller
     pocket's configurations are the larger's first ones, every one is free, within the limits

@@ -32,6 +32,7 @@ def test_a_valid_mapping_gives_the_options_the_rest_default():
     ({'detours': 10**6}, 'is 256000256 approach configurations; at most 65536'),
     ({'detour_rad': float('nan')}, 'detour_rad must be a finite number >= 0, got nan'),
     ({'pocket_tier': 2}, 'pocket_tier must be 0 or 1, got 2'),
+    ({'tube_tier': 2}, 'tube_tier must be 0 or 1, got 2'),
     ({'pocket_samples': -5}, 'pocket_samples must be an integer in [0, 65536], got -5'),
     ({'pocket_samples': 65537}, 'pocket_samples must be an integer in [0, 65536], got 65537'),
     ({'pocket_rad': float('inf')}, 'pocket_rad must be a finite number >= 0, got inf'),

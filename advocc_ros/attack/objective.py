@@ -118,26 +118,28 @@ def task_objective(context: MethodContext, region: SearchRegion) -> Objective:
     goal policy decides the rows (``reachable``: the passage alone)."""
     robot, sample, policed = context.robot, context.sample, context.policed
     world = shared_world(robot, [sh for o in context.objects for sh in o.shapes])
-    Q_path = sample.approaches
-    if policed.bodies is not None:
-        Q_path = np.concatenate([Q_path, tube_samples(world, policed.bodies.states,
-                                                      sample.tube_noise)])
+    tube = (tube_samples(world, policed.bodies.states, sample.tube_noise)
+            if policed.bodies is not None else np.zeros((0, robot.nq)))
+    in_goal_tier = sample.tube_tier and context.policy != 'reachable'
+    Q_path = sample.approaches if in_goal_tier else np.concatenate([sample.approaches, tube])
     w_path = (sample_weights(robot, world, Q_path, region.weight_config, THREADS)
               if len(Q_path) else np.zeros(0))
     if context.policy == 'reachable':
         samples = cover_matrix(robot, world, policed.goal_guard.samples.Q, region)
         return Objective(cover_matrix(robot, world, Q_path, region), w_path, w_path, 0,
                          len(Q_path), goal_filter(policed.goal_guard, samples))
-    return goal_tiers(context, world, region, Q_path, w_path)
+    return goal_tiers(context, world, region, Q_path, w_path,
+                      tube if in_goal_tier else np.zeros((0, robot.nq)))
 
 
 def goal_tiers(context: MethodContext, world: CollisionWorld, region: SearchRegion,
-               Q_path: np.ndarray, w_path: np.ndarray) -> Objective:
+               Q_path: np.ndarray, w_path: np.ndarray, Q_tube: np.ndarray) -> Objective:
     """The tiers (goal exits, goal, deep goal, passage), the one place the goal form decides
     the goal rows: under ``region`` the sample's goal configurations, each of weight 1; under
     ``joint`` the pocket (``TaskOptions.pocket_tier``) and, above it, the rays to close (the
-    direct motion, the goal's exits), a ray covered when one of its states is."""
-    Q_goal = context.sample.goals
+    direct motion, the goal's exits), a ray covered when one of its states is. ``Q_tube``
+    (``TaskOptions.tube_tier``) joins the goal rows."""
+    Q_goal = np.concatenate([context.sample.goals, Q_tube])
     exits = context.sample.exits or ExitRays(np.zeros((0, context.robot.nq)), np.zeros(0, int))
     n_goal, n_path = len(Q_goal), len(Q_path)
     R, t = placement_arrays(world, np.concatenate([Q_goal, Q_path, exits.states]))

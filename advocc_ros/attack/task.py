@@ -74,6 +74,10 @@ class TaskOptions:
     configuration weight 1, like the ``region`` form's goal sample: the boxes first close the
     pocket to the sliver the witness keeps); 0: the pocket is covered with the approaches,
     weighted by w(q)."""
+    tube_tier: int = 0
+    """Under the ``solvable`` policy, 1: the tube's configurations join the goal tier (each of
+    weight 1, like the pocket), so the boxes narrow the witness's corridor along its length as
+    they close the goal in; 0: the tube is covered with the approaches, weighted by w(q)."""
     exit_rays: int = 0
     """Under the ``joint`` form and the ``solvable`` policy, > 0: the boxes are placed for every
     candidate witness that keeps the victim margin from the scene, and the placement that
@@ -113,6 +117,7 @@ OPTION_VALUES = {
     'pocket_samples': (lambda v: 0 <= v <= MAX_SAMPLES, f'an integer in [0, {MAX_SAMPLES}]'),
     'pocket_rad': (lambda v: 0 <= v < math.inf, 'a finite number >= 0'),
     'pocket_tier': (lambda v: v in (0, 1), '0 or 1'),
+    'tube_tier': (lambda v: v in (0, 1), '0 or 1'),
     'exit_rays': (lambda v: 0 <= v <= MAX_SAMPLES, f'an integer in [0, {MAX_SAMPLES}]'),
     'exit_rounds': (lambda v: 0 <= v <= MAX_EXIT_ROUNDS, f'an integer in [0, {MAX_EXIT_ROUNDS}]'),
 }
@@ -186,6 +191,9 @@ class TaskSample:
     """Rays for the boxes to close, the tier above the goal tier (``attack.exits.ExitRays``):
     the direct motion (``direct_motion``), then the goal's exits of ``TaskOptions.exit_rounds``;
     or None."""
+    tube_tier: bool = False
+    """The tube's configurations are rows of the goal tier (``TaskOptions.tube_tier``), not of
+    the passage."""
 
 
 def goal_tier(task: Task) -> GoalDraw:
@@ -251,7 +259,7 @@ def task_sample(task: Task, options: TaskOptions, seed: int) -> TaskSample:
     direct = direct_motion(task, world)
     if task.goal.is_joint:
         stats['direct_motion'] = 'free' if direct is not None else 'blocked'
-    return TaskSample(tier, Q_app, noise, stats, pocket, direct)
+    return TaskSample(tier, Q_app, noise, stats, pocket, direct, bool(options.tube_tier))
 
 
 __all__ = ['OPTION_VALUES', 'THREADS', 'TaskOptions', 'TaskSample', 'approach_samples',
