@@ -8,6 +8,7 @@ import os
 import pathlib
 import random
 import shutil
+import signal
 
 import numpy as np
 import pytest
@@ -19,6 +20,13 @@ installs it)."""
 FAST_LANE_ENV = 'ADVOCC_FAST_LANE'
 """Set by ``make test-fast``: tests marked ``processes`` are deselected, and any other test that
 starts a process fails, naming itself, so the marks stay true."""
+
+
+def ctrl_c_as_in_a_terminal() -> None:
+    """SIGINT back to its default in a child (``preexec_fn``), as in a terminal's foreground
+    job: a test run started as a background job of a shell (``cmd &``) inherits it ignored, and
+    so would every process it starts (a Ctrl-C test then measures the launcher, not the child)."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
 
 
 def needs_chromium():

@@ -23,6 +23,7 @@ import tarfile
 import time
 
 import pytest
+from conftest import ctrl_c_as_in_a_terminal
 
 from advocc_ros.dataset.problems import DatasetError, discover, seeded_order, select, split_of
 
@@ -510,13 +511,6 @@ def _started_by(pid: int) -> list[int]:
     return found
 
 
-def _ctrl_c_as_in_a_terminal() -> None:
-    """SIGINT back to its default in the child, as in a terminal's foreground job: a test run
-    started as a background job of a shell (``cmd &``) inherits it ignored, and so would every
-    build it starts (a Ctrl-C test then measures the launcher, not the build)."""
-    signal.signal(signal.SIGINT, signal.SIG_DFL)
-
-
 class _Build:
     """A CLI build started with a SID of its own, output in files; on exit every process
     with that SID (the build, its Ray) is killed."""
@@ -527,7 +521,7 @@ class _Build:
             self.proc = subprocess.Popen(
                 ADVOCC + ['dataset', 'build'] + [str(a) for a in args], cwd=REPO,
                 env=dict(os.environ, PYTHONUNBUFFERED='1'), stdout=out, stderr=err,
-                start_new_session=True, preexec_fn=_ctrl_c_as_in_a_terminal)
+                start_new_session=True, preexec_fn=ctrl_c_as_in_a_terminal)
 
     def __enter__(self):
         return self

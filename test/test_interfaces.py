@@ -5,6 +5,7 @@ import sys
 import textwrap
 
 import pytest
+from conftest import ctrl_c_as_in_a_terminal
 
 from advocc_msgs.msg import CollisionObject, ErrorCodes, GoalRegion, Obstacle
 from advocc_msgs.srv import Attack, GetInfo, Plan
@@ -78,7 +79,8 @@ def test_service_round_trip_between_two_processes(ros_env):
     rehearsal: "failed to send response (timeout)", and the raw call waited for nothing)."""
     from advocc_ros.ros.client import ServiceClient
 
-    server = subprocess.Popen([sys.executable, '-c', SERVER], env=ros_env)
+    server = subprocess.Popen([sys.executable, '-c', SERVER], env=ros_env,
+                              preexec_fn=ctrl_c_as_in_a_terminal)  # stopped by SIGINT below
     client = ServiceClient('echo_client', domain_id=int(ros_env['ROS_DOMAIN_ID']))
     try:
         request = Plan.Request(planner_id='prmstar')
