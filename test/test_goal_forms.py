@@ -202,6 +202,73 @@ def test_the_tube_tier_moves_the_witness_tube_into_the_goal_tier(box_heatmap):
         [o.shapes[0].pose.position_m for o in results[1].obstacles]
 
 
+def _without_and_with(heatmap, scene, robot, q_init, budget: int, **option):
+    """The certified solvable attacks (joint form, pocket tier, the data set's victim margin)
+    without and with the task option ``option`` (name=value)."""
+    from advocc_ros.attack import AttackConfig
+    from advocc_ros.attack.edges import attack_task
+    from advocc_ros.attack.task import TaskOptions
+
+    cfg = AttackConfig(goal_policy='solvable', victim_margin_m=0.004)
+    results = [attack_task(heatmap, robot, scene.objects, q_init, scene.goal, budget, 'task', cfg,
+                           method_options=TaskOptions(pocket_tier=1, **options))
+               for options in ({}, option)]
+    for result in results:
+        assert result.status.ok and result.solvable.verdict.value == 'certified', result.message
+    return results
+
+
+def test_cut_routes_closes_the_other_candidate_witnesses(box_heatmap):
+    """``cut_routes=1``: the witness search's other candidates are rays of the top tier, and
+    the boxes block more of them than without (counted exactly, ``routes_cut``); the kept
+    witness stays certified. ``route_rays`` holds every other candidate, its ends not. (One
+    box on table_pick: without the routes it cuts none of them.)"""
+    from advocc_ros.attack.edges import task_witness
+    from advocc_ros.attack.exits import rays_cut, route_rays
+
+    scene, robot, q_init = _problem('table_pick')
+    witnesses = task_witness(robot, scene.objects, q_init, scene.goal, 0.004).witnesses
+    assert len(witnesses) > 1
+    rays = route_rays(robot, witnesses, witnesses[0])
+    assert rays.count == len(witnesses) - 1
+    q_goal = scene.goal.configuration(robot.joint_names)
+    assert not np.isclose(rays.states, q_goal).all(axis=1).any()
+    assert not np.isclose(rays.states, q_init).all(axis=1).any()
+    assert route_rays(robot, witnesses[:1], witnesses[0]) is None
+    plain, cutting = _without_and_with(box_heatmap, scene, robot, q_init, 1, cut_routes=1)
+    assert 'routes' not in plain.stats and cutting.stats['routes'] == len(witnesses) - 1
+    assert cutting.stats['routes_cut'] > rays_cut(
+        robot, route_rays(robot, witnesses, plain.witness), plain.obstacles)
+    assert rays_cut(robot, route_rays(robot, witnesses, cutting.witness), ()) == 0
+
+
+def test_corridor_routes_are_free_paths_beside_the_witness_and_the_boxes_cut_them(box_heatmap):
+    """``corridor_routes``: paths shifted from the kept witness (none at the start and the goal),
+    those free on the scene rays of the top tier; zero offsets give the witness itself, offsets
+    past the joint limits none; the boxes cut more of them than a placement without them."""
+    from advocc_ros.attack.exits import corridor_rays, rays_cut
+    from advocc_ros.attack.task import TaskOptions, task_sample
+    from advocc_ros.attack.types import Task
+    from advocc_ros.planning.witness import witness_states
+
+    scene, robot, q_init = _problem('box')
+    world = CollisionWorld(robot, scene.shapes)
+    plain, cutting = _without_and_with(box_heatmap, scene, robot, q_init, 4, corridor_routes=256)
+    Q = cutting.witness.configurations(robot)
+    same = corridor_rays(world, Q, np.zeros((3, robot.nq)))
+    assert same.count == 3
+    np.testing.assert_allclose(same.states[same.ray == 0], witness_states(Q, 0.05)[1:-1])
+    assert corridor_rays(world, Q, np.full((2, robot.nq), 10.0)) is None
+    offsets = task_sample(Task(robot, scene.objects, q_init, scene.goal, 'solvable'),
+                          TaskOptions(corridor_routes=256), 0).corridor_noise
+    rays = corridor_rays(world, Q, offsets)
+    assert 0 < rays.count < 256 and cutting.stats['corridor_routes'] == rays.count
+    assert not world.collisions_batch(rays.states).any()
+    assert 'corridor_routes' not in plain.stats
+    assert cutting.stats['corridor_routes_cut'] > rays_cut(robot, rays, plain.obstacles)
+    assert rays_cut(robot, rays, ()) == 0
+
+
 def test_a_larger_pocket_sample_holds_the_smaller_and_stays_around_the_goal():
     """``pocket_samples`` draws more of the same stream (seed ``POCKET_SEED``): the smaller
     pocket's configurations are the larger's first ones, every one is free, within the limits

@@ -33,6 +33,8 @@ def test_a_valid_mapping_gives_the_options_the_rest_default():
     ({'detour_rad': float('nan')}, 'detour_rad must be a finite number >= 0, got nan'),
     ({'pocket_tier': 2}, 'pocket_tier must be 0 or 1, got 2'),
     ({'tube_tier': 2}, 'tube_tier must be 0 or 1, got 2'),
+    ({'cut_routes': -1}, 'cut_routes must be 0 or 1, got -1'),
+    ({'corridor_routes': 70000}, 'corridor_routes must be an integer in [0, 65536], got 70000'),
     ({'pocket_samples': -5}, 'pocket_samples must be an integer in [0, 65536], got -5'),
     ({'pocket_samples': 65537}, 'pocket_samples must be an integer in [0, 65536], got 65537'),
     ({'pocket_rad': float('inf')}, 'pocket_rad must be a finite number >= 0, got inf'),
@@ -149,11 +151,13 @@ def test_the_data_set_closes_a_joint_goals_pocket_first_unless_told_otherwise():
 
     assert TaskOptions().pocket_tier == 0 and TaskOptions().pocket_samples == 256
     assert TaskOptions().exit_rays == 0 and TaskOptions().exit_rounds == 0
-    built = {'pocket_tier': 1, 'pocket_samples': 4096, 'exit_rays': 65536, 'exit_rounds': 3}
+    assert TaskOptions().corridor_routes == 0
+    built = {'pocket_tier': 1, 'pocket_samples': 4096, 'exit_rays': 65536, 'exit_rounds': 3,
+             'corridor_routes': 1024}
     assert build_options() == built
     assert build_options('--task-option', 'detours=0') == dict(built, detours=0)
     assert build_options('--task-option', 'pocket_samples=256') == \
-        {'pocket_tier': 1, 'exit_rays': 65536, 'exit_rounds': 3}
+        {'pocket_tier': 1, 'exit_rays': 65536, 'exit_rounds': 3, 'corridor_routes': 1024}
     assert build_options('--task-option', 'pocket_tier=0', '--task-option', 'exit_rays=0',
-                         '--task-option', 'pocket_samples=256',
-                         '--task-option', 'exit_rounds=0') == {}
+                         '--task-option', 'pocket_samples=256', '--task-option', 'exit_rounds=0',
+                         '--task-option', 'corridor_routes=0') == {}

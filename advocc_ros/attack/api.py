@@ -34,13 +34,15 @@ the benchmark, the export), never by the victim. Without a witness, ``solvable``
 from __future__ import annotations
 
 import dataclasses
+import functools
 import logging
 import time
 from typing import Any
 
 import numpy as np
 
-from advocc_ros.attack.exits import ExitRays, GoalExits, close_exits, fewest_exits
+from advocc_ros.attack.exits import (ExitRays, GoalExits, close_exits, corridor_rays,
+                                     fewest_exits, rays_cut, route_rays)
 from advocc_ros.attack.methods import CONTEXT_METHODS, METHODS, REGISTRY, MethodContext
 from advocc_ros.attack.policy import apply_policy
 from advocc_ros.attack.region import search_region
@@ -53,6 +55,7 @@ from advocc_ros.heatmap import Heatmap, link_tables
 from advocc_ros.model.robot import RobotError, RobotModel
 from advocc_ros.model.goal import GoalRegion
 from advocc_ros.model.pose import SceneError
+from advocc_ros.model.collision import shared_world
 from advocc_ros.model.scene import SceneObject, make_box
 
 log = logging.getLogger(__name__)
@@ -149,12 +152,13 @@ def place_boxes(heatmap: Heatmap, task: Task, budget: int, method: str, cfg: Att
         policed = apply_policy(task, region, cfg, witnesses, choice, kept)      # step 3
         extra = {}
         if method in CONTEXT_METHODS:
-            used = sample if closing is None else dataclasses.replace(
-                sample, exits=closing if sample.exits is None else sample.exits.join(closing))
-            extra['context'] = MethodContext.of(task, options, used, policed)
+            extra['context'] = MethodContext.of(task, options, with_rays(
+                sample, closing, *routes.of(policed.witness)), policed)
         picks, rejected, *more = METHODS[method](policed.region, budget, seed, cfg,
                                                  **extra)                       # steps 4-5
         return policed, picks, rejected, more[0] if more else {}
+
+    routes = RoutesToCut(task, options, witnesses, sample)
 
     def boxes(placement: tuple) -> tuple[SceneObject, ...]:
         return tuple(make_box(box_id(i), np.round(region.center_m(c), 9), (box_size_m,) * 3)
@@ -174,6 +178,7 @@ def place_boxes(heatmap: Heatmap, task: Task, budget: int, method: str, cfg: Att
     policed, picks, rejected, method_stats = placement
     stats = {**region.stats, **policed.stats, **stats, **method_stats, 'rejected_picks': rejected}
     obstacles = boxes(placement)
+    stats.update(routes.cut(policed.witness, obstacles))
     if sample is not None and sample.exits is not None:  # the direct motion was free
         stats['direct_motion_cut'] = direct_motion_cut(task, obstacles)
     status, message = AttackStatus.SUCCESS, f'placed {len(obstacles)} boxes'
@@ -184,6 +189,51 @@ def place_boxes(heatmap: Heatmap, task: Task, budget: int, method: str, cfg: Att
             f'({stats.get("candidates", 0)} candidate centres)')
     kept = witnesses if policed.witness is None else (policed.witness,)
     return Placed(status, message, obstacles, tuple(float(m) for _, m in picks), stats, kept)
+
+
+class RoutesToCut:
+    """The routes beside the kept witness for the boxes to cut, rays of the objective's top
+    tier (``TaskOptions.cut_routes``: the other candidate witnesses; ``corridor_routes``:
+    paths shifted from the kept one), made once per kept witness."""
+
+    def __init__(self, task: Task, options: Any, witnesses: tuple, sample):
+        self.task, self.witnesses, self._made = task, witnesses, {}
+        self.options = options if isinstance(options, TaskOptions) else TaskOptions()
+        self.offsets = None if sample is None else sample.corridor_noise
+
+    def of(self, kept) -> tuple[ExitRays | None, ExitRays | None]:
+        """(the other candidates, the corridor routes) for the kept witness ``kept``."""
+        if kept is None:
+            return None, None
+        key = kept.content_hash()
+        if key not in self._made:
+            robot = self.task.robot
+            scene = shared_world(robot, [sh for o in self.task.objects for sh in o.shapes])
+            self._made[key] = (
+                route_rays(robot, self.witnesses, kept) if self.options.cut_routes else None,
+                corridor_rays(scene, kept.configurations(robot), self.offsets)
+                if self.offsets is not None else None)
+        return self._made[key]
+
+    def cut(self, kept, boxes: tuple[SceneObject, ...]) -> dict:
+        """How many of the kept witness's routes ``boxes`` block (statistics)."""
+        stats = {}
+        for name, rays, asked in zip(('routes', 'corridor_routes'), self.of(kept),
+                                     (self.options.cut_routes, self.offsets is not None)):
+            if asked:
+                count = 0 if rays is None else rays.count
+                stats.update({name: count, f'{name}_cut': rays_cut(self.task.robot, rays, boxes)})
+        return stats
+
+
+def with_rays(sample, *more: ExitRays | None):
+    """``sample`` with the rays of ``more`` (those not None: the exits to close, the routes
+    beside the kept witness) joined to its own (``TaskSample.exits``, the objective's top
+    tier). None stays None (a method without a sample)."""
+    rays = [r for r in (() if sample is None else (sample.exits, *more)) if r is not None]
+    if sample is None or not rays:
+        return sample
+    return dataclasses.replace(sample, exits=functools.reduce(ExitRays.join, rays))
 
 
 def tries_exits(task: Task, method: str, options: Any) -> bool:
@@ -202,4 +252,4 @@ def _judged_witness(witnesses: tuple, solvable):
     return witnesses[0] if witnesses else None
 
 
-__all__ = ['Placed', 'attack', 'place_boxes', 'tries_exits']
+__all__ = ['Placed', 'RoutesToCut', 'attack', 'place_boxes', 'tries_exits', 'with_rays']

@@ -14,6 +14,10 @@ become the objective's top tier and the boxes are placed again (``close_exits``)
 counted on a fresh draw, since a count on the steps the boxes were placed to close flatters
 them; a placement with no exit on its draw is counted again on the next. Only collision
 checks: no planner is queried.
+
+The same tier holds the routes beside the kept witness, which the victims that get out of the
+goal take (docs/goal_forms.md): the witness search's other candidates (``route_rays``) and paths
+shifted from the kept witness (``corridor_rays``); a box that covers a state of one cuts it.
 """
 
 from __future__ import annotations
@@ -26,9 +30,10 @@ from scipy import sparse
 
 from advocc_ros.attack.policy import scene_clearance
 from advocc_ros.attack.types import Task
-from advocc_ros.kinematics.goal_batch import RAY_STEP_RAD, free_rays, goal_ray_ends
+from advocc_ros.kinematics.goal_batch import RAY_STEP_RAD, THREADS, free_rays, goal_ray_ends
 from advocc_ros.model.collision import CollisionWorld, shared_world
 from advocc_ros.model.scene import SceneObject
+from advocc_ros.planning.witness import witness_states
 
 Placement = TypeVar('Placement')
 
@@ -110,6 +115,54 @@ def rays_from(q_goal: np.ndarray, ends: np.ndarray) -> ExitRays:
     return ExitRays(states, np.repeat(np.arange(len(ends)), steps))
 
 
+def route_rays(robot, witnesses: tuple, kept) -> ExitRays | None:
+    """The candidate witnesses other than ``kept`` (the routes planners found on the
+    unattacked scene besides the kept one) as rays, each checked every ``RAY_STEP_RAD``, its
+    start and goal not (no box may touch them); None when there is no other. A victim's
+    solutions on an attacked problem run along these routes (docs/goal_forms.md), and a box
+    that covers one state of a route cuts it."""
+    kept_hash = None if kept is None else kept.content_hash()
+    states = [witness_states(w.configurations(robot), RAY_STEP_RAD)[1:-1] for w in witnesses
+              if w.content_hash() != kept_hash]
+    states = [s for s in states if len(s)]
+    if not states:
+        return None
+    return ExitRays(np.concatenate(states), np.repeat(np.arange(len(states)),
+                                                      [len(s) for s in states]))
+
+
+def corridor_rays(scene: CollisionWorld, waypoints: np.ndarray, offsets: np.ndarray
+                  ) -> ExitRays | None:
+    """Paths beside the witness ``waypoints``: its states every ``RAY_STEP_RAD`` shifted by
+    each row of ``offsets`` times sin(pi s) (s the share of its length, 0 at the start and 1 at
+    the goal, so every path joins the start and the goal), as rays of their inner states; only
+    those within the joint limits and free on ``scene`` (the others are no way through); None
+    when none is. A box that covers a state of many narrows the corridor where they pass."""
+    states = witness_states(waypoints, RAY_STEP_RAD)
+    along = np.r_[0.0, np.cumsum(np.linalg.norm(np.diff(states, axis=0), axis=1))]
+    bump = np.sin(np.pi * along / max(along[-1], 1e-12))[1:-1]
+    paths = states[None, 1:-1] + offsets[:, None, :] * bump[None, :, None]
+    robot = scene.robot
+    ok = np.all((paths >= robot.lower) & (paths <= robot.upper), axis=(1, 2))
+    flat = paths[ok].reshape(-1, robot.nq)
+    if len(flat):
+        ok[ok] = ~scene.collisions_batch(flat, THREADS).reshape(int(ok.sum()), -1).any(axis=1)
+    if not ok.any():
+        return None
+    return ExitRays(paths[ok].reshape(-1, robot.nq),
+                    np.repeat(np.arange(int(ok.sum())), paths.shape[1]))
+
+
+def rays_cut(robot, rays: ExitRays | None, boxes: tuple[SceneObject, ...]) -> int:
+    """How many of ``rays`` the boxes block (the robot collides with a box at one of the
+    states the ray is checked at)."""
+    if rays is None or not rays.count:
+        return 0
+    world = CollisionWorld(robot, [sh for o in boxes for sh in o.shapes])
+    hit = world.collisions_batch(rays.states, THREADS) if boxes else np.zeros(len(rays.ray), bool)
+    return int(np.unique(rays.ray[hit]).size)
+
+
 ESCAPE_DRAW = 1_000
 """The draw of rays the escape share is measured on (``escape_share``): none of those the
 attack counts and closes (0 to ``attack.task.MAX_EXIT_ROUNDS``)."""
@@ -188,4 +241,4 @@ def close_exits(exits: GoalExits, first: Placement, free: np.ndarray,
 
 
 __all__ = ['ESCAPE_DRAW', 'ExitRays', 'GoalExits', 'close_exits', 'escape_share', 'fewest_exits',
-           'rays_from', 'scene_clearances']
+           'corridor_rays', 'rays_cut', 'rays_from', 'route_rays', 'scene_clearances']

@@ -4,10 +4,12 @@ covers and what covering them is worth (docs/design.md).
 A box covers a configuration when it holds a voxel the robot occupies there
 (``attack.configurations``: a sparse 0/1 cover matrix, configurations x candidates). Rows:
 
-- under the ``joint`` form, rays, one row each, covered when a box covers one of their states:
+- rays, one row each, covered when a box covers one of their states: under the ``joint`` form
   the direct motion from the start when the scene leaves it free (``attack.task.direct_motion``)
   and, with ``TaskOptions.exit_rounds``, the goal's exits (``attack.exits``), the RRT steps from
-  the goal a placement left free;
+  the goal a placement left free; under ``solvable`` the routes beside the kept witness, with
+  ``TaskOptions.cut_routes`` the witness search's other candidates (``attack.exits.route_rays``)
+  and with ``corridor_routes`` paths shifted from the witness (``attack.exits.corridor_rays``);
 - the goal tier (the task sample's goal configurations), each the same weight: every plan ends
   in the goal set, and what the boxes leave of the sample is the share of goals a planner can
   still draw;
@@ -137,7 +139,8 @@ def goal_tiers(context: MethodContext, world: CollisionWorld, region: SearchRegi
     """The tiers (goal exits, goal, deep goal, passage), the one place the goal form decides
     the goal rows: under ``region`` the sample's goal configurations, each of weight 1; under
     ``joint`` the pocket (``TaskOptions.pocket_tier``) and, above it, the rays to close (the
-    direct motion, the goal's exits), a ray covered when one of its states is. ``Q_tube``
+    direct motion, the goal's exits, the routes beside the witness), a ray covered when one of
+    its states is. ``Q_tube``
     (``TaskOptions.tube_tier``) joins the goal rows."""
     Q_goal = np.concatenate([context.sample.goals, Q_tube])
     exits = context.sample.exits or ExitRays(np.zeros((0, context.robot.nq)), np.zeros(0, int))

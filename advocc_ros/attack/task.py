@@ -20,9 +20,10 @@ else:
   the straight joint motion from ``q_init`` to the goal, a row of the top tier, since PRM*,
   VAMP and any planner that tries the direct connection first solve the task with it.
 
-One seeded stream draws the approaches' detours, then the tube's offsets, so a seed gives the
-same sample on any machine. ``TaskOptions`` shape it; the CLI, the heatmap server and the
-benchmark build them with ``task_options``.
+One seeded stream draws the approaches' detours, then the tube's offsets, then the corridor
+routes' offsets (``TaskOptions.corridor_routes``), so a seed gives the same sample on any
+machine. ``TaskOptions`` shape it; the CLI, the heatmap server and the benchmark build them
+with ``task_options``.
 """
 
 from __future__ import annotations
@@ -78,6 +79,20 @@ class TaskOptions:
     """Under the ``solvable`` policy, 1: the tube's configurations join the goal tier (each of
     weight 1, like the pocket), so the boxes narrow the witness's corridor along its length as
     they close the goal in; 0: the tube is covered with the approaches, weighted by w(q)."""
+    cut_routes: int = 0
+    """Under the ``solvable`` policy, 1: the witness search's other candidates (certified paths
+    to the goal on the unattacked scene, the routes a planner's search finds) are rays of the
+    objective's top tier, each cut when a box covers one of its states
+    (``attack.exits.route_rays``), so the boxes close the routes beside the kept witness; 0:
+    they are not covered."""
+    corridor_routes: int = 0
+    """Under the ``solvable`` policy: paths beside the kept witness drawn for the boxes to cut,
+    each the witness's states shifted by one offset (N(0, ``corridor_rad``) per joint) scaled by
+    sin(pi s), s from 0 at the start to 1 at the goal; those free on the scene are rays of the
+    objective's top tier (``attack.exits.corridor_rays``), so a box where many of them pass
+    narrows the witness's corridor there; 0: none."""
+    corridor_rad: float = 0.15
+    """Standard deviation of the corridor routes' offsets per joint [rad]."""
     exit_rays: int = 0
     """Under the ``joint`` form and the ``solvable`` policy, > 0: the boxes are placed for every
     candidate witness that keeps the victim margin from the scene, and the placement that
@@ -118,6 +133,10 @@ OPTION_VALUES = {
     'pocket_rad': (lambda v: 0 <= v < math.inf, 'a finite number >= 0'),
     'pocket_tier': (lambda v: v in (0, 1), '0 or 1'),
     'tube_tier': (lambda v: v in (0, 1), '0 or 1'),
+    'cut_routes': (lambda v: v in (0, 1), '0 or 1'),
+    'corridor_routes': (lambda v: 0 <= v <= MAX_SAMPLES,
+                        f'an integer in [0, {MAX_SAMPLES}]'),
+    'corridor_rad': (lambda v: 0 <= v < math.inf, 'a finite number >= 0'),
     'exit_rays': (lambda v: 0 <= v <= MAX_SAMPLES, f'an integer in [0, {MAX_SAMPLES}]'),
     'exit_rounds': (lambda v: 0 <= v <= MAX_EXIT_ROUNDS, f'an integer in [0, {MAX_EXIT_ROUNDS}]'),
 }
@@ -189,11 +208,15 @@ class TaskSample:
     or under ``joint`` the goal's pocket."""
     exits: Any = None
     """Rays for the boxes to close, the tier above the goal tier (``attack.exits.ExitRays``):
-    the direct motion (``direct_motion``), then the goal's exits of ``TaskOptions.exit_rounds``;
-    or None."""
+    the direct motion (``direct_motion``), then the goal's exits of ``TaskOptions.exit_rounds``
+    and the routes beside the kept witness (joined for each, ``attack.api.with_rays``); or
+    None."""
     tube_tier: bool = False
     """The tube's configurations are rows of the goal tier (``TaskOptions.tube_tier``), not of
     the passage."""
+    corridor_noise: np.ndarray | None = None
+    """(TaskOptions.corridor_routes, nq) offsets [rad] of the corridor routes beside the kept
+    witness (``attack.exits.corridor_rays``), or None."""
 
 
 def goal_tier(task: Task) -> GoalDraw:
@@ -255,11 +278,14 @@ def task_sample(task: Task, options: TaskOptions, seed: int) -> TaskSample:
                                  rng)
     shape = (options.tube_samples, task.robot.nq)
     noise = rng.normal(0.0, options.tube_rad, shape) if options.tube_samples else np.zeros(shape)
+    corridor = (rng.normal(0.0, options.corridor_rad, (options.corridor_routes, task.robot.nq))
+                if options.corridor_routes else None)
     stats = {'task_goal_samples': len(tier), 'task_goal_attempts': goals.attempts}
     direct = direct_motion(task, world)
     if task.goal.is_joint:
         stats['direct_motion'] = 'free' if direct is not None else 'blocked'
-    return TaskSample(tier, Q_app, noise, stats, pocket, direct, bool(options.tube_tier))
+    return TaskSample(tier, Q_app, noise, stats, pocket, direct, bool(options.tube_tier),
+                      corridor_noise=corridor)
 
 
 __all__ = ['OPTION_VALUES', 'THREADS', 'TaskOptions', 'TaskSample', 'approach_samples',

@@ -74,12 +74,14 @@ class BuildConfig:
     seed: int = 0
     """Attack seed; trial k of every victim uses seed ``seed + k``."""
     task_options: tuple[tuple[str, Any], ...] = (('exit_rays', 65536), ('exit_rounds', 3),
-                                                 ('pocket_samples', 4096), ('pocket_tier', 1))
+                                                 ('pocket_samples', 4096), ('pocket_tier', 1),
+                                                 ('corridor_routes', 1024))
     """``TaskOptions`` of the attack that differ from their defaults (key, value). The data
     set's default closes a joint goal's pocket first (``pocket_tier``), sampled 16 times as
     densely as the attack's own default (``pocket_samples``), and keeps the witness whose boxes
     leave the goal fewest free RRT steps (``exit_rays``, ``attack.exits``), then closes the
-    steps left free in up to three rounds (``exit_rounds``), all chosen on the train split
+    steps left free in up to three rounds (``exit_rounds``) together with the free ones of 1,024
+    paths beside the witness (``corridor_routes``), all chosen on the train split
     (docs/results/mbm_joint_train)."""
     goal_tol: str | None = None
     """Goal tolerance around a joint goal in the region form (``--goal-tol``; None: the
@@ -372,8 +374,10 @@ def mplib_witness_check(scene, robot, q_init, witness) -> dict:
 
 
 EXIT_STATS = ('goal_exit_rays', 'goal_exits_unattacked', 'goal_exits', 'witness_exits',
-              'goal_exits_by_round', 'goal_exit_draws_kept')
-"""The attack's statistics of ``attack.exits`` a hardness file keeps (when it chose by them)."""
+              'goal_exits_by_round', 'goal_exit_draws_kept', 'routes', 'routes_cut',
+              'corridor_routes', 'corridor_routes_cut')
+"""The attack's statistics of ``attack.exits`` a hardness file keeps (when it chose by them,
+or cut the routes beside the witness)."""
 
 
 def _attack_entry(result, scene, robot, q_init, wall_s: float):

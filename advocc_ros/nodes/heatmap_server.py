@@ -113,6 +113,9 @@ _TASK_DOC = {
     'pocket_rad': 'joint goals: perturbation of the goal in its pocket per joint [rad]',
     'pocket_tier': 'joint goals, 1: the goal\'s pocket is the first tier (0: with the approaches)',
     'tube_tier': 'solvable, 1: the tube is in the goal tier (0: with the approaches)',
+    'cut_routes': 'solvable, 1: the other candidate witnesses are rays for the boxes to cut',
+    'corridor_routes': 'solvable: paths beside the witness for the boxes to cut (0: none)',
+    'corridor_rad': 'solvable: offset of the corridor routes per joint [rad]',
     'exit_rays': 'joint goals, solvable: keep the witness whose boxes leave fewest of this many '
                  'RRT steps from the goal free (0: off)',
     'exit_rounds': 'with exit_rays: fresh draws of rays, each counting the latest placement; '
