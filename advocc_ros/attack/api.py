@@ -15,8 +15,9 @@ each a function from data to data in a module of its own, and gathers their stat
    choice; in the ``joint`` form with ``TaskOptions.exit_rays``, steps 3-5 run for each
    candidate witness and ``attack.exits.fewest_exits`` keeps one placement);
 4. and 5. the method (``attack.methods.REGISTRY``): for ``task`` its objective
-   (``attack.objective``) and one greedy pass (``attack.greedy``); ``ours`` (the paper's
-   heatmap-mass greedy), ``random``, ``pfa``, ``pfa++`` choose from the region their own way;
+   (``attack.objective``, with the routes beside the kept witness: ``RoutesToCut``) and one
+   greedy pass (``attack.greedy``); ``ours`` (the paper's heatmap-mass greedy), ``random``,
+   ``pfa``, ``pfa++`` choose from the region their own way;
 6. the verdict (``attack.solvable.judge``): ``goal_valid_fraction`` and whether the task keeps
    a solution. Its time is not attack time.
 
