@@ -244,13 +244,21 @@ def test_planner_in_the_loop_attack_queries_the_shims(tmp_path, heatmap_file, ro
 
 
 def test_external_shim_is_discovered_and_used(tmp_path, heatmap_file, ros_env):
-    """A shim the orchestrator did not start (another host, same domain) serves trials."""
-    out = tmp_path / 'run'
-    remote = subprocess.Popen(
-        [sys.executable, '-m', 'advocc_ros.nodes.planner_shim', '--ros-args', '-r',
-         '__node:=remote_shim', '-p', 'scene_file:=table_pick'],
-        env=ros_env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    """A shim the orchestrator did not start (another host, same domain) serves trials. The
+    orchestrator starts once the shim says it is up: on a loaded machine it may take longer
+    than the orchestrator's first look for external shims."""
+    out, remote_log = tmp_path / 'run', tmp_path / 'remote_shim.log'
+    with remote_log.open('w') as log_file:
+        remote = subprocess.Popen(
+            [sys.executable, '-m', 'advocc_ros.nodes.planner_shim', '--ros-args', '-r',
+             '__node:=remote_shim', '-p', 'scene_file:=table_pick'],
+            env=ros_env, stdout=log_file, stderr=subprocess.STDOUT, text=True)
     try:
+        deadline = time.monotonic() + 120
+        while 'planning worker pid' not in remote_log.read_text():
+            assert remote.poll() is None, remote_log.read_text()
+            assert time.monotonic() < deadline, 'the remote shim did not start in 120 s'
+            time.sleep(0.1)
         args = [sys.executable, '-m', 'advocc_ros.orchestrator', '--profile', 'quick',
                 '--out', str(out), '--scenes', 'table_pick', '--planners', 'rrtconnect',
                 '--methods', 'ours', '--budgets', '1', '--trials', '6', '--time-budget', '1',
@@ -262,10 +270,10 @@ def test_external_shim_is_discovered_and_used(tmp_path, heatmap_file, ros_env):
     finally:
         remote.send_signal(signal.SIGINT)
         try:
-            remote.communicate(timeout=20)
+            remote.wait(timeout=20)
         except subprocess.TimeoutExpired:
             remote.kill()
-            remote.communicate()
+            remote.wait()
     records = [json.loads(line) for line in _lines(out)]
     assert len(records) == 12
     shims = {r['shim'] for r in records}
