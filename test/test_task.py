@@ -130,6 +130,23 @@ def test_touching_mask_is_the_union_of_the_cover_rows(panda, heatmap, task):
     assert not touching_mask(panda, world, Q[:0], region).any()
 
 
+def test_a_ray_row_is_covered_when_one_of_its_states_is(panda, heatmap, task):
+    """``cover_matrix(..., rays=)``: one row a ray, the or of its states' rows (the kernel
+    skips a voxel another state of the same ray filled, so overlapping states cost less)."""
+    q, goal, objects = task
+    region = search_region(heatmap, panda, objects, q, goal)
+    world = CollisionWorld(panda, [s for o in objects for s in o.shapes])
+    Q = planner_goals(panda, goal, world.collisions_batch, 3, seed=4).Q
+    Q = np.concatenate([np.linspace(q, g, 12) for g in Q])  # three rays of overlapping states
+    rays = np.repeat(np.arange(3), 12)
+    states = cover_matrix(panda, world, Q, region).toarray().astype(bool)
+    cut = cover_matrix(panda, world, Q, region, rays=rays).toarray().astype(bool)
+    assert cut.shape == (3, states.shape[1])
+    expected = np.array([states[rays == r].any(axis=0) for r in range(3)])
+    assert np.array_equal(cut, expected) and expected.any()
+    assert cover_matrix(panda, world, Q[:0], region, rays=rays[:0]).shape == (0, cut.shape[1])
+
+
 def test_task_respects_every_constraint_and_is_nested(panda, heatmap, task):
     q, goal, objects = task
     cfg = AttackConfig()

@@ -127,21 +127,15 @@ def test_detour_paths_pass_through_their_perturbed_midpoint(table):
         assert np.linalg.norm(mids - q, axis=1).min() < 0.3
 
 
-def test_an_exit_ray_is_cut_when_a_box_covers_one_of_its_states():
-    """``ExitRays.cover``: one row a ray, 1 where the candidate covers any of its states (a
-    ray of many states weighs no more than a ray of one); ``join`` numbers the rays after."""
-    from scipy import sparse
-
+def test_exit_rays_join_numbers_the_rays_after():
+    """``ExitRays.join``: the rays of ``more`` numbered after these, their states after."""
     from advocc_ros.attack.exits import ExitRays
 
     rays = ExitRays(np.zeros((5, 7)), np.array([0, 0, 0, 1, 1]))
-    states = sparse.csr_matrix(np.array([[1, 0, 0], [1, 1, 0], [0, 0, 0],
-                                         [0, 0, 0], [0, 0, 1]], dtype=float))
-    np.testing.assert_array_equal(rays.cover(states).toarray(), [[1, 1, 0], [0, 0, 1]])
-    both = rays.join(ExitRays(np.zeros((2, 7)), np.array([0, 0])))
+    both = rays.join(ExitRays(np.ones((2, 7)), np.array([0, 0])))
     assert both.count == 3 and list(both.ray) == [0, 0, 0, 1, 1, 2, 2]
-    none = ExitRays(np.zeros((0, 7)), np.zeros(0, dtype=int))
-    assert none.count == 0 and none.cover(states[:0]).shape == (0, 3)
+    assert both.states[5:].all() and not both.states[:5].any()
+    assert ExitRays(np.zeros((0, 7)), np.zeros(0, dtype=int)).count == 0
 
 
 def test_exits_are_placed_for_after_a_draw_finds_some_and_counted_again_after_none():

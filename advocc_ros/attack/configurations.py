@@ -21,48 +21,60 @@ from advocc_ros.model.robot import RobotModel
 
 
 @numba.njit(cache=True, nogil=True, parallel=True)
-def _cover(cover, cand_id, near, stamp, union, win_origin, voxel, k, R, t, lut_data, lut_offset,
-           lut_shape, lut_origin, lut_pitch, box_lo, box_hi):
-    """``cover[s, cand_id[c]] = True`` for every candidate c whose cube U(c) (half-width k
-    voxels) holds a voxel centre inside a link of configuration s (window grid). ``near`` and
-    ``stamp`` are padded by k: voxels with no candidate around them are skipped, and so are
-    voxels another link of the same configuration already did. With ``union``, ``cover`` is
-    not written: ``stamp >= 0`` marks the voxels inside a link at some configuration (the union
-    of the bodies), and a voxel one configuration filled is not tested again. Configurations
-    run in parallel (rows of ``cover`` are independent; a voxel's stamp only ever skips work
-    already done, so a race costs a repeated, idempotent write, never a missed one)."""
+def _cover(cover, starts, cand_id, near, stamp, union, win_origin, voxel, k, R, t, lut_data,
+           lut_offset, lut_shape, lut_origin, lut_pitch, box_lo, box_hi):
+    """``cover[r, cand_id[c]] = True`` for every candidate c whose cube U(c) (half-width k
+    voxels) holds a voxel centre inside a link of a configuration s of row r (window grid; the
+    configurations ``starts[r]`` to ``starts[r + 1]``). ``near`` and ``stamp`` are padded by k:
+    voxels with no candidate around them are skipped, and so are voxels another link or
+    configuration of the same row already did (the states of a ray overlap). With ``union``,
+    ``cover`` is not written: ``stamp >= 0`` marks the voxels inside a link at some
+    configuration (the union of the bodies), and a voxel one row filled is not tested again.
+    Rows run in parallel (they are independent; a voxel's stamp only ever skips work its row
+    has claimed, so a race costs a repeated, idempotent write, never a missed one)."""
     nx, ny, nz = cand_id.shape
     lo_limit = np.full(3, -k, np.int64)
     hi_limit = np.array([nx - 1 + k, ny - 1 + k, nz - 1 + k], np.int64)
     inv = 1.0 / lut_pitch
-    for s in numba.prange(R.shape[0]):
-        for li in range(R.shape[1]):
-            r, tl = R[s, li], t[s, li]
-            shape_l, origin_l, offset_l = lut_shape[li], lut_origin[li], lut_offset[li]
-            lo, hi = link_voxel_box(r, tl, box_lo[li], box_hi[li], win_origin, voxel,
-                                    lo_limit, hi_limit)
-            for i in range(lo[0], hi[0] + 1):
-                px = win_origin[0] + (i + 0.5) * voxel - tl[0]
-                for j in range(lo[1], hi[1] + 1):
-                    py = win_origin[1] + (j + 0.5) * voxel - tl[1]
-                    for kk in range(lo[2], hi[2] + 1):
-                        done = stamp[i + k, j + k, kk + k]
-                        if not near[i + k, j + k, kk + k] or done == s or (union and done >= 0):
-                            continue
-                        pz = win_origin[2] + (kk + 0.5) * voxel - tl[2]
-                        if not in_link(r, px, py, pz, lut_data, offset_l, shape_l, origin_l,
-                                       inv):
-                            continue
-                        stamp[i + k, j + k, kk + k] = s
-                        if union:
-                            continue
-                        for a0 in range(max(i - k, 0), min(i + k, nx - 1) + 1):
-                            for a1 in range(max(j - k, 0), min(j + k, ny - 1) + 1):
-                                for a2 in range(max(kk - k, 0), min(kk + k, nz - 1) + 1):
-                                    cid = cand_id[a0, a1, a2]
-                                    if cid >= 0:
-                                        cover[s, cid] = True
+    for row in numba.prange(len(starts) - 1):
+        for s in range(starts[row], starts[row + 1]):
+            _cover_one(cover, row, s, cand_id, near, stamp, union, win_origin, voxel, k, R, t,
+                       lut_data, lut_offset, lut_shape, lut_origin, inv, box_lo, box_hi,
+                       lo_limit, hi_limit)
     return cover
+
+
+@numba.njit(cache=True, nogil=True, inline='always')
+def _cover_one(cover, row, s, cand_id, near, stamp, union, win_origin, voxel, k, R, t, lut_data,
+               lut_offset, lut_shape, lut_origin, inv, box_lo, box_hi, lo_limit, hi_limit):
+    """``_cover`` for configuration s, written to row ``row``."""
+    nx, ny, nz = cand_id.shape
+    for li in range(R.shape[1]):
+        r, tl = R[s, li], t[s, li]
+        shape_l, origin_l, offset_l = lut_shape[li], lut_origin[li], lut_offset[li]
+        lo, hi = link_voxel_box(r, tl, box_lo[li], box_hi[li], win_origin, voxel,
+                                lo_limit, hi_limit)
+        for i in range(lo[0], hi[0] + 1):
+            px = win_origin[0] + (i + 0.5) * voxel - tl[0]
+            for j in range(lo[1], hi[1] + 1):
+                py = win_origin[1] + (j + 0.5) * voxel - tl[1]
+                for kk in range(lo[2], hi[2] + 1):
+                    done = stamp[i + k, j + k, kk + k]
+                    if not near[i + k, j + k, kk + k] or done == row or (union and done >= 0):
+                        continue
+                    pz = win_origin[2] + (kk + 0.5) * voxel - tl[2]
+                    if not in_link(r, px, py, pz, lut_data, offset_l, shape_l, origin_l,
+                                   inv):
+                        continue
+                    stamp[i + k, j + k, kk + k] = row
+                    if union:
+                        continue
+                    for a0 in range(max(i - k, 0), min(i + k, nx - 1) + 1):
+                        for a1 in range(max(j - k, 0), min(j + k, ny - 1) + 1):
+                            for a2 in range(max(kk - k, 0), min(kk + k, nz - 1) + 1):
+                                cid = cand_id[a0, a1, a2]
+                                if cid >= 0:
+                                    cover[row, cid] = True
 
 
 class _Lattice:
@@ -84,27 +96,40 @@ class _Lattice:
         self.cand_id[tuple(cand.T)] = np.arange(len(cand))
         self.stamp = np.full(self.near.shape, -1, dtype=np.int64)
 
-    def scan(self, cover: np.ndarray, union: bool) -> None:
-        """Run ``_cover`` (its docstring) into ``cover`` and ``self.stamp``."""
+    def scan(self, cover: np.ndarray, union: bool, starts: np.ndarray | None = None) -> None:
+        """Run ``_cover`` (its docstring) into ``cover`` and ``self.stamp``; ``starts``: the
+        rows' first configurations and the end (default: one row a configuration)."""
         tb = self.tables
-        _cover(cover, self.cand_id, self.near, self.stamp, union, self.origin_m, self.voxel_m,
-               self.k, self.R, self.t, tb.data, tb.offset, tb.shape, tb.origin, tb.pitch,
-               tb.box_lo, tb.box_hi)
+        if starts is None:
+            starts = np.arange(len(self.R) + 1)
+        _cover(cover, starts, self.cand_id, self.near, self.stamp, union, self.origin_m,
+               self.voxel_m, self.k, self.R, self.t, tb.data, tb.offset, tb.shape, tb.origin,
+               tb.pitch, tb.box_lo, tb.box_hi)
 
 
 def cover_matrix(robot: RobotModel, world: CollisionWorld, Q: np.ndarray,
                  region: SearchRegion, shrink: int = 0,
-                 placements: tuple[np.ndarray, np.ndarray] | None = None) -> sparse.csr_matrix:
+                 placements: tuple[np.ndarray, np.ndarray] | None = None,
+                 rays: np.ndarray | None = None) -> sparse.csr_matrix:
     """(len(Q), n_candidates) sparse 0/1: box at candidate j covers configuration i;
     ``shrink`` voxels off the box's half-width ask for a deeper contact. ``placements``:
-    ``placement_arrays(world, Q)`` if the caller has them already."""
+    ``placement_arrays(world, Q)`` if the caller has them already. ``rays``: the ray of each
+    configuration (0, 1, ... in order); then one row a ray, covered when one of its
+    configurations is (a box that touches a state of a ray cuts it)."""
     n_cand = int(region.candidates.sum())
+    starts = None if rays is None else _row_starts(rays)
+    n_rows = len(Q) if starts is None else len(starts) - 1
     if not len(Q) or not n_cand:
-        return sparse.csr_matrix((len(Q), n_cand))
-    dense = np.zeros((len(Q), n_cand), dtype=np.bool_)
-    _Lattice(robot, world, Q, region, shrink, placements).scan(dense, union=False)
+        return sparse.csr_matrix((n_rows, n_cand))
+    dense = np.zeros((n_rows, n_cand), dtype=np.bool_)
+    _Lattice(robot, world, Q, region, shrink, placements).scan(dense, False, starts)
     indptr, indices = _dense_to_csr(dense)
     return sparse.csr_matrix((np.ones(len(indices)), indices, indptr), shape=dense.shape)
+
+
+def _row_starts(rays: np.ndarray) -> np.ndarray:
+    """The first index of each ray of ``rays`` (sorted: 0, 1, ...) and the end."""
+    return np.searchsorted(rays, np.arange(int(rays[-1]) + 2 if len(rays) else 1))
 
 
 def touching_mask(robot: RobotModel, world: CollisionWorld, Q: np.ndarray,

@@ -26,7 +26,6 @@ import dataclasses
 from typing import Callable, TypeVar
 
 import numpy as np
-from scipy import sparse
 
 from advocc_ros.attack.policy import scene_clearance
 from advocc_ros.attack.types import Task
@@ -42,7 +41,8 @@ Placement = TypeVar('Placement')
 class ExitRays:
     """Goal rays for the boxes to close (``close_exits``): the states each ray is checked at
     and the ray each state belongs to. A box that covers one state of a ray cuts it, so the
-    objective counts a ray once, covered when any of its states is (``cover``)."""
+    objective counts a ray once, covered when any of its states is
+    (``cover_matrix(..., rays=ray)``)."""
 
     states: np.ndarray
     """(n, nq) the rays' states, the goal not included."""
@@ -52,17 +52,6 @@ class ExitRays:
     @property
     def count(self) -> int:
         return int(self.ray[-1]) + 1 if len(self.ray) else 0
-
-    def cover(self, state_cover: sparse.csr_matrix) -> sparse.csr_matrix:
-        """(rays, candidates) 0/1 from ``state_cover`` (states, candidates): candidate j cuts
-        ray i when it covers one of its states."""
-        if not self.count:
-            return sparse.csr_matrix((0, state_cover.shape[1]))
-        member = sparse.csr_matrix((np.ones(len(self.ray)), (self.ray, np.arange(len(self.ray)))),
-                                   shape=(self.count, len(self.ray)))
-        cut = (member @ state_cover).tocsr()
-        cut.data[:] = 1.0
-        return cut
 
     def join(self, more: 'ExitRays') -> 'ExitRays':
         """These rays and ``more``, renumbered after them."""

@@ -154,8 +154,8 @@ def goal_tiers(context: MethodContext, world: CollisionWorld, region: SearchRegi
                         placements=(R[:n_goal], t[:n_goal]))
     path = cover_matrix(context.robot, world, Q_path, region,
                         placements=(R[n_goal:n_goal + n_path], t[n_goal:n_goal + n_path]))
-    cut = exits.cover(cover_matrix(context.robot, world, exits.states, region,
-                                   placements=(R[n_goal + n_path:], t[n_goal + n_path:])))
+    cut = cover_matrix(context.robot, world, exits.states, region,
+                       placements=(R[n_goal + n_path:], t[n_goal + n_path:]), rays=exits.ray)
     w_goal = np.ones(n_goal)
     reported = np.concatenate([np.zeros(exits.count), w_goal, np.zeros(n_goal), w_path])
     return Objective(sparse.vstack([cut, goal, deep, path], format='csr'),
