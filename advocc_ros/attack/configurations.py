@@ -44,7 +44,7 @@ def _cover(cover, starts, cand_id, near, stamp, union, win_origin, voxel, k, R, 
     return cover
 
 
-@numba.njit(cache=True, nogil=True, inline='always')
+@numba.njit(cache=True, nogil=True)
 def _cover_one(cover, row, s, cand_id, near, stamp, union, win_origin, voxel, k, R, t, lut_data,
                lut_offset, lut_shape, lut_origin, inv, box_lo, box_hi, lo_limit, hi_limit):
     """``_cover`` for configuration s, written to row ``row``."""
