@@ -112,9 +112,9 @@ def cover_matrix(robot: RobotModel, world: CollisionWorld, Q: np.ndarray,
                  placements: tuple[np.ndarray, np.ndarray] | None = None,
                  rays: np.ndarray | None = None) -> sparse.csr_matrix:
     """(len(Q), n_candidates) sparse 0/1 (one row a ray with ``rays``): box at candidate j
-    covers configuration i;
-    ``shrink`` voxels off the box's half-width ask for a deeper contact. ``placements``:
-    ``placement_arrays(world, Q)`` if the caller has them already. ``rays``: the ray of each
+    covers configuration i; ``shrink`` voxels off the box's half-width ask for a deeper
+    contact. ``placements``: ``placement_arrays(world, Q)`` if the caller has them already.
+    ``rays``: the ray of each
     configuration (0, 1, ... in order); then one row a ray, covered when one of its
     configurations is (a box that touches a state of a ray cuts it)."""
     n_cand = int(region.candidates.sum())
