@@ -26,6 +26,23 @@ def test_compiled_frames_match_pinocchio(panda, table_scene, chain):
         np.testing.assert_allclose(T[i], data.oMf[fid].homogeneous, atol=1e-12)
 
 
+def test_links_placements_in_one_compiled_pass_match_pinocchio(panda, table_scene):
+    """``CollisionWorld.link_transforms`` (every joint's frame by ``JointFrames``, the base's
+    geometries included) is pinocchio's geometry placement of each link, and so is its
+    pinocchio path, the one for joints the kernel does not model."""
+    world = CollisionWorld(panda, [sh for o in table_scene.objects for sh in o.shapes])
+    Q = np.random.default_rng(3).uniform(panda.lower, panda.upper, (30, panda.nq))
+    H = world.link_transforms(Q)
+    assert world._kinematics.supports and 0 in {
+        g.parentJoint for g in world.geom_model.geometryObjects[:world.n_links]}
+    assert H.shape == (30, world.n_links, 4, 4) and world.link_transforms(Q[:0]).shape[0] == 0
+    for i, q in enumerate(Q):
+        for link, T in enumerate(world.link_placements(q)):
+            np.testing.assert_allclose(H[i, link], T.homogeneous, atol=1e-12)
+    np.testing.assert_allclose(world._joint_frames_pin(Q), world._kinematics.frames(Q),
+                               atol=1e-12)
+
+
 def test_exp3_matches_pinocchio():
     from advocc_ros.kinematics.ik import exp3
 

@@ -1,5 +1,6 @@
-"""Batched kinematics: forward kinematics of many configurations and damped-least-squares IK
-for many attempts at once, in compiled kernels (rows in parallel).
+"""Batched kinematics: forward kinematics of many configurations (to one frame, or to every
+joint the links hang on) and damped-least-squares IK for many attempts at once, in compiled
+kernels.
 
 Goal sampling is the online phase's largest cost when every IK runs one configuration at a time
 through pinocchio (~4-16 ms per converged sample on the Panda). Here the chain to one frame is
@@ -67,6 +68,48 @@ class ChainKinematics:
         if len(Q):
             _frames(Q, self.T_parent_joint, self.axis, self.revolute, self.index_q,
                     self.T_joint_frame, out)
+        return out
+
+
+class JointFrames:
+    """T_base_joint of chosen joints of a pinocchio model (with their ancestors) for many
+    configurations in one compiled pass: what the links' placements need
+    (``CollisionWorld.link_transforms``), one forward kinematics per configuration without a
+    Python step per configuration."""
+
+    def __init__(self, model: pin.Model, joint_ids: list[int]):
+        needed = set()
+        for j in joint_ids:
+            while j > 0 and j not in needed:
+                needed.add(j)
+                j = model.parents[j]
+        joints = sorted(needed)  # pinocchio numbers a parent before its children
+        kinds = [_joint_kind(model.joints[j]) for j in joints]
+        self.supports = all(k is not None and model.joints[j].nq == 1
+                            for j, k in zip(joints, kinds))
+        """Whether every joint is one the kernel models (else use pinocchio)."""
+        self.nq = model.nq
+        self.column = {j: i for i, j in enumerate(joints)} | {0: len(joints)}
+        """Joint id -> its index in ``frames``' second axis (the base, joint 0, last)."""
+        if not self.supports:
+            return
+        self.parent = np.array([self.column.get(model.parents[j], -1) for j in joints],
+                               dtype=np.int64)
+        self.T_parent_joint = np.array([model.jointPlacements[j].homogeneous
+                                        for j in joints]).reshape(-1, 4, 4)
+        self.axis = np.array([k[1] for k in kinds]).reshape(-1, 3)
+        self.revolute = np.array([k[0] for k in kinds], dtype=np.bool_)
+        self.index_q = np.array([model.joints[j].idx_q for j in joints], dtype=np.int64)
+
+    def frames(self, Q: np.ndarray) -> np.ndarray:
+        """T_base_joint (N, n_joints + 1, 4, 4) at the configurations ``Q`` (N, nq), joints
+        in ``column``'s order; only when ``supports``."""
+        Q = np.ascontiguousarray(Q, dtype=float).reshape(-1, self.nq)
+        out = np.empty((len(Q), len(self.parent) + 1, 4, 4))
+        out[:, -1] = np.eye(4)
+        if len(Q):
+            _joint_frames(Q, self.parent, self.T_parent_joint, self.axis, self.revolute,
+                          self.index_q, out)
         return out
 
 
@@ -150,6 +193,32 @@ def _mul4(A, B, out):
 
 
 @numba.njit(cache=True, nogil=True)
+def _joint_motion(axis, revolute, x, M):
+    """The joint's motion at value ``x`` into ``M`` (4, 4): a rotation of ``x`` rad about the
+    unit ``axis`` (Rodrigues) or a translation of ``x`` m along it."""
+    M[:, :] = 0.0
+    M[3, 3] = 1.0
+    if revolute:
+        wx, wy, wz = axis[0] * x, axis[1] * x, axis[2] * x
+        th = np.sqrt(wx * wx + wy * wy + wz * wz)
+        if th < 1e-8:
+            sa, sb = 1.0 - th * th / 6.0, 0.5 - th * th / 24.0
+        else:
+            sa, sb = np.sin(th) / th, (1.0 - np.cos(th)) / (th * th)
+        # R = I + sa [w] + sb [w]^2, with [w]^2 = w w^T - |w|^2 I
+        M[0, 0] = 1.0 + sb * (wx * wx - th * th)
+        M[1, 1] = 1.0 + sb * (wy * wy - th * th)
+        M[2, 2] = 1.0 + sb * (wz * wz - th * th)
+        M[0, 1], M[1, 0] = -sa * wz + sb * wx * wy, sa * wz + sb * wx * wy
+        M[0, 2], M[2, 0] = sa * wy + sb * wx * wz, -sa * wy + sb * wx * wz
+        M[1, 2], M[2, 1] = -sa * wx + sb * wy * wz, sa * wx + sb * wy * wz
+    else:
+        for a in range(3):
+            M[a, a] = 1.0
+            M[a, 3] = axis[a] * x
+
+
+@numba.njit(cache=True, nogil=True)
 def _fk(q, T_pj, axis, revolute, index_q, T_jf, T, origins, axes_w, M):
     """T_base_frame into ``T`` (4, 4) at ``q``, and each joint's origin and axis in the base
     frame into ``origins`` and ``axes_w`` (what ``_jacobian`` reads); ``M``: scratch."""
@@ -161,27 +230,7 @@ def _fk(q, T_pj, axis, revolute, index_q, T_jf, T, origins, axes_w, M):
         for a in range(3):
             origins[j, a] = T[a, 3]
             axes_w[j, a] = T[a, 0] * axis[j, 0] + T[a, 1] * axis[j, 1] + T[a, 2] * axis[j, 2]
-        M[:, :] = 0.0
-        M[3, 3] = 1.0
-        x = q[index_q[j]]
-        if revolute[j]:
-            wx, wy, wz = axis[j, 0] * x, axis[j, 1] * x, axis[j, 2] * x
-            th = np.sqrt(wx * wx + wy * wy + wz * wz)
-            if th < 1e-8:
-                sa, sb = 1.0 - th * th / 6.0, 0.5 - th * th / 24.0
-            else:
-                sa, sb = np.sin(th) / th, (1.0 - np.cos(th)) / (th * th)
-            # R = I + sa [w] + sb [w]^2, with [w]^2 = w w^T - |w|^2 I
-            M[0, 0] = 1.0 + sb * (wx * wx - th * th)
-            M[1, 1] = 1.0 + sb * (wy * wy - th * th)
-            M[2, 2] = 1.0 + sb * (wz * wz - th * th)
-            M[0, 1], M[1, 0] = -sa * wz + sb * wx * wy, sa * wz + sb * wx * wy
-            M[0, 2], M[2, 0] = sa * wy + sb * wx * wz, -sa * wy + sb * wx * wz
-            M[1, 2], M[2, 1] = -sa * wx + sb * wy * wz, sa * wx + sb * wy * wz
-        else:
-            for a in range(3):
-                M[a, a] = 1.0
-                M[a, 3] = axis[j, a] * x
+        _joint_motion(axis[j], revolute[j], q[index_q[j]], M)
         _mul4(T, M, T)
     _mul4(T, T_jf, T)
 
@@ -214,6 +263,23 @@ def _frames(Q, T_pj, axis, revolute, index_q, T_jf, out):
     for i in numba.prange(Q.shape[0]):
         origins, axes_w, M = np.empty((nj, 3)), np.empty((nj, 3)), np.empty((4, 4))
         _fk(Q[i], T_pj, axis, revolute, index_q, T_jf, out[i], origins, axes_w, M)
+
+
+@numba.njit(cache=True, nogil=True)
+def _joint_frames(Q, parent, T_pj, axis, revolute, index_q, out):
+    """``out[i, j]`` = T_base_joint of joint j < len(parent) at ``Q[i]`` (each joint after
+    its parent, ``parent[j]`` = -1 for the base). One thread: it runs in the heatmap's forked
+    workers and beside other threads, where numba's parallel layer may not (~1 us a row)."""
+    M = np.empty((4, 4))
+    for i in range(Q.shape[0]):
+        for j in range(T_pj.shape[0]):
+            T = out[i, j]
+            if parent[j] < 0:
+                T[:, :] = T_pj[j]
+            else:
+                _mul4(out[i, parent[j]], T_pj[j], T)
+            _joint_motion(axis[j], revolute[j], Q[i, index_q[j]], M)
+            _mul4(T, M, T)
 
 
 @numba.njit(cache=True, nogil=True, parallel=True)

@@ -311,20 +311,34 @@ class CollisionWorld:
 
     def link_transforms(self, Q: np.ndarray) -> np.ndarray:
         """``T_base_geom`` of each robot collision geometry for each q of ``Q``, as
-        (N, n_links, 4, 4) homogeneous matrices: one forward kinematics per q, the joints read
-        once and composed with the geometries' fixed placements in numpy (~10x faster than a
-        geometry update per q)."""
+        (N, n_links, 4, 4) homogeneous matrices: the joints' frames of every q in one compiled
+        pass (``kinematics.batch.JointFrames``; pinocchio's forward kinematics q by q for a
+        joint it does not model), composed with the geometries' fixed placements in numpy."""
         geoms = self.geom_model.geometryObjects[:self.n_links]
-        joints = sorted({g.parentJoint for g in geoms})
-        column = [joints.index(g.parentJoint) for g in geoms]
-        data = self.model.createData()
+        kinematics = self._kinematics
+        T_joint = kinematics.frames(Q) if kinematics.supports else self._joint_frames_pin(Q)
+        column = [kinematics.column[g.parentJoint] for g in geoms]
+        return np.einsum('nlij,ljk->nlik', T_joint[:, column],
+                         np.array([g.placement.homogeneous for g in geoms]))
+
+    @functools.cached_property
+    def _kinematics(self):
+        """The links' joints as ``JointFrames`` (imported here: numba only when asked)."""
+        from advocc_ros.kinematics.batch import JointFrames
+
+        return JointFrames(self.model, [g.parentJoint for g in
+                                        self.geom_model.geometryObjects[:self.n_links]])
+
+    def _joint_frames_pin(self, Q: np.ndarray) -> np.ndarray:
+        """``JointFrames.frames`` by pinocchio, one forward kinematics per q."""
+        joints = sorted(self._kinematics.column, key=self._kinematics.column.get)
+        data = self.model.createData()  # oMi[0], the base, stays the identity
         T_joint = np.empty((len(Q), len(joints), 4, 4))
         for i, q in enumerate(Q):
             pin.forwardKinematics(self.model, data, q)
             for a, j in enumerate(joints):
                 T_joint[i, a] = data.oMi[j].homogeneous
-        return np.einsum('nlij,ljk->nlik', T_joint[:, column],
-                         np.array([g.placement.homogeneous for g in geoms]))
+        return T_joint
 
     def occupied(self, grid: VoxelGrid) -> np.ndarray:
         """Voxels of ``grid`` whose centre lies inside a scene shape, computed once per grid:
