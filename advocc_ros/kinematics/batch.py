@@ -93,8 +93,8 @@ class JointFrames:
         """Joint id -> its index in ``frames``' second axis (the base, joint 0, last)."""
         if not self.supports:
             return
-        self.parent = np.array([self.column.get(model.parents[j], -1) for j in joints],
-                               dtype=np.int64)
+        self.parent = np.array([self.column[model.parents[j]] if model.parents[j] > 0 else -1
+                                for j in joints], dtype=np.int64)
         self.T_parent_joint = np.array([model.jointPlacements[j].homogeneous
                                         for j in joints]).reshape(-1, 4, 4)
         self.axis = np.array([k[1] for k in kinds]).reshape(-1, 3)
