@@ -36,6 +36,36 @@ def _joint_kind(joint) -> tuple[bool, np.ndarray] | None:
     return None
 
 
+@dataclasses.dataclass(frozen=True)
+class _JointArrays:
+    """Joints of a pinocchio model (parents first) as the compiled kernels read them."""
+
+    supports: bool
+    """Whether every joint is one the kernels model (else use pinocchio); the arrays are empty
+    when not."""
+    T_parent_joint: np.ndarray
+    """(n, 4, 4) placement of each joint frame in its parent joint's frame (q = 0)."""
+    axis: np.ndarray
+    """(n, 3) unit axis of each joint in its own frame."""
+    revolute: np.ndarray
+    """(n,) revolute (else prismatic)."""
+    index_q: np.ndarray
+    """(n,) each joint's index in q."""
+
+    @classmethod
+    def of(cls, model: pin.Model, joints: list[int]) -> '_JointArrays':
+        kinds = [_joint_kind(model.joints[j]) for j in joints]
+        supports = all(k is not None and model.joints[j].nq == 1 for j, k in zip(joints, kinds))
+        if not supports:
+            joints, kinds = [], []
+        return cls(supports,
+                   np.array([model.jointPlacements[j].homogeneous for j in joints]
+                            ).reshape(-1, 4, 4),
+                   np.array([k[1] for k in kinds]).reshape(-1, 3),
+                   np.array([k[0] for k in kinds], dtype=np.bool_),
+                   np.array([model.joints[j].idx_q for j in joints], dtype=np.int64))
+
+
 class ChainKinematics:
     """The kinematic chain from the base to one frame, as the compiled kernels read it."""
 
@@ -46,28 +76,19 @@ class ChainKinematics:
         while j > 0:
             chain.append(j)
             j = model.parents[j]
-        kinds = [_joint_kind(model.joints[j]) for j in reversed(chain)]
-        self.supports = all(k is not None and model.joints[j].nq == 1
-                            for j, k in zip(reversed(chain), kinds))
+        self.joints = _JointArrays.of(model, chain[::-1])
+        self.supports = self.joints.supports
         """Whether every joint of the chain is one the kernels model (else use pinocchio)."""
-        joints = list(reversed(chain)) if self.supports else []
         self.T_joint_frame = frame.placement.homogeneous
         self.nq = model.nq
-        self.T_parent_joint = np.array([model.jointPlacements[j].homogeneous
-                                        for j in joints]).reshape(-1, 4, 4)
-        """Placement of each joint frame in its parent joint's frame (q = 0)."""
-        self.axis = np.array([k[1] for k in kinds[:len(joints)]]).reshape(-1, 3)
-        """Unit axis of each joint in its own frame."""
-        self.revolute = np.array([k[0] for k in kinds[:len(joints)]], dtype=np.bool_)
-        self.index_q = np.array([model.joints[j].idx_q for j in joints], dtype=np.int64)
 
     def frame(self, Q: np.ndarray) -> np.ndarray:
         """T_base_frame (N, 4, 4) of the configurations ``Q`` (N, nq)."""
         Q = np.ascontiguousarray(Q, dtype=float).reshape(-1, self.nq)
         out = np.empty((len(Q), 4, 4))
         if len(Q):
-            _frames(Q, self.T_parent_joint, self.axis, self.revolute, self.index_q,
-                    self.T_joint_frame, out)
+            a = self.joints
+            _frames(Q, a.T_parent_joint, a.axis, a.revolute, a.index_q, self.T_joint_frame, out)
         return out
 
 
@@ -84,22 +105,14 @@ class JointFrames:
                 needed.add(j)
                 j = model.parents[j]
         joints = sorted(needed)  # pinocchio numbers a parent before its children
-        kinds = [_joint_kind(model.joints[j]) for j in joints]
-        self.supports = all(k is not None and model.joints[j].nq == 1
-                            for j, k in zip(joints, kinds))
+        self.joints = _JointArrays.of(model, joints)
+        self.supports = self.joints.supports
         """Whether every joint is one the kernel models (else use pinocchio)."""
         self.nq = model.nq
         self.column = {j: i for i, j in enumerate(joints)} | {0: len(joints)}
         """Joint id -> its index in ``frames``' second axis (the base, joint 0, last)."""
-        if not self.supports:
-            return
         self.parent = np.array([self.column[model.parents[j]] if model.parents[j] > 0 else -1
                                 for j in joints], dtype=np.int64)
-        self.T_parent_joint = np.array([model.jointPlacements[j].homogeneous
-                                        for j in joints]).reshape(-1, 4, 4)
-        self.axis = np.array([k[1] for k in kinds]).reshape(-1, 3)
-        self.revolute = np.array([k[0] for k in kinds], dtype=np.bool_)
-        self.index_q = np.array([model.joints[j].idx_q for j in joints], dtype=np.int64)
 
     def frames(self, Q: np.ndarray) -> np.ndarray:
         """T_base_joint (N, n_joints + 1, 4, 4) at the configurations ``Q`` (N, nq), joints
@@ -108,8 +121,8 @@ class JointFrames:
         out = np.empty((len(Q), len(self.parent) + 1, 4, 4))
         out[:, -1] = np.eye(4)
         if len(Q):
-            _joint_frames(Q, self.parent, self.T_parent_joint, self.axis, self.revolute,
-                          self.index_q, out)
+            a = self.joints
+            _joint_frames(Q, self.parent, a.T_parent_joint, a.axis, a.revolute, a.index_q, out)
         return out
 
 
@@ -146,8 +159,9 @@ def dls(chain: ChainKinematics, Q: np.ndarray, T_target: np.ndarray, iterations:
     if len(Q):
         _dls_rows(Q, done, np.ascontiguousarray(T_target, dtype=float),
                   np.asarray(iterations, dtype=np.int64), float(damping), float(max_step),
-                  np.asarray(lower, float), np.asarray(upper, float), chain.T_parent_joint,
-                  chain.axis, chain.revolute, chain.index_q, chain.T_joint_frame,
+                  np.asarray(lower, float), np.asarray(upper, float), chain.joints.T_parent_joint,
+                  chain.joints.axis, chain.joints.revolute, chain.joints.index_q,
+                  chain.T_joint_frame,
                   region.T_center, region.T_link_tool, np.asarray(region.pos_tol, float),
                   np.asarray(region.rot_tol, float))
     return Q, done
