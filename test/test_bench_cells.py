@@ -35,7 +35,8 @@ def test_cells_csv_holds_each_cell_of_the_run(tmp_path):
                                                 ('GOAL_IN_COLLISION', None, False),
                                                 ('TIMED_OUT', None, True),
                                                 ('GOAL_IN_COLLISION', None, False))):
-        store.append(_rec('task', 10, k, status, first, found))
+        store.append({**_rec('task', 10, k, status, first, found), 'commit': f'c{k % 2}',
+                      'dirty': k == 3, 'host': 'h', 'cpu': 'AMD EPYC', 'load_1min': 1.5 + k})
     store.append(_rec('task', 3, 0, 'SUCCESS', 0.5, True))  # a budget the settings dropped
     attacks = run / 'attacks' / 'table_pick'
     attacks.mkdir(parents=True)
@@ -65,3 +66,8 @@ def test_cells_csv_holds_each_cell_of_the_run(tmp_path):
             task['unknown']) == ('0.375', '1', '0', '1')
     assert (task['first_trial_utc'], task['last_trial_utc']) == \
         ('2026-11-26 13:33 UTC', '2026-11-26 13:36 UTC')
+    # what made them: each commit once, dirty when one was, the highest load; empty when the
+    # records name nothing (made before the bench recorded it)
+    assert (task['commit'], task['dirty'], task['host'], task['cpu'], task['load_1min_max']) == \
+        ('c0 c1', '1', 'h', 'AMD EPYC', '4.5')
+    assert (base['commit'], base['dirty'], base['host'], base['load_1min_max']) == ('', '', '', '')

@@ -7,12 +7,14 @@ processes.
 """
 
 import json
+import socket
 import time
 
 import numpy as np
 import pytest
 
 from advocc_ros.bench import BenchConfig, BenchError, RecordStore
+from advocc_ros.evaluation import provenance
 from advocc_ros.orchestrator.run import Orchestrator
 from advocc_ros.orchestrator.shims import CallFailed, PlanAnswer, Shim, ShimState
 
@@ -142,7 +144,12 @@ def test_loop_records_every_trial(tmp_path):
     assert len({r['key'] for r in records}) == len(records) == planned
     assert pool.injected == [(), ('random_b1_v0_0',)] and pool.closed
     assert {r['shim'] for r in records} == {'/fake_0', '/fake_1'}
+    made = provenance.code()
     for r in records:
+        # each names its making: this checkout's commit, the host, a load
+        assert (r['commit'], r['dirty'], r['host']) == (made['commit'], made['dirty'],
+                                                        socket.gethostname())
+        assert r['cpu'] and r['load_1min'] >= 0
         assert r['success'] == (r['seed'] % 2 == 0)
         assert r['attack'] == (None if r['method'] == 'none' else 'random_b1_v0')
         if r['success']:

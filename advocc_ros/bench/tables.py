@@ -363,7 +363,8 @@ CELL_COLUMNS = ('run', 'seed', 'scene', 'planner', 'method', 'budget', 'trials',
                 'psr_given_goals_percent', 'no_goal_found',
                 *[m.replace(' ', '_') for m in FAILURE_MODES], 'internal_errors',
                 'goal_valid_fraction', 'first_solution_median_s', 'pt_ratio', 'certified',
-                'goal_blocked', 'unknown', 'first_trial_utc', 'last_trial_utc')
+                'goal_blocked', 'unknown', 'first_trial_utc', 'last_trial_utc', 'commit',
+                'dirty', 'host', 'cpu', 'load_1min_max')
 """The columns of ``cells.csv``."""
 
 
@@ -375,14 +376,17 @@ def cell_table(rows: dict[tuple, dict], attacks: list[dict], records: Iterable[d
     trials, PSR and PSR given goals (the trials whose goal search before the clock found one)
     with the trials where it found none, the failure modes, the internal errors, the attacks'
     mean ``goal_valid_fraction`` and their ``solvable`` verdicts, the median time to first
-    solution (failures at the budget), the PT ratio, and when the cell's first and last trials
-    were recorded (UTC)."""
+    solution (failures at the budget), the PT ratio, when the cell's first and last trials
+    were recorded (UTC) and what recorded them (``provenance.stamp``: the commits, whether any
+    was dirty, the hosts, the CPUs, the highest load; empty for records made before it)."""
     gvf = _attack_values(attacks, 'goal_valid_fraction')
     verdicts = _attack_values(attacks, 'solvable')
     times: dict[tuple, list[float]] = {}
+    made: dict[tuple, list[dict]] = {}
     for rec in records:
+        cell = (rec['scene'], rec['planner'], rec['method'], int(rec['budget']))
+        made.setdefault(cell, []).append(rec)
         if rec.get('unix') is not None:
-            cell = (rec['scene'], rec['planner'], rec['method'], int(rec['budget']))
             times.setdefault(cell, []).append(float(rec['unix']))
     out = io.StringIO()
     writer = csv.writer(out, lineterminator='\n')
@@ -403,8 +407,21 @@ def cell_table(rows: dict[tuple, dict], attacks: list[dict], records: Iterable[d
             _csv_num(row['first_solution_median_s']),
             _csv_num(pt_ratio(row, rows.get((scene, planner, BASELINE, 0)))),
             *(counts or ('', '', '')),
-            *[_utc(f(times[cell])) if cell in times else '' for f in (min, max)]])
+            *[_utc(f(times[cell])) if cell in times else '' for f in (min, max)],
+            *_made_cells(made.get(cell, []))])
     return out.getvalue()
+
+
+def _made_cells(records: list[dict]) -> list:
+    """The ``commit``, ``dirty``, ``host``, ``cpu`` and ``load_1min_max`` cells of a cell's
+    records: each distinct value once (space-separated; the CPU's ``; ``), dirty when any was,
+    the highest load; empty where no record names it."""
+    def distinct(key: str, sep: str = ' ') -> str:
+        return sep.join(sorted({str(r[key]) for r in records if r.get(key) is not None}))
+    dirty = [bool(r['dirty']) for r in records if r.get('dirty') is not None]
+    loads = [float(r['load_1min']) for r in records if r.get('load_1min') is not None]
+    return [distinct('commit'), int(any(dirty)) if dirty else '', distinct('host'),
+            distinct('cpu', '; '), _csv_num(max(loads)) if loads else '']
 
 
 def _cell_order(cell: tuple, cfg: BenchConfig) -> tuple:

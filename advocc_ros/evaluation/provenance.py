@@ -35,6 +35,7 @@ def now() -> str:
     return datetime.datetime.now(datetime.timezone.utc).isoformat(timespec='seconds')
 
 
+@functools.lru_cache(maxsize=1)
 def cpu_model() -> str:
     """The CPU's model name (``/proc/cpuinfo``; elsewhere what ``platform`` knows)."""
     try:
@@ -110,10 +111,19 @@ def machine() -> dict:
             'machine_cores': os.cpu_count(), 'load': load()}
 
 
+def stamp() -> dict:
+    """The few fields one trial's record names of its making (a bench's ``records.jsonl``):
+    ``commit``, ``dirty``, ``host``, ``cpu`` and ``load_1min``, the machine's load when it was
+    recorded."""
+    made, load_avg = code(), load()
+    return {'commit': made['commit'], 'dirty': made['dirty'], 'host': socket.gethostname(),
+            'cpu': cpu_model(), 'load_1min': load_avg[0] if load_avg else None}
+
+
 def record() -> dict:
     """Everything above in one dict: ``code()``, ``machine()`` and ``versions``."""
     return {**code(), **machine(), 'versions': versions()}
 
 
 __all__ = ['CODE_PATHS', 'DISTRIBUTIONS', 'REPO', 'code', 'cpu_model', 'load', 'machine', 'now',
-           'record', 'versions']
+           'record', 'stamp', 'versions']

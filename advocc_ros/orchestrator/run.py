@@ -465,6 +465,7 @@ class Orchestrator:
         collides is recorded as an internal error, and every internal error is announced."""
         from advocc_ros.evaluation.metrics import PathInCollision, trial_metrics
         from advocc_ros.evaluation.outcomes import INTERNAL_ERROR, record_outcome
+        from advocc_ros.evaluation.provenance import stamp
 
         success = answer.status == 'SUCCESS'
         record = {'key': trial.key, 'scene': trial.scene, 'planner': trial.planner,
@@ -477,7 +478,7 @@ class Orchestrator:
                   'attack': None if self.unit.attack is None else self.unit.attack.tag,
                   'shim': shim.name, 'waypoints': answer.waypoints,
                   'min_manipulability': None, 'min_clearance_rad': None, 'jds_rad': None,
-                  'unix': round(time.time(), 3)}
+                  'unix': round(time.time(), 3), **stamp()}
         # Its goal list, outside any clock (the shims' victims got the same): psr_given_goals.
         found = self.goal_lists.get(trial.seed) or self._goal_list(trial.seed)
         record.update(goal_found=found.found, goal_attempts=found.attempts)
