@@ -381,13 +381,10 @@ def cell_table(rows: dict[tuple, dict], attacks: list[dict], records: Iterable[d
     was dirty, the hosts, the CPUs, the highest load; empty for records made before it)."""
     gvf = _attack_values(attacks, 'goal_valid_fraction')
     verdicts = _attack_values(attacks, 'solvable')
-    times: dict[tuple, list[float]] = {}
     made: dict[tuple, list[dict]] = {}
     for rec in records:
-        cell = (rec['scene'], rec['planner'], rec['method'], int(rec['budget']))
-        made.setdefault(cell, []).append(rec)
-        if rec.get('unix') is not None:
-            times.setdefault(cell, []).append(float(rec['unix']))
+        made.setdefault((rec['scene'], rec['planner'], rec['method'], int(rec['budget'])),
+                        []).append(rec)
     out = io.StringIO()
     writer = csv.writer(out, lineterminator='\n')
     writer.writerow(CELL_COLUMNS)
@@ -407,20 +404,23 @@ def cell_table(rows: dict[tuple, dict], attacks: list[dict], records: Iterable[d
             _csv_num(row['first_solution_median_s']),
             _csv_num(pt_ratio(row, rows.get((scene, planner, BASELINE, 0)))),
             *(counts or ('', '', '')),
-            *[_utc(f(times[cell])) if cell in times else '' for f in (min, max)],
             *_made_cells(made.get(cell, []))])
     return out.getvalue()
 
 
 def _made_cells(records: list[dict]) -> list:
-    """The ``commit``, ``dirty``, ``host``, ``cpu`` and ``load_1min_max`` cells of a cell's
-    records: each distinct value once (space-separated; the CPU's ``; ``), dirty when any was,
-    the highest load; empty where no record names it."""
+    """The ``first_trial_utc``, ``last_trial_utc``, ``commit``, ``dirty``, ``host``, ``cpu`` and
+    ``load_1min_max`` cells of a cell's records: the first and last record times, each distinct
+    value once (space-separated; the CPU's ``; ``), dirty when any was, the highest load; empty
+    where no record names it."""
+    unix = [float(r['unix']) for r in records if r.get('unix') is not None]
+
     def distinct(key: str, sep: str = ' ') -> str:
         return sep.join(sorted({str(r[key]) for r in records if r.get(key) is not None}))
     dirty = [bool(r['dirty']) for r in records if r.get('dirty') is not None]
     loads = [float(r['load_1min']) for r in records if r.get('load_1min') is not None]
-    return [distinct('commit'), int(any(dirty)) if dirty else '', distinct('host'),
+    return [*[_utc(f(unix)) if unix else '' for f in (min, max)],
+            distinct('commit'), int(any(dirty)) if dirty else '', distinct('host'),
             distinct('cpu', '; '), _csv_num(max(loads)) if loads else '']
 
 

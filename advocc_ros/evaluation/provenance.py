@@ -115,9 +115,9 @@ def stamp() -> dict:
     """The few fields one trial's record names of its making (a bench's ``records.jsonl``):
     ``commit``, ``dirty``, ``host``, ``cpu`` and ``load_1min``, the machine's load when it was
     recorded."""
-    made, load_avg = code(), load()
-    return {'commit': made['commit'], 'dirty': made['dirty'], 'host': socket.gethostname(),
-            'cpu': cpu_model(), 'load_1min': load_avg[0] if load_avg else None}
+    made, where = code(), machine()
+    return {'commit': made['commit'], 'dirty': made['dirty'], 'host': where['host'],
+            'cpu': where['cpu'], 'load_1min': where['load'][0] if where['load'] else None}
 
 
 def record() -> dict:
