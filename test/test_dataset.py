@@ -112,6 +112,32 @@ def test_a_larger_limit_selects_a_superset_in_a_seeded_order(tmp_path):
     assert interleaved([]) == []
 
 
+def test_the_limit_counts_the_problems_the_goal_form_poses(tmp_path):
+    """MotionBenchMaker's cage 0001 holds its fingers at 0.065 m; clipped to the URDF's 0.04
+    they close on the cube at the joint goal, so the joint form cannot pose it (the region form
+    can). ``--limit N`` takes a family's seeded order up to its N-th posable problem: the
+    refused ones before it are selected (their jobs say why), and a larger N still nests."""
+    from advocc_ros.dataset.driver import posable_in
+    from advocc_ros.dataset.job import BuildConfig
+
+    (tmp_path / 'cage_panda').mkdir()
+    for n, source in ((1, 'cage_panda'), (2, 'box_panda'), (3, 'box_panda'), (4, 'cage_panda')):
+        for kind in ('scene', 'request'):
+            shutil.copy(REAL / source / f'{kind}0001.yaml',
+                        tmp_path / 'cage_panda' / f'{kind}{n:04d}.yaml')
+    problems = discover(tmp_path)
+    joint, region = (posable_in(BuildConfig(goal_form=f)) for f in ('joint', 'region'))
+    assert [joint(p) for p in problems] == [False, True, True, False]
+    assert all(region(p) for p in problems)
+    for seed in range(4):
+        order = seeded_order(problems, seed)
+        for n in (1, 2):
+            nth = [i for i, p in enumerate(order) if p.index in (2, 3)][n - 1]
+            assert select(problems, limit=n, seed=seed, posable=joint) == order[:nth + 1]
+            assert select(problems, limit=n, seed=seed, posable=region) == order[:n]
+        assert select(problems, limit=3, seed=seed, posable=joint) == order  # short of 3
+
+
 def test_bad_input_is_a_clear_error(tmp_path, capsys):
     from advocc_ros.cli import main
 
@@ -238,6 +264,38 @@ def test_the_summary_counts_the_witnesses_each_victims_checker_accepts(tmp_path)
     assert pooled['budgets']['10']['witness_checks'] == {'mplib': {'checked': 2, 'accepted': 1}}
     assert '| M=10: witness accepted by mplib |' in summary.markdown(made)
     assert '| 1 of 2 |' in summary.markdown(made)
+
+
+def test_the_summary_gives_each_victims_share_of_problems_held(tmp_path):
+    """Per victim and budget: the share of problems at PSR <= 20 %, and its PSR given goals
+    (trials whose goal search found none left out) with the share at <= 50 %: the bar for a
+    victim handed valid goals."""
+    from advocc_ros.dataset import store, summary
+
+    keys = ['box_panda/0001', 'box_panda/0002', 'box_panda/0003', 'cage_panda/0001']
+    store.write_json(tmp_path / 'build.json', {
+        'format': store.BUILD_FORMAT, 'version': store.BUILD_VERSION,
+        'settings': {'build': {'budgets': [10], 'victims': ['mplib'], 'goal_form': 'region'}},
+        'runs': [{'selection': {'problems': keys}}]})
+    cells = [(0.1, 0.1), (0.3, 0.5), (0.4, 0.8), (0.2, None)]
+    for key, (psr, given) in zip(keys, cells):
+        family, number = key.split('/')
+        (tmp_path / key).mkdir(parents=True)
+        store.write_json(tmp_path / key / 'outcome.json', {
+            'family': family, 'problem': number, 'split': 'test', 'outcome': 'built'})
+        store.write_json(tmp_path / key / 'hardness.json', {
+            'unattacked': {'mplib': {'psr': 0.9, 'psr_given_goals': 1.0}},
+            'attacks': {'10': {'all_victims_psr_le_20': psr <= 0.2, 'victims': {
+                'mplib': {'psr': psr, 'psr_given_goals': given}}}}})
+    made = summary.summarise(tmp_path)
+    pooled = next(g for g in made['groups'] if g['family'] == 'all')
+    mplib = pooled['budgets']['10']['victims']['mplib']
+    assert mplib['psr_le_20'] == 0.5
+    assert mplib['psr_given_goals_le_50'] == 2 / 3
+    assert mplib['mean_psr_given_goals'] == pytest.approx(1.4 / 3)
+    assert pooled['unattacked']['mplib'] == {'mean_psr': 0.9, 'mean_psr_given_goals': 1.0}
+    box = next(g for g in made['groups'] if g['family'] == 'box_panda')
+    assert box['budgets']['10']['victims']['mplib']['psr_given_goals_le_50'] == 2 / 3
 
 
 @pytest.mark.processes  # the child writes to the captured descriptors; git names the commit

@@ -55,7 +55,8 @@ def _add_build(p: argparse.ArgumentParser) -> None:
                    help=f'train: problems 1-{TRAIN_LAST} of each family, test: the rest '
                    '(default %(default)s)')
     p.add_argument('--limit', type=int, metavar='N', help='the first N problems of each family '
-                   'in a seeded order of the split (--seed): a larger N keeps the smaller\'s')
+                   'that the goal form poses, in a seeded order of the split (--seed), and '
+                   'those before them it refuses: a larger N keeps the smaller\'s')
     p.add_argument('--budgets', default=','.join(map(str, build.budgets)), metavar='M,M',
                    help='boxes per attack, each attacked on its own (default %(default)s)')
     p.add_argument('--victims', default=','.join(build.victims), metavar='A,B',

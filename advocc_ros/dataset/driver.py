@@ -46,7 +46,7 @@ import time
 from advocc_ros.dataset import store
 from advocc_ros.dataset.heatmaps import (file_sha256, heatmap_path, heatmap_settings, load_given,
                                          robot_heatmaps)
-from advocc_ros.dataset.job import (ALONE_CPUS, OUTCOMES, BuildConfig, problem_input,
+from advocc_ros.dataset.job import (ALONE_CPUS, OUTCOMES, BuildConfig, posed, problem_input,
                                     run_problem)
 from advocc_ros.dataset.problems import DatasetError, Problem, discover, select
 from advocc_ros.evaluation import provenance
@@ -91,7 +91,9 @@ class RunConfig:
 
 @dataclasses.dataclass(frozen=True)
 class Selection:
-    """Which problems: the folder, families (None: all), split and the seeded limit."""
+    """Which problems: the folder, families (None: all), split and the seeded limit (per
+    family, counted over the problems the goal form poses when ``problems`` is given
+    ``posable``)."""
 
     root: str
     families: tuple[str, ...] | None = None
@@ -99,9 +101,9 @@ class Selection:
     limit: int | None = None
     seed: int = 0
 
-    def problems(self) -> list[Problem]:
+    def problems(self, posable=None) -> list[Problem]:
         return select(discover(self.root, list(self.families or ())), self.split, self.limit,
-                      self.seed)
+                      self.seed, posable)
 
 
 class Cluster:
@@ -176,7 +178,7 @@ def _checked(selection: Selection, out: pathlib.Path, config: BuildConfig, run: 
     """Everything a build may refuse, checked with nothing written: the problems, the problems
     left to do, the settings, the given heatmap (None: built), and the robots of the problems
     left (``_robots``)."""
-    problems = selection.problems()
+    problems = selection.problems(posable_in(config))
     if not problems:
         raise DatasetError(f'{selection.root}: no problems in split {selection.split!r} of '
                            f'families {list(selection.families or []) or "all"}')
@@ -200,6 +202,21 @@ def _checked(selection: Selection, out: pathlib.Path, config: BuildConfig, run: 
                            f'{given.meta.get("robot_hash")}, not the robot of {other[0]} '
                            f'({hashes[other[0]]}) and {len(other) - 1} more problem(s)')
     return problems, todo, settings, given, hashes, scenes
+
+
+def posable_in(config: BuildConfig):
+    """Whether the goal form of ``config`` poses a problem: it loads and its task check passes
+    (``job.posed``); the job of a problem that does not refuses it and says why."""
+    from advocc_ros.formats.mbm_scene import load_any_scene
+
+    def posable(p: Problem) -> bool:
+        try:
+            scene = load_any_scene(p.scene, p.request, config.goal_tol, config.goal_form)
+            return scene.start is not None and scene.goal is not None and posed(scene)[2] is None
+        except Exception as exc:  # the job says why, as the problem's outcome
+            log.info('%s does not load here: %s', p.key, exc)
+            return False
+    return posable
 
 
 def _entry(selection: Selection, problems: list[Problem], todo: list[Problem],

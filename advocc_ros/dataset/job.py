@@ -281,6 +281,20 @@ def _load(problem: dict, goal_tol, goal_form: str):
     return scene, None
 
 
+def posed(scene):
+    """(robot, start configuration, None) of a loaded problem whose task the goal form poses,
+    or (robot, start, reason) when the task check refuses it (a start or joint goal outside
+    the limits or in collision: no solution to certify)."""
+    from advocc_ros.kinematics.ik import start_configuration
+    from advocc_ros.model.robot import load_robot
+    from advocc_ros.model.task_check import check_task
+
+    robot = load_robot(scene.robot)
+    q_init = start_configuration(scene, robot)
+    fault = check_task(robot, scene.objects, q_init, scene.goal)
+    return robot, q_init, None if fault is None else f'the task is refused: {fault.message}'
+
+
 def _run(problem: dict, heatmap, config: BuildConfig, files: dict, record: dict):
     """(outcome, reason, hardness) of the steps of the module docstring; fills ``files``
     with the exported problems and ``record`` with the steps' times."""
@@ -288,20 +302,15 @@ def _run(problem: dict, heatmap, config: BuildConfig, files: dict, record: dict)
     from advocc_ros.attack.edges import attack_task
     from advocc_ros.attack.exits import escape_share
     from advocc_ros.attack.task import task_options
-    from advocc_ros.kinematics.ik import start_configuration
-    from advocc_ros.model.robot import load_robot
-    from advocc_ros.model.task_check import check_task
     from advocc_ros.planning.victims import VictimConfig
 
     t = time.perf_counter()
     scene, why = _load(problem, config.goal_tol, config.goal_form)
     if scene is None:
         return 'refused', why, None
-    robot = load_robot(scene.robot)
-    q_init = start_configuration(scene, robot)
-    fault = check_task(robot, scene.objects, q_init, scene.goal)
-    if fault is not None:
-        return 'refused', f'the task is refused: {fault.message}', None
+    robot, q_init, why = posed(scene)
+    if why is not None:
+        return 'refused', why, None
     if heatmap is None or heatmap.meta.get('robot_hash') != robot.hash:
         return 'error', f'no robot-only heatmap for this problem\'s robot ({robot.hash})', None
     record['load_s'] = round(time.perf_counter() - t, 3)
@@ -482,4 +491,5 @@ def _hardness(problem: dict, config: BuildConfig, attacks: dict, unattacked: dic
 
 
 __all__ = ['ALONE_CPUS', 'BuildConfig', 'FINAL_OUTCOMES', 'HARDNESS_FORMAT', 'MAX_LOG_BYTES',
-           'OUTCOMES', 'PSR_HARD', 'problem_input', 'provenance', 'run_problem', 'task_log']
+           'OUTCOMES', 'PSR_HARD', 'posed', 'problem_input', 'provenance', 'run_problem',
+           'task_log']

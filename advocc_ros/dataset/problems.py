@@ -14,6 +14,7 @@ import dataclasses
 import hashlib
 import pathlib
 import re
+from collections.abc import Callable
 
 FAMILIES = ('bookshelf_small_panda', 'bookshelf_tall_panda', 'bookshelf_thin_panda',
             'box_panda', 'cage_panda', 'table_pick_panda', 'table_under_pick_panda')
@@ -112,10 +113,12 @@ def seeded_order(problems: list[Problem], seed: int = 0) -> list[Problem]:
 
 
 def select(problems: list[Problem], split: str = 'all', limit: int | None = None,
-           seed: int = 0) -> list[Problem]:
+           seed: int = 0, posable: Callable[[Problem], bool] | None = None) -> list[Problem]:
     """The problems of ``split``, family by family, each family in its seeded order
-    (``seeded_order``); with ``limit``, the first ``limit`` of each family. The same seed takes
-    the same first N for every larger limit (a resumed build with a larger ``--limit`` builds a
+    (``seeded_order``); with ``limit``, the first ``limit`` of each family, or with ``posable``
+    the first ``limit`` that it poses and those before them that it does not (a job refuses
+    them: the selection says how many the goal form cannot pose). The same seed takes the same
+    first N for every larger limit (a resumed build with a larger ``--limit`` builds a
     superset), whatever else the folder holds."""
     if split not in SPLITS:
         raise DatasetError(f'--split {split!r}: expected one of {", ".join(SPLITS)}')
@@ -124,8 +127,25 @@ def select(problems: list[Problem], split: str = 'all', limit: int | None = None
     chosen = []
     for family in dict.fromkeys(p.family for p in problems):
         pool = [p for p in problems if p.family == family and split in ('all', p.split)]
-        chosen += seeded_order(pool, seed)[:limit]
+        chosen += _first(seeded_order(pool, seed), limit, posable)
     return chosen
+
+
+def _first(ordered: list[Problem], limit: int | None,
+           posable: Callable[[Problem], bool] | None) -> list[Problem]:
+    """The shortest prefix of ``ordered`` that holds ``limit`` problems ``posable`` accepts
+    (all of them: any problem) or, short of that, all of ``ordered``."""
+    if limit is None:
+        return ordered
+    if posable is None:
+        return ordered[:limit]
+    taken, posed = [], 0
+    for problem in ordered:
+        if posed == limit:
+            break
+        taken.append(problem)
+        posed += bool(posable(problem))
+    return taken
 
 
 __all__ = ['DatasetError', 'FAMILIES', 'Problem', 'SPLITS', 'TRAIN_LAST', 'discover',

@@ -11,8 +11,9 @@ split; ``all`` pools the families):
 - per budget M, over the problems whose budget-M attack was certified and evaluated: the share
   where *every* victim is at PSR <= 20 %, each victim's mean PSR, and the median PT ratio
   (attacked / unattacked median time to first solution, ``evaluation.hardness.pt_ratio``) over
-  victims and problems; and per victim checker asked about the witnesses (``mplib``), how many
-  it accepts;
+  victims and problems; per victim the share of problems where it is at PSR <= 20 % and its
+  PSR given goals with the share of problems where that is <= 50 %; and per
+  victim checker asked about the witnesses (``mplib``), how many it accepts;
 - the victims' mean PSR on the unattacked problems, and the share of those already at PSR
   <= 20 % for every victim (MotionBenchMaker kept only problems its planner solves in 60 s;
   at a budget of a few seconds some are hard before any box): the line the attack starts from.
@@ -29,6 +30,9 @@ from advocc_ros.dataset.job import ALONE_CPUS, FINAL_OUTCOMES, OUTCOMES, PSR_HAR
 SUMMARY_FORMAT = 'advocc_dataset_summary'
 FIGURE = 'summary.png'
 TABLE = 'problems.csv'
+GIVEN_GOALS_HARD = 0.5
+"""The PSR at or below which a victim handed valid goals (no goal sampling: path search alone)
+counts as held."""
 PROVENANCE_COLUMNS = ('commit', 'dirty', 'host', 'cpu', 'cpus', 'threads', 'victims_cpus_alone',
                       'load_start', 'load_end', 'started', 'finished', 'versions')
 """The columns of ``problems.csv`` that name a row's making (the problem's ``provenance``:
@@ -70,18 +74,38 @@ def _group(family: str, split: str, items: list[tuple[dict, dict | None]], budge
                                       / len(attacks) if attacks else None),
             'median_pt_ratio': _median([c.get('pt_ratio') for v in victims for c in cells[v]]),
             'witness_checks': _witness_checks(attacks),
-            'victims': {v: {'mean_psr': _mean([c.get('psr') for c in cells[v]]),
-                            'median_pt_ratio': _median([c.get('pt_ratio') for c in cells[v]])}
-                        for v in victims}}
+            'victims': {v: _victim_cells(cells[v]) for v in victims}}
     base = [[h['unattacked'].get(v, {}).get('psr') for v in victims] for h in hard]
     base = [all(p <= PSR_HARD for p in row) for row in base if None not in row]
     return {'family': family, 'split': split, 'problems': n, 'outcomes': outcomes,
             'shares': {k: v / n if n else None for k, v in outcomes.items()},
-            'unattacked': {v: {'mean_psr': _mean([h['unattacked'].get(v, {}).get('psr')
-                                                  for h in hard])} for v in victims},
+            'unattacked': {v: _unattacked([h['unattacked'].get(v, {}) for h in hard])
+                           for v in victims},
             'unattacked_evaluated': len(base),
             'unattacked_all_victims_psr_le_20': sum(base) / len(base) if base else None,
             'budgets': per_budget}
+
+
+def _share(values: list, bar: float) -> float | None:
+    values = [v for v in values if v is not None]
+    return sum(v <= bar for v in values) / len(values) if values else None
+
+
+def _victim_cells(cells: list[dict]) -> dict:
+    """One victim at one budget over the evaluated attacks: its mean PSR, the share of problems
+    where it is at PSR <= 20 %, the median PT ratio, and its mean PSR given goals (over the
+    trials that had a goal: a victim handed a goal list, MPlib, without those where the list's
+    search found none; the PSR for the others) with the share of problems where that is <= 50 %."""
+    psr, given = [c.get('psr') for c in cells], [c.get('psr_given_goals') for c in cells]
+    return {'mean_psr': _mean(psr), 'psr_le_20': _share(psr, PSR_HARD),
+            'median_pt_ratio': _median([c.get('pt_ratio') for c in cells]),
+            'mean_psr_given_goals': _mean(given),
+            'psr_given_goals_le_50': _share(given, GIVEN_GOALS_HARD)}
+
+
+def _unattacked(cells: list[dict]) -> dict:
+    return {'mean_psr': _mean([c.get('psr') for c in cells]),
+            'mean_psr_given_goals': _mean([c.get('psr_given_goals') for c in cells])}
 
 
 def _witness_checks(attacks: list[dict]) -> dict:
