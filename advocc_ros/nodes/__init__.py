@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import faulthandler
 import os
 import signal
 import sys
@@ -9,6 +10,10 @@ import threading
 
 SPIN_WAKE_S = 0.5
 """Longest wait of the spin loop before it looks at the context again [s]."""
+
+SHUTDOWN_LIMIT_S = 30.0
+"""Longest a node may take from leaving its spin (or failing to start) to its process's end;
+past it the process prints where it is stuck and exits 1 [s]."""
 
 _SIGINT_SEEN = threading.Event()
 
@@ -69,10 +74,14 @@ def run(node_class, name: str, args=None, startup_errors: tuple = (), threads: i
                                  SingleThreadedExecutor)
 
     rclpy.init(args=args)
-    node = None
+    # Bound before its __init__ runs, so that a constructor raising after rclpy's Node.__init__
+    # leaves no half-built node to the interpreter's teardown, where its destruction can hang
+    # the exit (seen once in CI after "cannot start"; rclpy destroys a node's parts eagerly for
+    # the same reason).
+    node = node_class.__new__(node_class)
     try:
         try:
-            node = node_class()
+            node.__init__()
         except (ParameterException, *startup_errors) as exc:
             if _interrupted(rclpy):  # the error is the Ctrl-C's doing (see below)
                 return 0
@@ -95,7 +104,10 @@ def run(node_class, name: str, args=None, startup_errors: tuple = (), threads: i
         # set being built: rclpy raises RCLError there), or its KeyboardInterrupt was raised
         # inside Python called from C++ and came out as a SystemError: a clean stop all the same.
     finally:
-        if node is not None:
+        # Armed for the rest of the process (module teardown included): a stuck DDS shutdown
+        # must not leave a node that never exits. A C thread, so it fires under a held GIL too.
+        faulthandler.dump_traceback_later(SHUTDOWN_LIMIT_S, exit=True)
+        if hasattr(node, '_type_description_service'):  # Node.__init__ ran to its last line
             node.destroy_node()
         rclpy.try_shutdown()
     return 0
