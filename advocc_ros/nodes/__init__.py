@@ -76,8 +76,7 @@ def run(node_class, name: str, args=None, startup_errors: tuple = (), threads: i
     rclpy.init(args=args)
     # Bound before its __init__ runs, so that a constructor raising after rclpy's Node.__init__
     # leaves no half-built node to the interpreter's teardown, where its destruction can hang
-    # the exit (seen once in CI after "cannot start"; rclpy destroys a node's parts eagerly for
-    # the same reason).
+    # the exit (rclpy destroys a node's parts eagerly for the same reason; docs/design.md).
     node = node_class.__new__(node_class)
     try:
         try:
