@@ -288,9 +288,9 @@ def test_attack_requests(ros_module, table_scene, data):
 @pytest.mark.timing
 def test_attack_huge_mesh_is_refused_quickly(ros_module, table_scene):
     """A mesh one vertex over the per-mesh limit (``MAX_MESH_VERTICES``): refused with a code
-    that names the limit, within the call's 60 s time-out (the bound of a server that would build the mesh); the time is mostly
-    rclpy's serialization of the Points (a million took 17 s on an idle 2-core Xeon, 36 s under
-    load), so the test runs alone."""
+    that names the limit, within the call's 60 s time-out (the bound of a server that would
+    build the mesh); the time is mostly rclpy's serialization of the Points (a million took
+    17 s on an idle 2-core Xeon, 36 s under load), so the test runs alone."""
     from advocc_msgs.msg import CollisionObject, ErrorCodes
     from advocc_msgs.srv import Attack
     from geometry_msgs.msg import Point, Pose
