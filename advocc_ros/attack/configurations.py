@@ -15,19 +15,21 @@ from scipy import sparse
 from advocc_ros.attack.coverage import box_sum
 from advocc_ros.attack.region import SearchRegion
 from advocc_ros.heatmap import link_tables, placement_arrays
-from advocc_ros.heatmap.build import in_link, link_voxel_box
+from advocc_ros.heatmap.build import in_link, link_column, link_voxel_box
 from advocc_ros.model.collision import CollisionWorld
 from advocc_ros.model.robot import RobotModel
 
 
 @numba.njit(cache=True, nogil=True, parallel=True)
-def _cover(cover, starts, cand_id, near, stamp, union, win_origin, voxel, k, R, t, lut_data,
-           lut_offset, lut_shape, lut_origin, lut_pitch, box_lo, box_hi):
+def _cover(cover, starts, cand_id, near, near_z, stamp, union, win_origin, voxel, k, R, t,
+           lut_data, lut_offset, lut_shape, lut_origin, lut_pitch, box_lo, box_hi):
     """``cover[r, cand_id[c]] = True`` for every candidate c whose cube U(c) (half-width k
     voxels) holds a voxel centre inside a link of a configuration s of row r (window grid; the
     configurations ``starts[r]`` to ``starts[r + 1]``). ``near`` and ``stamp`` are padded by k:
-    voxels with no candidate around them are skipped, and so are voxels another link or
-    configuration of the same row already did (the states of a ray overlap). With ``union``,
+    voxels with no candidate around them are skipped (those beyond a column's first and last
+    such voxel, ``near_z``, or beyond the link table's span of the column, ``link_column``, are
+    not even visited), and so are voxels another link or configuration of the same row already
+    did (the states of a ray overlap). With ``union``,
     ``cover`` is not written: ``stamp >= 0`` marks the voxels inside a link at some
     configuration (the union of the bodies), and a voxel one row filled is not tested again.
     Rows run in parallel (they are independent; a voxel's stamp only ever skips work its row
@@ -38,15 +40,16 @@ def _cover(cover, starts, cand_id, near, stamp, union, win_origin, voxel, k, R, 
     inv = 1.0 / lut_pitch
     for row in numba.prange(len(starts) - 1):
         for s in range(starts[row], starts[row + 1]):
-            _cover_one(cover, row, s, cand_id, near, stamp, union, win_origin, voxel, k, R, t,
-                       lut_data, lut_offset, lut_shape, lut_origin, inv, box_lo, box_hi,
-                       lo_limit, hi_limit)
+            _cover_one(cover, row, s, cand_id, near, near_z, stamp, union, win_origin, voxel,
+                       k, R, t, lut_data, lut_offset, lut_shape, lut_origin, lut_pitch, inv,
+                       box_lo, box_hi, lo_limit, hi_limit)
     return cover
 
 
 @numba.njit(cache=True, nogil=True)
-def _cover_one(cover, row, s, cand_id, near, stamp, union, win_origin, voxel, k, R, t, lut_data,
-               lut_offset, lut_shape, lut_origin, inv, box_lo, box_hi, lo_limit, hi_limit):
+def _cover_one(cover, row, s, cand_id, near, near_z, stamp, union, win_origin, voxel, k, R, t,
+               lut_data, lut_offset, lut_shape, lut_origin, lut_pitch, inv, box_lo, box_hi,
+               lo_limit, hi_limit):
     """``_cover`` for configuration s, written to row ``row``."""
     nx, ny, nz = cand_id.shape
     for li in range(R.shape[1]):
@@ -58,7 +61,11 @@ def _cover_one(cover, row, s, cand_id, near, stamp, union, win_origin, voxel, k,
             px = win_origin[0] + (i + 0.5) * voxel - tl[0]
             for j in range(lo[1], hi[1] + 1):
                 py = win_origin[1] + (j + 0.5) * voxel - tl[1]
-                for kk in range(lo[2], hi[2] + 1):
+                ka, kb = link_column(r, px, py, origin_l, shape_l, lut_pitch,
+                                     win_origin[2] - tl[2], voxel,
+                                     max(lo[2], near_z[i + k, j + k, 0] - k),
+                                     min(hi[2], near_z[i + k, j + k, 1] - k))
+                for kk in range(ka, kb + 1):
                     done = stamp[i + k, j + k, kk + k]
                     if not near[i + k, j + k, kk + k] or done == row or (union and done >= 0):
                         continue
@@ -80,7 +87,8 @@ def _cover_one(cover, row, s, cand_id, near, stamp, union, win_origin, voxel, k,
 class _Lattice:
     """What the kernel takes for configurations ``Q`` in ``region``'s window: the candidates'
     ids, the packed link tables, the links' placements, the window's origin, the cube
-    half-width k, the k-padded mask of voxels with a candidate within k and a fresh stamp."""
+    half-width k, the k-padded mask of voxels with a candidate within k (with each column's
+    first and last of them) and a fresh stamp."""
 
     def __init__(self, robot: RobotModel, world: CollisionWorld, Q: np.ndarray,
                  region: SearchRegion, shrink: int, placements):
@@ -91,6 +99,7 @@ class _Lattice:
         self.voxel_m = grid.voxel_m
         self.k = max(region.k - shrink, 0)
         self.near = np.pad(box_sum(region.candidates.astype(np.float64), self.k) > 0, self.k)
+        self.near_z = _column_spans(self.near)
         cand = np.argwhere(region.candidates)
         self.cand_id = np.full(region.candidates.shape, -1, dtype=np.int64)
         self.cand_id[tuple(cand.T)] = np.arange(len(cand))
@@ -102,9 +111,9 @@ class _Lattice:
         tb = self.tables
         if starts is None:
             starts = np.arange(len(self.R) + 1)
-        _cover(cover, starts, self.cand_id, self.near, self.stamp, union, self.origin_m,
-               self.voxel_m, self.k, self.R, self.t, tb.data, tb.offset, tb.shape, tb.origin,
-               tb.pitch, tb.box_lo, tb.box_hi)
+        _cover(cover, starts, self.cand_id, self.near, self.near_z, self.stamp, union,
+               self.origin_m, self.voxel_m, self.k, self.R, self.t, tb.data, tb.offset,
+               tb.shape, tb.origin, tb.pitch, tb.box_lo, tb.box_hi)
 
 
 def cover_matrix(robot: RobotModel, world: CollisionWorld, Q: np.ndarray,
@@ -126,6 +135,16 @@ def cover_matrix(robot: RobotModel, world: CollisionWorld, Q: np.ndarray,
     _Lattice(robot, world, Q, region, shrink, placements).scan(dense, False, starts)
     indptr, indices = _dense_to_csr(dense)
     return sparse.csr_matrix((np.ones(len(indices)), indices, indptr), shape=dense.shape)
+
+
+def _column_spans(mask: np.ndarray) -> np.ndarray:
+    """(nx, ny, 2): the first and the last z index of ``mask``'s True voxels in each column
+    (first > last in a column without any)."""
+    nz = mask.shape[2]
+    spans = np.empty(mask.shape[:2] + (2,), dtype=np.int64)
+    spans[..., 0] = np.where(mask.any(axis=2), mask.argmax(axis=2), nz)
+    spans[..., 1] = nz - 1 - mask[:, :, ::-1].argmax(axis=2)
+    return spans
 
 
 def _row_starts(rays: np.ndarray) -> np.ndarray:

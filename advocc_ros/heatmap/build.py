@@ -91,6 +91,32 @@ def link_voxel_box(r, t, box_lo, box_hi, origin, voxel, lo_limit, hi_limit):
 
 
 @numba.njit(cache=True, nogil=True)
+def link_column(r, px, py, lut_origin, lut_shape, lut_pitch, z0, voxel, lo, hi):
+    """Of the voxel centres ``z0 + (kk + 0.5) voxel`` (base-frame z offsets from the link
+    origin) of the column at offsets (``px``, ``py``), the index range [a, b] within [``lo``,
+    ``hi``] outside of which every centre misses the link's look-up table, so ``in_link`` is
+    False there: the z interval where all three link-frame coordinates lie inside the table,
+    widened by a voxel each way (rounding never drops a centre). Empty when a > b."""
+    z_lo, z_hi = -np.inf, np.inf
+    for m in range(3):
+        c = r[2, m]
+        a = r[0, m] * px + r[1, m] * py - lut_origin[m]
+        extent = lut_shape[m] * lut_pitch
+        if abs(c) < 1e-12:
+            if a < -1e-9 or a > extent + 1e-9:
+                return 1, 0
+            continue
+        u, v = -a / c, (extent - a) / c
+        z_lo = max(z_lo, min(u, v))
+        z_hi = min(z_hi, max(u, v))
+    if z_lo > z_hi:
+        return 1, 0
+    a = int(np.floor((z_lo - z0) / voxel - 0.5)) - 1
+    b = int(np.ceil((z_hi - z0) / voxel - 0.5)) + 1
+    return max(a, lo), min(b, hi)
+
+
+@numba.njit(cache=True, nogil=True)
 def in_link(r, px, py, pz, lut_data, offset, lut_shape, lut_origin, inv_pitch):
     """Whether the point ``p - t`` (base-frame offset from the link origin) is inside the link's
     look-up table: local = R^T p, then the table cell."""
@@ -112,7 +138,8 @@ def _accumulate(H, stamp, free, grid_origin, voxel, grid_shape, R, t, weights, s
     """Add ``weights[s]`` to every free voxel whose centre is inside a link at sample ``s``.
 
     R (n, L, 3, 3), t (n, L, 3): ``T_base_link`` per sample and link. Each link is scanned
-    over the voxels of its rotated bounding box only; a voxel is counted once per sample even
+    over the voxels of its rotated bounding box only, each column where it meets the link's
+    table (``link_column``); a voxel is counted once per sample even
     where links overlap (``stamp`` remembers the last sample that added to it).
     """
     ny, nz = grid_shape[1], grid_shape[2]
@@ -130,7 +157,9 @@ def _accumulate(H, stamp, free, grid_origin, voxel, grid_shape, R, t, weights, s
                 px = grid_origin[0] + (i + 0.5) * voxel - tl[0]
                 for j in range(lo[1], hi[1] + 1):
                     py = grid_origin[1] + (j + 0.5) * voxel - tl[1]
-                    for k in range(lo[2], hi[2] + 1):
+                    ka, kb = link_column(r, px, py, lut_origin[li], lut_shape[li], lut_pitch,
+                                         grid_origin[2] - tl[2], voxel, lo[2], hi[2])
+                    for k in range(ka, kb + 1):
                         pz = grid_origin[2] + (k + 0.5) * voxel - tl[2]
                         if in_link(r, px, py, pz, lut_data, lut_offset[li], lut_shape[li],
                                    lut_origin[li], inv):
