@@ -487,3 +487,13 @@ def test_the_goal_form_travels_in_the_ros_message():
     msg.joint_goal.position = []
     with pytest.raises(SceneError, match='one position per named joint'):
         goal_region_from_msg(msg, 'panda_hand')
+
+
+def test_a_missing_witness_is_explained_in_the_goal_form_of_the_task():
+    """The refusal of a ``solvable`` attack without a witness names the goal as posed: one
+    configuration in the joint form, the region otherwise."""
+    from advocc_ros.attack.edges import no_witness_message
+
+    joint, region = no_witness_message('joint'), no_witness_message('region')
+    assert 'no path to the goal configuration' in joint and 'region' not in joint
+    assert 'no path into the goal region' in region and 'configuration' not in region

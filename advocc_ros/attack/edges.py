@@ -83,15 +83,18 @@ def attack_task(heatmap, robot: RobotModel, objects, q_init, goal: GoalRegion, b
                     certify=certify, witness=search.witnesses, **options)
     stats = dict(result.stats, witness_search_ms=round(search.search_s * 1e3, 3))
     if result.status == AttackStatus.NO_WITNESS:
-        return dataclasses.replace(result, stats=stats, message=no_witness_message())
+        return dataclasses.replace(result, stats=stats,
+                                   message=no_witness_message(goal.form))
     return dataclasses.replace(result, stats=stats)
 
 
-def no_witness_message() -> str:
-    """Why a ``solvable`` attack was refused after the witness search found nothing."""
+def no_witness_message(goal_form: str = 'region') -> str:
+    """Why a ``solvable`` attack was refused after the witness search found nothing, naming
+    the goal as its form poses it (a region, or one joint configuration)."""
     from advocc_ros.planning.witness import WITNESS_TIME_S
 
-    return ('no witness: RRTConnect found no path into the goal region on the unattacked scene '
+    target = 'to the goal configuration' if goal_form == 'joint' else 'into the goal region'
+    return (f'no witness: RRTConnect found no path {target} on the unattacked scene '
             f'within {WITNESS_TIME_S:g} s, or every path found grazed an object closer than the '
             'certificate\'s floor (or the search failed), so no attack can be certified to keep '
             'a solution')

@@ -252,7 +252,8 @@ def _attack(task: _Task, heatmap, cfg: AuditConfig, policy: str, attack_cfg):
                     cfg.max_budget, cfg.method, attack_cfg, seed=cfg.seed,
                     goal_policy=policy, witness=task.witness, method_options=cfg.task_options)
     if not result.status.ok:
-        why = (no_witness_message() if result.status == AttackStatus.NO_WITNESS
+        why = (no_witness_message(task.scene.goal.form)
+               if result.status == AttackStatus.NO_WITNESS
                else result.message)
         raise ValueError(f'attack {cfg.method} (goal policy {policy}) failed: '
                          f'{result.status.value}: {why}')
