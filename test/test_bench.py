@@ -48,6 +48,8 @@ def test_shipped_profiles_load():
     (dict(scenes=()), 'scenes'), (dict(planners=('a', 'a')), 'duplicates'),
     (dict(shims=0), 'external_shims'), (dict(variants={'random': 0}), 'variants'),
     (dict(skip=('pfa++',)), 'skip'), (dict(box_size_m=-1.0), 'box_size_m'),
+    (dict(victim_margin_m=0.06), 'victim_margin_m'),
+    (dict(victim_margin_m='4 mm'), 'victim_margin_m'),
 ])
 def test_bad_settings_are_rejected(changes, words):
     with pytest.raises(BenchError, match=words):
@@ -146,6 +148,20 @@ def test_run_folder_lock_and_settings_check(tmp_path):
     check_run_config(tmp_path, _cfg(trials=10))  # more trials: fine, the run is extended
     with pytest.raises(BenchError, match='time_budget_s'):
         check_run_config(tmp_path, _cfg(time_budget_s=5.0))
+    with pytest.raises(BenchError, match='victim_margin_m'):  # other attacks: another run
+        check_run_config(tmp_path, _cfg(victim_margin_m=0.004))
+
+
+def test_the_benchs_heatmap_server_gets_the_victim_margin_and_the_task_options(tmp_path):
+    from advocc_ros.orchestrator.sources import server_parameters
+
+    heatmap = tmp_path / 'h.npz'
+    plain = server_parameters(_cfg(), tmp_path, heatmap)
+    assert plain['victim_margin_m'] == 0.0 and plain['search_witness'] is True
+    given = server_parameters(_cfg(victim_margin_m=0.004, task={'detours': 1}), tmp_path,
+                              heatmap)
+    assert given['victim_margin_m'] == 0.004 and given['task_detours'] == 1
+    assert given['heatmap_file'] == str(heatmap) and str(tmp_path) in given['allowed_dirs']
 
 
 # -- aggregation and tables ------------------------------------------------------------------

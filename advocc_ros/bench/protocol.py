@@ -37,7 +37,7 @@ MAX_BUDGET = 90
 """Largest budget: one attack's REMOVE + ADDs must fit the latched topic's history (100)."""
 # Settings that change what a trial measures: a run folder refuses to mix them.
 IDENTITY_FIELDS = ('time_budget_s', 'seed', 'box_size_m', 'heatmap_samples',
-                   'heatmap_robot_only', 'variants', 'goal_policy', 'task')
+                   'heatmap_robot_only', 'variants', 'goal_policy', 'task', 'victim_margin_m')
 
 
 class BenchError(ValueError):
@@ -92,6 +92,11 @@ class BenchConfig:
     """Box edge [m]; 0: the heatmap server's default (0.05 m)."""
     goal_policy: str = 'paper'
     """Goal policy of the coverage attacks: ``paper`` or ``reachable`` (``attack.policy``)."""
+    victim_margin_m: float = 0.0
+    """Distance every box keeps from the witness and a joint goal beyond the certificate's guard
+    [m] (``AttackConfig.victim_margin_m``: room for a victim's own collision model, MPlib's FCL
+    among them; the data set's 0.004), given to the heatmap server and the in-the-loop
+    attacks."""
     attack_timeout_s: float = 300.0
     """Longest wait for one attack [s]: the planner-in-the-loop methods (PFA, PFA++) need long
     ones."""
@@ -187,6 +192,10 @@ class BenchConfig:
             _fail(f'variants: expected method: count >= 1, got {self.variants!r}')
         if self.goal_policy not in POLICIES:
             _fail(f'goal_policy={self.goal_policy!r}: expected one of {list(POLICIES)}')
+        if not (isinstance(self.victim_margin_m, (int, float))
+                and not isinstance(self.victim_margin_m, bool)
+                and 0.0 <= self.victim_margin_m <= 0.05):
+            _fail(f'victim_margin_m={self.victim_margin_m!r}: expected a number in [0, 0.05] m')
         for pair in self.skip:
             if not isinstance(pair, str) or pair.count(':') != 1:
                 _fail(f'skip: expected "method:planner" entries, got {pair!r}')

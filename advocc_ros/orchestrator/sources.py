@@ -109,6 +109,17 @@ class RunLoop(Protocol):
         """Shims that can still plan."""
 
 
+def server_parameters(cfg, run_dir: pathlib.Path, heatmap: pathlib.Path) -> dict:
+    """The parameters of the heatmap server a benchmark starts: the heatmap and the folders
+    it may read, the protocol's victim margin and ``task`` options, and ``search_witness``:
+    the tables count certified attacks, so every attack gets the task's witness (found once
+    per scene in the server, cached), not only solvable ones."""
+    from advocc_ros.nodes.heatmap_server import task_parameters
+    return {'heatmap_file': str(heatmap), 'allowed_dirs': server_allowed_dirs(run_dir, heatmap),
+            'search_witness': True, 'victim_margin_m': float(cfg.victim_margin_m),
+            **task_parameters(cfg.task)}
+
+
 class AttackSources:
     """One scene's attacks: cached in the run folder, served by ``heatmap_server`` (started
     here when ``heatmap_file`` is given and ``graph`` is a ROS graph), or PFA/PFA++."""
@@ -131,13 +142,8 @@ class AttackSources:
 
     def _start_server(self, heatmap: pathlib.Path) -> None:
         stem = node_name(self.task.scene_file.stem)
-        dirs = server_allowed_dirs(self.run_dir, heatmap)
-        # search_witness: the tables count certified attacks, so every attack gets the task's
-        # witness (found once per scene in the server, cached), not only solvable ones.
-        from advocc_ros.nodes.heatmap_server import task_parameters
         self.server = Child(f'advocc_heatmap_{stem}', 'heatmap_server',
-                            {'heatmap_file': str(heatmap), 'allowed_dirs': dirs,
-                             'search_witness': True, **task_parameters(self.cfg.task)},
+                            server_parameters(self.cfg, self.run_dir, heatmap),
                             self.env, self.run_dir / 'logs')
         self.server.start()
         self.children.append(self.server)
@@ -286,7 +292,8 @@ class AttackSources:
             try:
                 outcome['result'] = attack(  # no verdict: its file records none
                     self.heatmap, task.robot, task.scene.objects, task.q_init, task.scene.goal,
-                    spec.budget, spec.method, AttackConfig(),
+                    spec.budget, spec.method,
+                    AttackConfig(victim_margin_m=float(self.cfg.victim_margin_m)),
                     box_size_m=self.cfg.box_size_m or None, seed=spec.seed, certify=False,
                     method_options=PfaOptions(queries, pcfg, lambda n, total: None))
             except BaseException as exc:  # noqa: BLE001 - re-raised in the main thread
