@@ -282,3 +282,35 @@ def test_lut_pitch_comes_from_the_file(small_table_heatmap, table_scene, tmp_pat
     save_heatmap(dataclasses.replace(small_table_heatmap, meta=bad), tmp_path / 'bad.npz')
     with pytest.raises(HeatmapError, match='lut_pitch_fraction'):
         load_heatmap(tmp_path / 'bad.npz')
+
+
+def test_a_links_column_span_holds_every_voxel_centre_inside_its_table(panda):
+    """``link_column`` may shorten a column only where no centre is inside the link's table:
+    at random placements (and at axis-aligned ones, whose column direction has exact zeros),
+    every voxel of the link's rotated bounding box that ``in_link`` accepts lies in the span."""
+    from advocc_ros.heatmap.build import in_link, link_column, link_tables, link_voxel_box
+
+    tables = link_tables(panda, 0.005)
+    rng = np.random.default_rng(5)
+    voxel, origin = 0.02, np.array([-0.41, -0.37, -0.29])
+    limits = (np.zeros(3, np.int64), np.full(3, 60, np.int64))
+    rotations = [pin.exp3(rng.normal(size=3) * 2.0) for _ in range(60)] + [np.eye(3)] * 4
+    inside = 0
+    for n, r in enumerate(rotations):
+        li = n % len(tables.shape)
+        t = rng.uniform(0.1, 1.0, size=3)
+        lo, hi = link_voxel_box(r, t, tables.box_lo[li], tables.box_hi[li], origin, voxel,
+                                *limits)
+        for i in range(lo[0], hi[0] + 1):
+            px = origin[0] + (i + 0.5) * voxel - t[0]
+            for j in range(lo[1], hi[1] + 1):
+                py = origin[1] + (j + 0.5) * voxel - t[1]
+                a, b = link_column(r, px, py, tables.origin[li], tables.shape[li],
+                                   tables.pitch, origin[2] - t[2], voxel, lo[2], hi[2])
+                for kk in range(lo[2], hi[2] + 1):
+                    pz = origin[2] + (kk + 0.5) * voxel - t[2]
+                    if in_link(r, px, py, pz, tables.data, tables.offset[li], tables.shape[li],
+                               tables.origin[li], 1.0 / tables.pitch):
+                        inside += 1
+                        assert a <= kk <= b, (n, li, i, j, kk, a, b)
+    assert inside > 1000  # the links were in the window

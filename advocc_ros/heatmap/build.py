@@ -138,9 +138,9 @@ def _accumulate(H, stamp, free, grid_origin, voxel, grid_shape, R, t, weights, s
     """Add ``weights[s]`` to every free voxel whose centre is inside a link at sample ``s``.
 
     R (n, L, 3, 3), t (n, L, 3): ``T_base_link`` per sample and link. Each link is scanned
-    over the voxels of its rotated bounding box only, each column where it meets the link's
-    table (``link_column``); a voxel is counted once per sample even
-    where links overlap (``stamp`` remembers the last sample that added to it).
+    over the voxels of its rotated bounding box only, in each column where it meets the link's
+    table (``link_column``); a voxel is counted once per sample even where links overlap
+    (``stamp`` remembers the last sample that added to it).
     """
     ny, nz = grid_shape[1], grid_shape[2]
     zero = np.zeros(3, np.int64)
