@@ -23,6 +23,8 @@ from hypothesis import HealthCheck, given, settings, strategies as st
 from case_counts import report_cases, whole_module_ran
 from conftest import REPO, fresh_domain
 
+from advocc_ros.ros.client import ServiceClient, ServiceError
+
 pytestmark = pytest.mark.processes  # nodes, workers or CLI runs
 
 CASES: dict[str, int] = {}
@@ -56,8 +58,6 @@ def _case_count(request):
 @pytest.fixture(scope='module')
 def ros_module(tmp_path_factory, table_scene):
     """A heatmap, both nodes as child processes, and an rclpy client node on their domain."""
-    import rclpy
-
     from advocc_ros.heatmap import HeatmapConfig, build_heatmap, save_heatmap
     tmp = tmp_path_factory.mktemp('fuzz_services')
     heatmap = tmp / 'h.npz'
@@ -75,17 +75,12 @@ def ros_module(tmp_path_factory, table_scene):
                                f'scene_file:={SCENE}', 'time_budget_s:=0.3',
                                'max_time_budget_s:=0.5', 'watchdog_margin_s:=3.0'),
     }
-    context = rclpy.Context()
-    rclpy.init(context=context, domain_id=int(env['ROS_DOMAIN_ID']))
-    node = rclpy.create_node('fuzz_client', context=context)
-    executor = rclpy.executors.SingleThreadedExecutor(context=context)
-    executor.add_node(node)
+    caller = ServiceClient('fuzz_client', domain_id=int(env['ROS_DOMAIN_ID']))
     try:
-        yield dict(node=node, executor=executor, procs=procs, logs=logs, env=env, tmp=tmp)
+        yield dict(node=caller.node, executor=caller.executor, caller=caller, procs=procs,
+                   logs=logs, env=env, tmp=tmp)
     finally:
-        executor.shutdown()
-        node.destroy_node()
-        rclpy.try_shutdown(context=context)
+        caller.close()
         for proc in procs.values():
             if proc.poll() is None:
                 proc.send_signal(signal.SIGINT)
@@ -128,26 +123,18 @@ def _client(ros, srv_type, name, service, timeout_s=90):
 def _call(ros, client, request, name, timeout_s=30, resend_s=5.0):
     """The answer within ``timeout_s``, or the test fails (a hang). A request without an answer
     for ``resend_s`` is sent again (then after 2x, 4x, ... that long; the first answer wins),
-    as ``ServiceClient.call_client`` does: rmw_fastrtps drops the response to a client whose
+    by ``ServiceClient.call_client``: rmw_fastrtps drops the response to a client whose
     reader the server has not matched yet ("failed to send response (timeout)", seen on the
     module's first request on a loaded 2-core machine), and a server answers a repeat alike.
     ``resend_s=None``: sent once."""
-    deadline = time.monotonic() + timeout_s
-    futures, interval = [client.call_async(request)], resend_s or float('inf')
-    resend_at = time.monotonic() + interval
-    while not any(f.done() for f in futures) and time.monotonic() < deadline:
-        if time.monotonic() >= resend_at:
-            futures.append(client.call_async(request))
-            interval *= 2
-            resend_at = time.monotonic() + interval
-        ros['executor'].spin_once(timeout_sec=0.05)
-    done = [f for f in futures if f.done()]
-    for future in futures:
-        if not future.done():
-            client.remove_pending_request(future)
-    assert done, f'{name}: no answer within {timeout_s} s (hang)\n{_log(ros, name)}'
-    assert ros['procs'][name].poll() is None, f'{name} died:\n{_log(ros, name)}'
-    return done[0].result()
+    proc = ros['procs'][name]
+    try:
+        answer = ros['caller'].call_client(client, request, timeout_s,
+                                           alive=lambda: proc.poll() is None, resend_s=resend_s)
+    except ServiceError as exc:
+        pytest.fail(f'{name}: {exc} (hang or death)\n{_log(ros, name)}')
+    assert proc.poll() is None, f'{name} died:\n{_log(ros, name)}'
+    return answer
 
 
 def _codes():
