@@ -2,7 +2,6 @@
 ROS domain per test and an rclpy client on it; and how the suite shares the machine's CPUs when
 pytest-xdist runs it on several workers (``setup.cfg``: ``-n 2 --dist loadfile``)."""
 
-import contextlib
 import fcntl
 import os
 import pathlib
@@ -73,29 +72,57 @@ def pytest_collection_modifyitems(config, items):
     items.sort(key=lambda item: rank.get(item.path.name, len(rank)))  # stable: module order kept
 
 
-@contextlib.contextmanager
-def _cpu_turn(config, alone: bool):
-    """Hold the run's CPU lock: shared for an ordinary test, exclusive for a ``timing`` one."""
-    base = getattr(config.option, 'basetemp', None)
-    if not hasattr(config, 'workerinput') or not base:
-        yield  # one process runs every test: nothing runs beside it
-        return
-    root = pathlib.Path(base).parent  # the workers' folders are popen-gw0, popen-gw1, ...
-    with open(root / 'cpu.turn', 'a') as turn, open(root / 'cpu.lock', 'a') as lock:
-        fcntl.flock(turn, fcntl.LOCK_EX)  # a waiting timing test holds it: no one passes
-        fcntl.flock(lock, fcntl.LOCK_EX if alone else fcntl.LOCK_SH)
-        fcntl.flock(turn, fcntl.LOCK_UN)
-        try:
-            yield
-        finally:
-            fcntl.flock(lock, fcntl.LOCK_UN)
+class CpuTurns:
+    """The run's CPU lock as one worker holds it (a file lock in ``root``): shared for an
+    ordinary test, exclusive for a ``timing`` one. A waiting timing test holds the turn, so no
+    new test passes it; it then waits for the tests running on the other workers to end. An
+    exclusive turn is kept while the worker's next test is ``timing`` too: 18 timing tests in a
+    row wait once for the other worker, not 18 times (each wait left a core idle)."""
+
+    def __init__(self, root: pathlib.Path):
+        self._turn = open(root / 'cpu.turn', 'a')
+        self._lock = open(root / 'cpu.lock', 'a')
+        self.alone: bool | None = None
+        """How the lock is held: None (not), False (shared), True (exclusive)."""
+
+    def take(self, alone: bool) -> None:
+        if alone and self.alone:
+            return  # kept from the timing test before
+        self.give_back()
+        fcntl.flock(self._turn, fcntl.LOCK_EX)
+        fcntl.flock(self._lock, fcntl.LOCK_EX if alone else fcntl.LOCK_SH)
+        fcntl.flock(self._turn, fcntl.LOCK_UN)
+        self.alone = alone
+
+    def give_back(self) -> None:
+        if self.alone is not None:
+            fcntl.flock(self._lock, fcntl.LOCK_UN)
+            self.alone = None
+
+
+_TURNS = pytest.StashKey[CpuTurns]()
+
+
+def _timing(item) -> bool:
+    return item is not None and item.get_closest_marker('timing') is not None
 
 
 @pytest.hookimpl(hookwrapper=True)
 def pytest_runtest_protocol(item, nextitem):
     """Set-up (module fixtures included), call and tear-down inside the CPU lock."""
-    with _cpu_turn(item.config, item.get_closest_marker('timing') is not None):
+    base = getattr(item.config.option, 'basetemp', None)
+    if not hasattr(item.config, 'workerinput') or not base:
+        yield  # one process runs every test: nothing runs beside it
+        return
+    if _TURNS not in item.config.stash:  # the workers' folders are popen-gw0, popen-gw1, ...
+        item.config.stash[_TURNS] = CpuTurns(pathlib.Path(base).parent)
+    turns = item.config.stash[_TURNS]
+    turns.take(_timing(item))
+    try:
         yield
+    finally:
+        if not (_timing(item) and _timing(nextitem)):
+            turns.give_back()
 
 
 def _refuse_processes():
