@@ -22,6 +22,7 @@ import sys
 import tarfile
 import time
 
+import numpy as np
 import pytest
 from conftest import ctrl_c_as_in_a_terminal
 
@@ -502,6 +503,60 @@ def test_summary_rewrites_a_build_folders_summary(built, tmp_path, capsys):
     assert len((copy / 'problems.csv').read_text().splitlines()) == 5
     assert main(['dataset', 'summary', str(tmp_path / 'nowhere')]) == 2
     assert 'not a data set build folder' in capsys.readouterr().err
+
+
+@pytest.mark.processes  # the `built` fixture runs a build; MPlib's checker is a worker
+def test_check_asks_every_exported_witness_again_from_its_files(built, tmp_path, capsys):
+    """``advocc dataset check``: each exported witness certified again on its exported scene
+    and asked of MPlib's own collision check; a box put in one witness's way (in the scene
+    file) is caught by both; a folder without problems or an unknown checker is a clear
+    error."""
+    import dataclasses
+
+    from advocc_ros.cli import main
+    from advocc_ros.formats.mbm_export import load_trajectory, planning_scene_data
+    from advocc_ros.formats.mbm_scene import load_any_scene
+    from advocc_ros.model.robot import load_robot
+    from advocc_ros.model.scene import make_box, save_yaml_atomic
+
+    fresh, _ = built
+    out = tmp_path / 'out'
+    shutil.copytree(fresh, out, ignore=shutil.ignore_patterns('heatmaps', 'logs'))
+    blocked = sorted(_records(out))[-1]
+    family, number = blocked.split('/')
+    folder = out / blocked / 'm1'
+    scene = load_any_scene(folder / f'scene{number}.yaml', folder / f'request{number}.yaml')
+    robot = load_robot(scene.robot)
+    names, waypoints = load_trajectory(folder / f'trajectory{number}.yaml')
+    middle = waypoints[len(waypoints) // 2]
+    hand_m = robot.ee_pose(np.array([middle[names.index(j)] for j in robot.joint_names]))
+    scene = dataclasses.replace(scene, objects=scene.objects + (
+        make_box('in_the_way', hand_m.translation, (0.1, 0.1, 0.1)),))
+    save_yaml_atomic(folder / f'scene{number}.yaml', planning_scene_data(scene, robot))
+
+    assert main(['dataset', 'check', str(out)]) == 0
+    assert '3 exported witnesses: 2 certified (coal), 2 accepted by MPlib' in \
+        capsys.readouterr().out
+    rows = {f'{r["family"]}/{r["problem"]}': r
+            for r in csv.DictReader((out / 'witness_checks.csv').open())}
+    assert sorted(rows) == sorted(_records(out))
+    for key, row in rows.items():
+        assert row['budget'] == '1' and row['goal_form'] == 'joint', row
+        if key == blocked:
+            assert row['certificate'] == 'refused' and 'in_the_way' in row['message'], row
+            assert row['mplib_accepted'] == 'False' and int(row['mplib_colliding']) > 0, row
+        else:
+            assert row['certificate'] == 'certified' and float(row['min_clearance_mm']) > 0
+            assert row['mplib_accepted'] == 'True' and row['mplib_colliding'] == '0', row
+    assert main(['dataset', 'check', str(out), '--checkers', 'coal', '--csv',
+                 str(tmp_path / 'coal.csv')]) == 0
+    coal = list(csv.DictReader((tmp_path / 'coal.csv').open()))
+    assert [r['certificate'] for r in coal] == [rows[k]['certificate'] for k in sorted(rows)]
+    assert all(r['mplib_accepted'] == '' for r in coal)
+    assert main(['dataset', 'check', str(tmp_path / 'nowhere')]) == 2
+    assert 'no problem of a data set build' in capsys.readouterr().err
+    assert main(['dataset', 'check', str(out), '--checkers', 'coal,fcl']) == 2
+    assert "unknown ['fcl']" in capsys.readouterr().err
 
 
 @pytest.mark.processes

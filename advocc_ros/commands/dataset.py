@@ -1,7 +1,8 @@
 """``advocc dataset build``: a certified hard-problem data set from MotionBenchMaker problems,
 one Ray task per problem (a local Ray by default, a cluster with ``--ray-address``);
 ``advocc dataset summary``: the summary of what a build folder holds (a build in progress or
-stopped included).
+stopped included); ``advocc dataset check``: every exported witness asked again from its files
+(the certificate, and MPlib's own collision check).
 
 Per problem: the task check, the witness, the ``task`` attack under the ``solvable`` policy at
 each budget, the continuous certificate, the victims on the unattacked and the attacked
@@ -36,6 +37,17 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument('out', metavar='DIR', help='a build\'s output folder (--out)')
     p.add_argument('--json', action='store_true', help='print the summary as JSON')
     p.set_defaults(func=_summary)
+    p = verbs.add_parser('check', help='ask every exported witness again, from its files: the '
+                         'certificate (coal) and MPlib\'s own collision check',
+                         description=describe(__doc__))
+    p.add_argument('out', metavar='DIR', help='a build\'s output folder (--out), or one '
+                   'extracted from a published archive')
+    p.add_argument('--checkers', default='coal,mplib', metavar='A,B',
+                   help='coal (the continuous certificate; always run) and mplib (FCL on '
+                   'MPlib\'s model, in its own venv; default %(default)s)')
+    p.add_argument('--csv', metavar='FILE', help='where the rows go (default DIR/'
+                   'witness_checks.csv)')
+    p.set_defaults(func=_check)
 
 
 def _add_build(p: argparse.ArgumentParser) -> None:
@@ -190,6 +202,42 @@ def _summary(args: argparse.Namespace) -> int:
         raise UserError(f'{out}: not a data set build folder (no {store.BUILD_FILE})')
     summary = write_summary(out)
     print(json.dumps(summary, indent=1) if args.json else markdown(summary))
+    return 0
+
+
+def _check(args: argparse.Namespace) -> int:
+    import pathlib
+
+    from advocc_ros.dataset.checks import (CHECKERS, CHECKS_FILE, check_folder,
+                                           checks_csv, exported)
+    from advocc_ros.fileio import atomic_write_text
+
+    out = pathlib.Path(args.out)
+    checkers = _names(args.checkers)
+    unknown = sorted(set(checkers) - set(CHECKERS))
+    if unknown:
+        raise UserError(f'--checkers: unknown {unknown}; known: {", ".join(CHECKERS)}')
+    if not any(out.glob('*/*/hardness.json')):
+        raise UserError(f'{out}: no problem of a data set build (no FAMILY/NNNN/hardness.json)')
+    todo = sum(1 for _ in exported(out))
+    rows = []
+    for row in check_folder(out, tuple(checkers)):
+        rows.append(row)
+        print(f'checked {len(rows)}/{todo}: {row["family"]}/{row["problem"]} M={row["budget"]}',
+              file=sys.stderr, flush=True)
+    target = pathlib.Path(args.csv) if args.csv else out / CHECKS_FILE
+    atomic_write_text(target, checks_csv(rows))
+    certified = sum(r['certificate'] == 'certified' for r in rows)
+    line = f'{len(rows)} exported witnesses: {certified} certified (coal)'
+    if 'mplib' in checkers:
+        line += f', {sum(r["mplib_accepted"] is True for r in rows)} accepted by MPlib'
+    print(f'{line} -> {target}')
+    for r in rows:
+        if r['certificate'] != 'certified' or r.get('mplib_accepted') is False:
+            print(f'  {r["family"]}/{r["problem"]} M={r["budget"]}: {r["certificate"]}'
+                  + (f', MPlib: {r["mplib_colliding"]} of {r["mplib_states"]} states collide'
+                     if r.get('mplib_accepted') is False else '')
+                  + (f' ({r["message"]})' if r['message'] else ''))
     return 0
 
 

@@ -359,24 +359,27 @@ WITNESS_CHECK_STEP_RAD = 0.002
 """Joint-space step at which a victim's own checker is asked about the witness [rad]."""
 
 
-def mplib_witness_check(scene, robot, q_init, witness) -> dict:
+def mplib_witness_check(scene, robot, q_init, witness, victim=None) -> dict:
     """What MPlib's own collision check (FCL on its model) says of the witness on ``scene``
     (the attacked problem): its states every ``WITNESS_CHECK_STEP_RAD``, how many collide
     and whether it accepts the path. A corridor a victim's checker calls closed is no
-    solution for that victim."""
+    solution for that victim. ``victim``: an MPlib victim to ask (kept open; default: one of
+    its own, closed after)."""
     import numpy as np
 
     from advocc_ros.planning.victims import VictimConfig, make_victim
     from advocc_ros.planning.victims.base import Task, densify
 
     Q = densify(witness.configurations(robot), WITNESS_CHECK_STEP_RAD)
-    victim = make_victim('mplib', VictimConfig())
+    own = victim is None
+    victim = make_victim('mplib', VictimConfig()) if own else victim
     try:
         task = Task(scene, q_init, scene.goal)
         colliding = np.concatenate([victim.check(task, Q[i:i + 100])
                                     for i in range(0, len(Q), 100)])
     finally:
-        victim.close()
+        if own:
+            victim.close()
     first = int(np.argmax(colliding)) if colliding.any() else -1
     return {'states': len(Q), 'colliding': int(colliding.sum()), 'first_colliding': first,
             'accepted': not bool(colliding.any())}

@@ -1,0 +1,87 @@
+"""Every exported witness of a build folder asked again, from its files alone: the continuous
+certificate (coal's distances on the exported scene, to the exported request's goal) and MPlib's
+own collision check (FCL on its model, ``job.mplib_witness_check``).
+
+A hardened problem is hard for a victim only if its witness is a solution in that victim's own
+eyes: a corridor MPlib's checker calls closed is none for MPlib. ``advocc dataset check`` runs
+this on a folder a user extracted from a published archive, so the claim rests on the files
+shipped, not on the build's own record; one MPlib worker serves every problem.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+import pathlib
+from typing import Iterator
+
+CHECKS_FILE = 'witness_checks.csv'
+CHECKERS = ('coal', 'mplib')
+COLUMNS = ('family', 'problem', 'budget', 'goal_form', 'certificate', 'min_clearance_mm',
+           'mplib_states', 'mplib_colliding', 'mplib_accepted', 'message')
+"""``witness_checks.csv``: one row per exported witness. ``certificate`` is ``certified`` or
+``refused`` (``message`` says why); ``min_clearance_mm`` is the smallest distance the
+certificate measured; the ``mplib_`` columns are empty when MPlib was not asked."""
+
+
+def exported(out: pathlib.Path) -> Iterator[tuple[str, str, int, pathlib.Path]]:
+    """(family, problem number, budget, folder) of every exported attacked problem, in order."""
+    for hardness in sorted(out.glob('*/*/hardness.json')):
+        attacks = json.loads(hardness.read_text()).get('attacks', {})
+        for budget, attack in sorted(attacks.items(), key=lambda kv: int(kv[0])):
+            if attack.get('exported'):
+                folder = hardness.parent / attack['exported']
+                yield hardness.parent.parent.name, hardness.parent.name, int(budget), folder
+
+
+def check_problem(folder: pathlib.Path, number: str, victim=None) -> dict:
+    """The checks of one exported problem (``sceneNNNN``, ``requestNNNN``, ``trajectoryNNNN``
+    in ``folder``): the row of ``COLUMNS`` without its family, problem and budget."""
+    from advocc_ros.dataset.job import mplib_witness_check, posed
+    from advocc_ros.formats.mbm_export import load_trajectory
+    from advocc_ros.formats.mbm_scene import load_any_scene
+    from advocc_ros.model.collision import CollisionWorld
+    from advocc_ros.planning.witness import Witness, certify, object_shape_names
+
+    scene = load_any_scene(folder / f'scene{number}.yaml', folder / f'request{number}.yaml')
+    robot, q_init, _ = posed(scene)
+    names, waypoints = load_trajectory(folder / f'trajectory{number}.yaml')
+    witness = Witness(tuple(names), waypoints, dict(robot.locked_values), {})
+    world = CollisionWorld(robot, scene.shapes)
+    why, proof = certify(robot, world, scene.goal, witness, q_init,
+                         shape_names=object_shape_names(scene.objects))
+    row = {'goal_form': 'joint' if scene.goal.is_joint else 'region',
+           'certificate': 'certified' if why is None else 'refused', 'message': why or '',
+           'min_clearance_mm': '' if proof is None else round(proof.min_clearance_m * 1e3, 4)}
+    if victim is not None:
+        check = mplib_witness_check(scene, robot, q_init, witness, victim)
+        row.update(mplib_states=check['states'], mplib_colliding=check['colliding'],
+                   mplib_accepted=check['accepted'])
+    return row
+
+
+def check_folder(out: pathlib.Path, checkers: tuple[str, ...] = CHECKERS) -> Iterator[dict]:
+    """The row of every exported witness of the build folder ``out``, one at a time."""
+    from advocc_ros.planning.victims import VictimConfig, make_victim
+
+    victim = make_victim('mplib', VictimConfig()) if 'mplib' in checkers else None
+    try:
+        for family, number, budget, folder in exported(out):
+            yield dict(family=family, problem=number, budget=budget,
+                       **check_problem(folder, number, victim))
+    finally:
+        if victim is not None:
+            victim.close()
+
+
+def checks_csv(rows: list[dict]) -> str:
+    text = io.StringIO()
+    writer = csv.DictWriter(text, COLUMNS, lineterminator='\n')
+    writer.writeheader()
+    writer.writerows(rows)
+    return text.getvalue()
+
+
+__all__ = ['CHECKERS', 'CHECKS_FILE', 'COLUMNS', 'check_folder', 'check_problem', 'checks_csv',
+           'exported']
