@@ -540,6 +540,12 @@ def test_check_asks_every_exported_witness_again_from_its_files(built, tmp_path,
     rows = {f'{r["family"]}/{r["problem"]}': r
             for r in csv.DictReader((out / 'witness_checks.csv').open())}
     assert sorted(rows) == sorted(_records(out))
+    tally = json.loads((out / 'witness_checks.json').read_text())
+    assert (tally['witnesses'], tally['certified'], tally['mplib_accepted']) == (3, 2, 2)
+    assert [(g['family'], g['witnesses'], g['mplib_accepted']) for g in tally['groups']] == [
+        (f, sum(k.startswith(f) for k in rows), sum(k.startswith(f) and k != blocked
+                                                    for k in rows))
+        for f in sorted({k.split('/')[0] for k in rows})]
     for key, row in rows.items():
         assert row['budget'] == '1' and row['goal_form'] == 'joint', row
         if key == blocked:
@@ -553,6 +559,7 @@ def test_check_asks_every_exported_witness_again_from_its_files(built, tmp_path,
     coal = list(csv.DictReader((tmp_path / 'coal.csv').open()))
     assert [r['certificate'] for r in coal] == [rows[k]['certificate'] for k in sorted(rows)]
     assert all(r['mplib_accepted'] == '' for r in coal)
+    assert json.loads((tmp_path / 'coal.json').read_text())['mplib_accepted'] is None
     assert main(['dataset', 'check', str(tmp_path / 'nowhere')]) == 2
     assert 'no problem of a data set build' in capsys.readouterr().err
     assert main(['dataset', 'check', str(out), '--checkers', 'coal,fcl']) == 2

@@ -46,7 +46,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help='coal (the continuous certificate; always run) and mplib (FCL on '
                    'MPlib\'s model, in its own venv; default %(default)s)')
     p.add_argument('--csv', metavar='FILE', help='where the rows go (default DIR/'
-                   'witness_checks.csv)')
+                   'witness_checks.csv; the counts beside it, as .json)')
     p.set_defaults(func=_check)
 
 
@@ -209,7 +209,7 @@ def _check(args: argparse.Namespace) -> int:
     import pathlib
 
     from advocc_ros.dataset.checks import (CHECKERS, CHECKS_FILE, check_folder,
-                                           checks_csv, exported)
+                                           checks_csv, counts, exported)
     from advocc_ros.fileio import atomic_write_text
 
     out = pathlib.Path(args.out)
@@ -227,11 +227,12 @@ def _check(args: argparse.Namespace) -> int:
               file=sys.stderr, flush=True)
     target = pathlib.Path(args.csv) if args.csv else out / CHECKS_FILE
     atomic_write_text(target, checks_csv(rows))
-    certified = sum(r['certificate'] == 'certified' for r in rows)
-    line = f'{len(rows)} exported witnesses: {certified} certified (coal)'
-    if 'mplib' in checkers:
-        line += f', {sum(r["mplib_accepted"] is True for r in rows)} accepted by MPlib'
-    print(f'{line} -> {target}')
+    tally = counts(rows)
+    atomic_write_text(target.with_suffix('.json'), json.dumps(tally, indent=1) + '\n')
+    line = f'{len(rows)} exported witnesses: {tally["certified"]} certified (coal)'
+    if tally['mplib_accepted'] is not None:
+        line += f', {tally["mplib_accepted"]} accepted by MPlib'
+    print(f'{line} -> {target} (counts: {target.with_suffix(".json")})')
     for r in rows:
         if r['certificate'] != 'certified' or r.get('mplib_accepted') is False:
             print(f'  {r["family"]}/{r["problem"]} M={r["budget"]}: {r["certificate"]}'

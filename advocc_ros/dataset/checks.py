@@ -75,6 +75,22 @@ def check_folder(out: pathlib.Path, checkers: tuple[str, ...] = CHECKERS) -> Ite
             victim.close()
 
 
+def counts(rows: list[dict]) -> dict:
+    """``witness_checks.json``: how many witnesses each checker accepts, in all and per family
+    and budget (``mplib_accepted`` None when MPlib was not asked)."""
+    def tally(group: list[dict]) -> dict:
+        asked = [r for r in group if 'mplib_accepted' in r]
+        return {'witnesses': len(group),
+                'certified': sum(r['certificate'] == 'certified' for r in group),
+                'mplib_accepted': sum(r['mplib_accepted'] for r in asked) if asked else None}
+
+    keys = sorted({(r['family'], r['budget']) for r in rows})
+    groups = [dict(family=f, budget=b,
+                   **tally([r for r in rows if (r['family'], r['budget']) == (f, b)]))
+              for f, b in keys]
+    return dict(tally(rows), format='advocc_witness_checks', groups=groups)
+
+
 def checks_csv(rows: list[dict]) -> str:
     text = io.StringIO()
     writer = csv.DictWriter(text, COLUMNS, lineterminator='\n')
@@ -83,5 +99,5 @@ def checks_csv(rows: list[dict]) -> str:
     return text.getvalue()
 
 
-__all__ = ['CHECKERS', 'CHECKS_FILE', 'COLUMNS', 'check_folder', 'check_problem', 'checks_csv',
-           'exported']
+__all__ = ['CHECKERS', 'CHECKS_FILE', 'COLUMNS', 'check_folder', 'check_problem',
+           'checks_csv', 'counts', 'exported']
