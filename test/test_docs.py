@@ -39,7 +39,8 @@ def test_every_relative_link_resolves():
 # and counts (70 of 70); each value must be a numeric cell of a cited file, rounded as written
 # (a percentage may be a fraction cell: 86 % is 0.857), the values of a group, chain or range
 # all cells of one column (JSON: one key, or one object's members), a count's two numbers cells
-# of one record (a CSV row; a JSON object in a list). Bounds (PSR <= 20 %) are claims, not figures.
+# of one record (a CSV row; a JSON object in a list; a JSON file's own scalar members). Bounds
+# (PSR <= 20 %) are claims, not figures.
 RESULTS_SECTIONS = ('What the results say', 'Does it transfer?', 'A data set of hard problems')
 DATA_SUFFIXES = ('.csv', '.json')
 _STUDY_LINK = re.compile(r'\]\((docs/results/[^)#\s]+)\)')
@@ -95,7 +96,14 @@ class DataCells:
 
     def read(self, path: str, text: str) -> None:
         if path.endswith('.json'):
-            self._walk(path, (), json.loads(text), None)
+            data = json.loads(text)
+            if isinstance(data, dict):  # the file's own scalar members are a record too
+                record: list[float] = []
+                for key, value in data.items():
+                    if not isinstance(value, (dict, list)):
+                        self._add([], value, record)
+                self.records.append(record)
+            self._walk(path, (), data, None)
             return
         for row in csv.DictReader(io.StringIO(text)):
             record: list[float] = []
@@ -194,13 +202,15 @@ def test_readme_figures_are_cells_of_their_data_files():
 def test_figure_checker_wants_cells_of_cited_data_files():
     files = {'docs/results/s/psr.csv': 'scene,planner,psr_percent,pt_ratio,time_s\n'
                                        'a,p1,25,43.2,3.05\na,p2,0,7.94,4.02\na,p3,20,,\n',
-             'docs/results/s/summary.json': '{"n": 25, "groups": [{"share": 0.857, "problems": 5, '
-                                            '"out": {"built": 5}}, {"problems": 20}], '
+             'docs/results/s/summary.json': '{"n": 25, "ok": 21, "groups": [{"share": 0.857, '
+                                            '"problems": 5, "out": {"built": 5}}, '
+                                            '{"problems": 20}], '
                                             '"fewest": {"p1": 10, "p2": 20, "p3": 15}}',
              'docs/results/s/README.md': 'PSR 25 / 5 / 20 and 18 % on 4 of 5 scenes, x44.'}
     readme = ('## What the results say\n\n- It holds: 25 / 0 / 20 (x43, 3.05-4.02 s)\n'
               '  ([psr.csv](docs/results/s/psr.csv)).\n\n| a | 25 -> 0 -> 20 | x7.9 |\n\n'
-              'On 86 % of 5 of 5 problems, not PSR <= 10 %, with 10 / 20 / 15 boxes '
+              'On 86 % of 5 of 5 problems (21 of 25 in all), not PSR <= 10 %, with '
+              '10 / 20 / 15 boxes '
               '([summary](docs/results/s/summary.json)).\n')
     assert unbacked_figures(readme, files.get) == []
     wrong = readme.replace('25 / 0 / 20 (x43', '25 / 5 / 20 (x44')
