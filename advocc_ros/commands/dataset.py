@@ -208,8 +208,9 @@ def _summary(args: argparse.Namespace) -> int:
 def _check(args: argparse.Namespace) -> int:
     import pathlib
 
-    from advocc_ros.dataset.checks import (CHECKERS, CHECKS_FILE, check_folder,
-                                           checks_csv, counts, exported)
+    from advocc_ros.dataset.checks import (CHECKERS, CHECKS_FILE, COLUMNS, check_folder,
+                                           counts, exported)
+    from advocc_ros.dataset.summary import csv_text
     from advocc_ros.fileio import atomic_write_text
 
     out = pathlib.Path(args.out)
@@ -226,7 +227,7 @@ def _check(args: argparse.Namespace) -> int:
         print(f'checked {len(rows)}/{todo}: {row["family"]}/{row["problem"]} M={row["budget"]}',
               file=sys.stderr, flush=True)
     target = pathlib.Path(args.csv) if args.csv else out / CHECKS_FILE
-    atomic_write_text(target, checks_csv(rows))
+    atomic_write_text(target, csv_text(rows, COLUMNS))
     tally = counts(rows)
     atomic_write_text(target.with_suffix('.json'), json.dumps(tally, indent=1) + '\n')
     line = f'{len(rows)} exported witnesses: {tally["certified"]} certified (coal)'

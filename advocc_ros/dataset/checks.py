@@ -10,8 +10,6 @@ shipped, not on the build's own record; one MPlib worker serves every problem.
 
 from __future__ import annotations
 
-import csv
-import io
 import json
 import pathlib
 from typing import Iterator
@@ -91,13 +89,5 @@ def counts(rows: list[dict]) -> dict:
     return dict(tally(rows), format='advocc_witness_checks', groups=groups)
 
 
-def checks_csv(rows: list[dict]) -> str:
-    text = io.StringIO()
-    writer = csv.DictWriter(text, COLUMNS, lineterminator='\n')
-    writer.writeheader()
-    writer.writerows(rows)
-    return text.getvalue()
-
-
-__all__ = ['CHECKERS', 'CHECKS_FILE', 'COLUMNS', 'check_folder', 'check_problem',
-           'checks_csv', 'counts', 'exported']
+__all__ = ['CHECKERS', 'CHECKS_FILE', 'COLUMNS', 'check_folder', 'check_problem', 'counts',
+           'exported']

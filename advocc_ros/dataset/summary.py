@@ -226,12 +226,13 @@ def _cell(cell: dict) -> dict:
                                      'first_solution_median_s', 'pt_ratio')}
 
 
-def _csv(rows: list[dict]) -> str:
+def csv_text(rows: list[dict], columns=TABLE_COLUMNS) -> str:
+    """``rows`` as CSV with a header of ``columns`` (``problems.csv``'s by default)."""
     import csv
     import io
 
     text = io.StringIO()
-    writer = csv.DictWriter(text, TABLE_COLUMNS, lineterminator='\n')
+    writer = csv.DictWriter(text, columns, lineterminator='\n')
     writer.writeheader()
     writer.writerows(rows)
     return text.getvalue()
@@ -369,10 +370,10 @@ def write_summary(out: pathlib.Path, keys: list[str] | None = None) -> dict:
     summary = summarise(out, keys)
     store.write_json(out / 'summary.json', summary)
     atomic_write_text(out / 'summary.md', markdown(summary))
-    atomic_write_text(out / TABLE, _csv(table_rows(out, keys)))
+    atomic_write_text(out / TABLE, csv_text(table_rows(out, keys)))
     figure(summary, out / FIGURE)
     return summary
 
 
-__all__ = ['FIGURE', 'PROVENANCE_COLUMNS', 'SUMMARY_FORMAT', 'TABLE', 'TABLE_COLUMNS', 'markdown',
-           'selected', 'summarise', 'table_rows', 'write_summary']
+__all__ = ['FIGURE', 'PROVENANCE_COLUMNS', 'SUMMARY_FORMAT', 'TABLE', 'TABLE_COLUMNS', 'csv_text',
+           'markdown', 'selected', 'summarise', 'table_rows', 'write_summary']
