@@ -542,6 +542,9 @@ def test_check_asks_every_exported_witness_again_from_its_files(built, tmp_path,
     assert sorted(rows) == sorted(_records(out))
     tally = json.loads((out / 'witness_checks.json').read_text())
     assert (tally['witnesses'], tally['certified'], tally['mplib_accepted']) == (3, 2, 2)
+    assert tally['goal_forms'] == ['joint'] and tally['made']['commit'] == subprocess.run(
+        ['git', '-C', str(REPO), 'rev-parse', 'HEAD'], capture_output=True, text=True,
+        check=True).stdout.strip()
     assert [(g['family'], g['witnesses'], g['mplib_accepted']) for g in tally['groups']] == [
         (f, sum(k.startswith(f) for k in rows), sum(k.startswith(f) and k != blocked
                                                     for k in rows))

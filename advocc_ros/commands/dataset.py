@@ -211,6 +211,7 @@ def _check(args: argparse.Namespace) -> int:
     from advocc_ros.dataset.checks import (CHECKERS, CHECKS_FILE, COLUMNS, check_folder,
                                            counts, exported)
     from advocc_ros.dataset.summary import csv_text
+    from advocc_ros.evaluation import provenance
     from advocc_ros.fileio import atomic_write_text
 
     out = pathlib.Path(args.out)
@@ -221,14 +222,15 @@ def _check(args: argparse.Namespace) -> int:
     if not any(out.glob('*/*/hardness.json')):
         raise UserError(f'{out}: no problem of a data set build (no FAMILY/NNNN/hardness.json)')
     todo = sum(1 for _ in exported(out))
-    rows = []
+    started, rows = provenance.now(), []
     for row in check_folder(out, tuple(checkers)):
         rows.append(row)
         print(f'checked {len(rows)}/{todo}: {row["family"]}/{row["problem"]} M={row["budget"]}',
               file=sys.stderr, flush=True)
     target = pathlib.Path(args.csv) if args.csv else out / CHECKS_FILE
     atomic_write_text(target, csv_text(rows, COLUMNS))
-    tally = counts(rows)
+    tally = dict(counts(rows), made=dict(provenance.record(), started=started,
+                                         finished=provenance.now()))
     atomic_write_text(target.with_suffix('.json'), json.dumps(tally, indent=1) + '\n')
     line = f'{len(rows)} exported witnesses: {tally["certified"]} certified (coal)'
     if tally['mplib_accepted'] is not None:

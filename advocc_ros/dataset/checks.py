@@ -75,7 +75,7 @@ def check_folder(out: pathlib.Path, checkers: tuple[str, ...] = CHECKERS) -> Ite
 
 def counts(rows: list[dict]) -> dict:
     """``witness_checks.json``: how many witnesses each checker accepts, in all and per family
-    and budget (``mplib_accepted`` None when MPlib was not asked)."""
+    and budget (``mplib_accepted`` None when MPlib was not asked), and the goal forms."""
     def tally(group: list[dict]) -> dict:
         asked = [r for r in group if 'mplib_accepted' in r]
         return {'witnesses': len(group),
@@ -86,7 +86,8 @@ def counts(rows: list[dict]) -> dict:
     groups = [dict(family=f, budget=b,
                    **tally([r for r in rows if (r['family'], r['budget']) == (f, b)]))
               for f, b in keys]
-    return dict(tally(rows), format='advocc_witness_checks', groups=groups)
+    return dict(tally(rows), format='advocc_witness_checks',
+                goal_forms=sorted({r['goal_form'] for r in rows}), groups=groups)
 
 
 __all__ = ['CHECKERS', 'CHECKS_FILE', 'COLUMNS', 'check_folder', 'check_problem', 'counts',
