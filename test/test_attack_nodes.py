@@ -1,5 +1,6 @@
 """heatmap_server and attacker as real processes: topics in, obstacles out, bad requests, exits."""
 
+import collections
 import dataclasses
 import json
 import signal
@@ -57,11 +58,25 @@ def _wait_service(executor, client, proc, timeout_s=60):
         executor.spin_once(timeout_sec=0.1)
 
 
-def _call(executor, client, request, timeout_s=15):
-    future = client.call_async(request)
-    executor.spin_until_future_complete(future, timeout_sec=timeout_s)
-    assert future.done(), f'no answer within {timeout_s} s'
-    return future.result()
+SENT = collections.Counter()
+"""Requests ``_call`` sent per service, resends included."""
+
+
+def _call(executor, client, request, timeout_s=15, resend_s=5.0):
+    """The answer within ``timeout_s``, or the test fails. A request without an answer for
+    ``resend_s`` is sent again (then after 2x, 4x, ...; the first answer wins), by
+    ``ServiceCalls.call_client``: rmw_fastrtps drops the response to a new client whose reader
+    the server has not matched yet, on a loaded machine (test_fuzz_services). The heatmap
+    server answers a repeat of an attack from its memo."""
+    from advocc_ros.ros.client import ServiceCalls, ServiceError
+
+    calls = ServiceCalls(executor)
+    try:
+        return calls.call_client(client, request, timeout_s, resend_s=resend_s)
+    except ServiceError as exc:
+        pytest.fail(str(exc))
+    finally:
+        SENT.update(calls.sent)
 
 
 def _request(scene, budget=3, method='ours'):
@@ -169,6 +184,7 @@ def test_server_answers_bad_requests_and_keeps_serving(ros, ros_env, heatmap_fil
     children.append(server)
     client = node.create_client(Attack, '/heatmap_server/attack')
     _wait_service(executor, client, server)
+    sent_before = SENT[client.srv_name]
 
     good = _call(executor, client, _request(table_scene))
     assert good.error_code.val == ErrorCodes.SUCCESS, good.message
@@ -239,7 +255,7 @@ def test_server_answers_bad_requests_and_keeps_serving(ros, ros_env, heatmap_fil
     info = json.loads(_call(executor, info_client, GetInfo.Request()).info_json)
     assert info['robot']['joints'][0] == 'panda_joint1'
     assert info['grid']['voxel_m'] == 0.02 and info['parameters']['max_budget'] == 20
-    assert info['requests_served'] == len(cases) + 4
+    assert info['requests_served'] == SENT[client.srv_name] - sent_before >= len(cases) + 4
 
     # The CLI client sees the same server.
     out = subprocess.run([sys.executable, '-m', 'advocc_ros.cli', 'call', 'attack', '--scene',

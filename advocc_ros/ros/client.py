@@ -1,7 +1,9 @@
-"""One rclpy context, node and executor for calling services from a plain program."""
+"""Calling services from a plain program: through an executor it is given (``ServiceCalls``, the
+tests' own node), or on one rclpy context, node and executor of its own (``ServiceClient``)."""
 
 from __future__ import annotations
 
+import collections
 import contextlib
 import os
 import time
@@ -12,32 +14,21 @@ class ServiceError(OSError):
     """A service is not available, did not answer in time, or the call failed."""
 
 
-class ServiceClient:
-    """Calls services with ``call_async`` + futures on its own context (never a blocking call).
+class ServiceCalls:
+    """Calls services with ``call_async`` + futures through an executor it is given (never a
+    blocking call), spinning it meanwhile; ``sent`` counts the requests sent per service,
+    resends included. ``node`` (needed by ``client`` and ``call`` only) makes the clients.
 
-    ``domain_id``: the ROS domain (None: ``ROS_DOMAIN_ID``); ``handle_signals=False`` leaves
-    SIGINT/SIGTERM to the program (rclpy's handlers would shut the context down under it).
     ``guard``: a context manager entered around every rclpy call that runs Python code from C++
     (spinning, sending): a program whose signal handler raises holds its signals there, since
     an exception raised inside a message conversion comes out as a ``SystemError``.
     """
 
-    def __init__(self, name: str = 'advocc_call', domain_id: int | None = None,
-                 handle_signals: bool = True,
+    def __init__(self, executor, node=None,
                  guard: Callable[[], ContextManager] = contextlib.nullcontext):
-        import rclpy
-        from rclpy.executors import SingleThreadedExecutor
-        from rclpy.signals import SignalHandlerOptions
-
-        self._rclpy = rclpy
-        self.context = rclpy.Context()
-        rclpy.init(context=self.context, domain_id=domain_id,
-                   signal_handler_options=None if handle_signals else SignalHandlerOptions.NO)
-        self.node = rclpy.create_node(f'{name}_{os.getpid()}', context=self.context)
-        self.executor = SingleThreadedExecutor(context=self.context)
-        self.executor.add_node(self.node)
+        self.executor, self.node, self.guard = executor, node, guard
         self._clients: dict = {}
-        self.guard = guard
+        self.sent: collections.Counter = collections.Counter()
 
     def spin(self, timeout_s: float = 0.05) -> None:
         with self.guard():
@@ -45,6 +36,7 @@ class ServiceClient:
 
     def send(self, client, request):
         """``client.call_async(request)`` under the guard: the future of the answer."""
+        self.sent[client.srv_name] += 1
         with self.guard():
             return client.call_async(request)
 
@@ -112,6 +104,30 @@ class ServiceClient:
         client = self.client(srv_type, service, timeout_s)
         return self.call_client(client, request, timeout_s, resend_s=resend_s)
 
+
+class ServiceClient(ServiceCalls):
+    """``ServiceCalls`` on one rclpy context, node and executor of its own, for a plain program.
+
+    ``domain_id``: the ROS domain (None: ``ROS_DOMAIN_ID``); ``handle_signals=False`` leaves
+    SIGINT/SIGTERM to the program (rclpy's handlers would shut the context down under it).
+    """
+
+    def __init__(self, name: str = 'advocc_call', domain_id: int | None = None,
+                 handle_signals: bool = True,
+                 guard: Callable[[], ContextManager] = contextlib.nullcontext):
+        import rclpy
+        from rclpy.executors import SingleThreadedExecutor
+        from rclpy.signals import SignalHandlerOptions
+
+        self._rclpy = rclpy
+        self.context = rclpy.Context()
+        rclpy.init(context=self.context, domain_id=domain_id,
+                   signal_handler_options=None if handle_signals else SignalHandlerOptions.NO)
+        node = rclpy.create_node(f'{name}_{os.getpid()}', context=self.context)
+        executor = SingleThreadedExecutor(context=self.context)
+        executor.add_node(node)
+        super().__init__(executor, node, guard)
+
     def close(self) -> None:
         try:
             self.executor.shutdown()
@@ -126,4 +142,4 @@ class ServiceClient:
         self.close()
 
 
-__all__ = ['ServiceClient', 'ServiceError']
+__all__ = ['ServiceCalls', 'ServiceClient', 'ServiceError']
