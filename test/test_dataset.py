@@ -509,8 +509,8 @@ def test_summary_rewrites_a_build_folders_summary(built, tmp_path, capsys):
 def test_check_asks_every_exported_witness_again_from_its_files(built, tmp_path, capsys):
     """``advocc dataset check``: each exported witness certified again on its exported scene
     and asked of MPlib's own collision check; a box put in one witness's way (in the scene
-    file) is caught by both; a folder without problems or an unknown checker is a clear
-    error."""
+    file) is caught by both; a damaged file is its problem's row, the others still checked
+    (exit 1); a folder without problems or an unknown checker is a clear error."""
     import dataclasses
 
     from advocc_ros.cli import main
@@ -563,6 +563,21 @@ def test_check_asks_every_exported_witness_again_from_its_files(built, tmp_path,
     assert [r['certificate'] for r in coal] == [rows[k]['certificate'] for k in sorted(rows)]
     assert all(r['mplib_accepted'] == '' for r in coal)
     assert json.loads((tmp_path / 'coal.json').read_text())['mplib_accepted'] is None
+    # A damaged file is its problem's row, not the end of the check.
+    first, second = sorted(rows)[:2]
+    (out / first / 'm1' / f'trajectory{first[-4:]}.yaml').write_text('joint_trajectory: [\n')
+    (out / second / 'hardness.json').write_text('{"attacks": ')
+    assert main(['dataset', 'check', str(out), '--checkers', 'coal', '--csv',
+                 str(tmp_path / 'damaged.csv')]) == 1
+    assert '3 exported witnesses: 0 certified (coal), 2 unreadable' in capsys.readouterr().out
+    damaged = {f'{r["family"]}/{r["problem"]}': r
+               for r in csv.DictReader((tmp_path / 'damaged.csv').open())}
+    assert damaged[first]['certificate'] == 'unreadable', damaged[first]
+    assert f'trajectory{first[-4:]}.yaml: malformed YAML' in damaged[first]['message']
+    assert damaged[second]['certificate'] == 'unreadable' and damaged[second]['budget'] == '0'
+    assert 'hardness.json: cannot be read' in damaged[second]['message']
+    assert damaged[blocked]['certificate'] == 'refused'
+    assert json.loads((tmp_path / 'damaged.json').read_text())['unreadable'] == 2
     assert main(['dataset', 'check', str(tmp_path / 'nowhere')]) == 2
     assert 'no problem of a data set build' in capsys.readouterr().err
     assert main(['dataset', 'check', str(out), '--checkers', 'coal,fcl']) == 2

@@ -233,6 +233,8 @@ def _check(args: argparse.Namespace) -> int:
                                          finished=provenance.now()))
     atomic_write_text(target.with_suffix('.json'), json.dumps(tally, indent=1) + '\n')
     line = f'{len(rows)} exported witnesses: {tally["certified"]} certified (coal)'
+    if tally['unreadable']:
+        line += f', {tally["unreadable"]} unreadable'
     if tally['mplib_accepted'] is not None:
         line += f', {tally["mplib_accepted"]} accepted by MPlib'
     print(f'{line} -> {target} (counts: {target.with_suffix(".json")})')
@@ -242,7 +244,7 @@ def _check(args: argparse.Namespace) -> int:
                   + (f', MPlib: {r["mplib_colliding"]} of {r["mplib_states"]} states collide'
                      if r.get('mplib_accepted') is False else '')
                   + (f' ({r["message"]})' if r['message'] else ''))
-    return 0
+    return 1 if tally['unreadable'] else 0
 
 
 def _build(args: argparse.Namespace) -> int:

@@ -18,34 +18,42 @@ CHECKS_FILE = 'witness_checks.csv'
 CHECKERS = ('coal', 'mplib')
 COLUMNS = ('family', 'problem', 'budget', 'goal_form', 'certificate', 'min_clearance_mm',
            'mplib_states', 'mplib_colliding', 'mplib_accepted', 'message')
-"""``witness_checks.csv``: one row per exported witness. ``certificate`` is ``certified`` or
-``refused`` (``message`` says why); ``min_clearance_mm`` is the smallest distance the
-certificate measured; the ``mplib_`` columns are empty when MPlib was not asked."""
+"""``witness_checks.csv``: one row per exported witness. ``certificate`` is ``certified``,
+``refused`` or ``unreadable`` (a file of the problem is missing or damaged; ``message`` says why
+for both); ``min_clearance_mm`` is the smallest distance the certificate measured; the
+``mplib_`` columns are empty when MPlib was not asked. A problem whose ``hardness.json`` cannot
+be read is one ``unreadable`` row of budget 0."""
 
 
-def exported(out: pathlib.Path) -> Iterator[tuple[str, str, int, pathlib.Path]]:
-    """(family, problem number, budget, folder) of every exported attacked problem, in order."""
+def exported(out: pathlib.Path) -> Iterator[tuple[str, str, int, pathlib.Path | str]]:
+    """(family, problem number, budget, folder) of every exported attacked problem, in order;
+    for a problem whose ``hardness.json`` cannot be read, budget 0 and why instead of a
+    folder."""
     for hardness in sorted(out.glob('*/*/hardness.json')):
-        attacks = json.loads(hardness.read_text()).get('attacks', {})
-        for budget, attack in sorted(attacks.items(), key=lambda kv: int(kv[0])):
-            if attack.get('exported'):
-                folder = hardness.parent / attack['exported']
-                yield hardness.parent.parent.name, hardness.parent.name, int(budget), folder
+        family, number = hardness.parent.parent.name, hardness.parent.name
+        try:
+            attacks = dict(json.loads(hardness.read_text()).get('attacks', {}))
+            budgets = sorted(attacks, key=int)
+        except (OSError, ValueError, TypeError, AttributeError) as exc:
+            yield family, number, 0, f'{hardness}: cannot be read ({exc})'
+            continue
+        for budget in budgets:
+            if attacks[budget].get('exported'):
+                yield family, number, int(budget), hardness.parent / attacks[budget]['exported']
 
 
 def check_problem(folder: pathlib.Path, number: str, victim=None) -> dict:
     """The checks of one exported problem (``sceneNNNN``, ``requestNNNN``, ``trajectoryNNNN``
     in ``folder``): the row of ``COLUMNS`` without its family, problem and budget."""
-    from advocc_ros.dataset.job import mplib_witness_check, posed
-    from advocc_ros.formats.mbm_export import load_trajectory
-    from advocc_ros.formats.mbm_scene import load_any_scene
+    from advocc_ros.dataset.job import mplib_witness_check
     from advocc_ros.model.collision import CollisionWorld
-    from advocc_ros.planning.witness import Witness, certify, object_shape_names
+    from advocc_ros.planning.witness import certify, object_shape_names
 
-    scene = load_any_scene(folder / f'scene{number}.yaml', folder / f'request{number}.yaml')
-    robot, q_init, _ = posed(scene)
-    names, waypoints = load_trajectory(folder / f'trajectory{number}.yaml')
-    witness = Witness(tuple(names), waypoints, dict(robot.locked_values), {})
+    try:
+        scene, robot, q_init, witness = _load(folder, number)
+    except (OSError, ValueError) as exc:  # a file missing or damaged (the loaders say which)
+        return dict(goal_form='', certificate='unreadable', message=str(exc),
+                    min_clearance_mm='')
     world = CollisionWorld(robot, scene.shapes)
     why, proof = certify(robot, world, scene.goal, witness, q_init,
                          shape_names=object_shape_names(scene.objects))
@@ -59,6 +67,19 @@ def check_problem(folder: pathlib.Path, number: str, victim=None) -> dict:
     return row
 
 
+def _load(folder: pathlib.Path, number: str):
+    """The exported scene, its posed robot and start, and the witness, from the files."""
+    from advocc_ros.dataset.job import posed
+    from advocc_ros.formats.mbm_export import load_trajectory
+    from advocc_ros.formats.mbm_scene import load_any_scene
+    from advocc_ros.planning.witness import Witness
+
+    scene = load_any_scene(folder / f'scene{number}.yaml', folder / f'request{number}.yaml')
+    robot, q_init, _ = posed(scene)
+    names, waypoints = load_trajectory(folder / f'trajectory{number}.yaml')
+    return scene, robot, q_init, Witness(tuple(names), waypoints, dict(robot.locked_values), {})
+
+
 def check_folder(out: pathlib.Path, checkers: tuple[str, ...] = CHECKERS) -> Iterator[dict]:
     """The row of every exported witness of the build folder ``out``, one at a time."""
     from advocc_ros.planning.victims import VictimConfig, make_victim
@@ -66,8 +87,9 @@ def check_folder(out: pathlib.Path, checkers: tuple[str, ...] = CHECKERS) -> Ite
     victim = make_victim('mplib', VictimConfig()) if 'mplib' in checkers else None
     try:
         for family, number, budget, folder in exported(out):
-            yield dict(family=family, problem=number, budget=budget,
-                       **check_problem(folder, number, victim))
+            row = check_problem(folder, number, victim) if not isinstance(folder, str) else \
+                dict(goal_form='', certificate='unreadable', message=folder, min_clearance_mm='')
+            yield dict(family=family, problem=number, budget=budget, **row)
     finally:
         if victim is not None:
             victim.close()
@@ -80,6 +102,7 @@ def counts(rows: list[dict]) -> dict:
         asked = [r for r in group if 'mplib_accepted' in r]
         return {'witnesses': len(group),
                 'certified': sum(r['certificate'] == 'certified' for r in group),
+                'unreadable': sum(r['certificate'] == 'unreadable' for r in group),
                 'mplib_accepted': sum(r['mplib_accepted'] for r in asked) if asked else None}
 
     keys = sorted({(r['family'], r['budget']) for r in rows})
@@ -87,7 +110,7 @@ def counts(rows: list[dict]) -> dict:
                    **tally([r for r in rows if (r['family'], r['budget']) == (f, b)]))
               for f, b in keys]
     return dict(tally(rows), format='advocc_witness_checks',
-                goal_forms=sorted({r['goal_form'] for r in rows}), groups=groups)
+                goal_forms=sorted({r['goal_form'] for r in rows} - {''}), groups=groups)
 
 
 __all__ = ['CHECKERS', 'CHECKS_FILE', 'COLUMNS', 'check_folder', 'check_problem', 'counts',
