@@ -301,6 +301,53 @@ def test_the_summary_gives_each_victims_share_of_problems_held(tmp_path):
     assert box['budgets']['10']['victims']['mplib']['psr_given_goals_le_50'] == 2 / 3
 
 
+def test_records_name_their_machines_speed_and_speeds_apart_do_not_pool(tmp_path, capsys):
+    """The machine speed probe (validity checks/s on the shipped table_pick scene, also
+    ``advocc perf speed``) is a rate this machine reaches; built records 2x apart in speed are
+    flagged as not pooling in the summary, and a run on a machine 2x off the folder's records
+    is warned; hosts within ``SPEED_SPREAD``, probes within ``SPEED_WARN``, or records without
+    a speed, are not."""
+    from advocc_ros.cli import main
+    from advocc_ros.dataset import store, summary
+    from advocc_ros.dataset.driver import speed_note
+    from advocc_ros.evaluation.provenance import SPEED_SPREAD, SPEED_WARN, speed
+
+    here = speed()
+    assert 1000 < here < 10 ** 7
+    assert main(['perf', 'speed', '--json']) == 0
+    reported = json.loads(capsys.readouterr().out)
+    assert reported['scene'] == 'table_pick' and reported['pools_within'] == SPEED_SPREAD
+    assert 1 / 3 < reported['speed_checks_per_s'] / here < 3  # the same probe, moments apart
+    keys = ['box_panda/0001', 'box_panda/0002', 'box_panda/0003']
+    store.write_json(tmp_path / 'build.json', {
+        'format': store.BUILD_FORMAT, 'version': store.BUILD_VERSION,
+        'settings': {'build': {'budgets': [10], 'victims': ['mplib'], 'goal_form': 'joint'}},
+        'runs': [{'selection': {'problems': keys}}]})
+
+    def made(*speeds):  # (host, speed) per problem
+        for key, (host, value) in zip(keys, speeds):
+            family, number = key.split('/')
+            (tmp_path / key).mkdir(parents=True, exist_ok=True)
+            store.write_json(tmp_path / key / 'outcome.json', {
+                'family': family, 'problem': number, 'split': 'train', 'outcome': 'built',
+                'provenance': {'host': host, 'speed_checks_per_s': value}})
+        return summary.summarise(tmp_path)['made']['speed_of_built_problems']
+
+    assert made(('a', here), ('b', 2 * here), ('b', None)) == {
+        'known': 2, 'unknown': 1, 'min': here, 'median': 1.5 * here, 'max': 2 * here,
+        'hosts': {'a': here, 'b': 2 * here}, 'spread': 2.0, 'pooled': False}
+    assert "the hosts' medians 2.00x apart" in summary.markdown(summary.summarise(tmp_path))
+    assert str(2 * here) in summary.csv_text(summary.table_rows(tmp_path))
+    assert 'faster' in speed_note(tmp_path, keys[:1], 2.5 * here, 5)
+    note = speed_note(tmp_path, keys, 0.5 * here, 5)  # median 1.5 x here: 3x slower
+    assert '3.00x slower' in note and 'a 5 s budget buys that much less planning' in note
+    assert speed_note(tmp_path, keys[:1], here * SPEED_WARN * 0.99, 5) is None
+    assert speed_note(tmp_path, keys[2:], 10 * here, 5) is None  # no speed recorded
+    # One host's probes spread: it is judged by their median.
+    assert made(('a', here), ('a', 2 * here), ('b', 1.2 * here))['pooled'] is True
+    assert made(('a', here), ('a', 2 * here), ('a', here))['hosts'] == {'a': here}
+
+
 @pytest.mark.processes  # the child writes to the captured descriptors; git names the commit
 def test_a_tasks_output_and_logs_go_to_its_log(tmp_path, capfd):
     import logging
@@ -415,6 +462,7 @@ def test_build_on_embedded_ray(built, problems):
         assert made['cpus'] == 2 and made['threads'] == 2 and made['numba_threads'] == 2
         assert made['victims_cpus_alone'] is True and made['host'] and made['cpu']
         assert made['started'] <= made['finished'] and len(made['load_end']) == 3
+        assert made['speed_checks_per_s'] > 1000  # measured by the job, on its CPUs
         folder = out / key
         hardness = json.loads((folder / 'hardness.json').read_text())
         attack = hardness['attacks']['1']
@@ -446,11 +494,14 @@ def test_build_on_embedded_ray(built, problems):
     summary = json.loads((out / 'summary.json').read_text())
     assert summary['made']['timing_of_built_problems'] == {
         'victims_cpus_alone': 3, 'shared': 0, 'unknown': 0}
+    assert entry['speed_checks_per_s'] > 1000  # the driver's machine, as the run starts
+    assert summary['made']['speed_of_built_problems']['known'] == 3
     pooled = next(g for g in summary['groups'] if g['family'] == 'all')
     assert pooled['split'] == 'train' and pooled['problems'] == 3
     assert pooled['shares']['built'] == 1.0 and pooled['budgets']['1']['evaluated'] == 3
     text = (out / 'summary.md').read_text()
     assert '| box_panda | 2 |' in text and f'`{commit[:12]}' in text and 'alone' in text
+    assert 'Machine speed (validity checks/s before the work)' in text
     assert (out / 'summary.png').read_bytes()[:4] == b'\x89PNG'
 
 

@@ -33,6 +33,11 @@ def register(sub: argparse._SubParsersAction) -> None:
     plan.add_argument('--time', type=float, default=5.0, help='planning budget [s]')
     plan.add_argument('--json', action='store_true')
     plan.set_defaults(func=_planning)
+    speed = psub.add_parser('speed', help='this machine\'s speed as a data set\'s records '
+                            'name it (validity checks/s), to tell before a build or a resume '
+                            'whether its PSRs will pool with the folder\'s')
+    speed.add_argument('--json', action='store_true')
+    speed.set_defaults(func=_speed)
     from advocc_ros.commands.perf_attack import register_attack
     from advocc_ros.commands.perf_bench import register_bench
     from advocc_ros.commands.perf_load import register_load
@@ -70,6 +75,19 @@ def _heatmap(args) -> int:
     else:
         for key, value in report.items():
             print(f'{key:>22}: {value}')
+    return 0
+
+
+def _speed(args) -> int:
+    from advocc_ros.evaluation.provenance import SPEED_SCENE, SPEED_SPREAD, speed
+
+    report = {'speed_checks_per_s': speed(), 'scene': SPEED_SCENE, 'pools_within': SPEED_SPREAD,
+              'machine': machine()}
+    if args.json:
+        print(json.dumps(report, indent=2))
+    else:
+        print(f'{report["speed_checks_per_s"]:,.0f} validity checks/s ({SPEED_SCENE}, the '
+              f'default Panda): records within {SPEED_SPREAD:g}x of it pool')
     return 0
 
 

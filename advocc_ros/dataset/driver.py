@@ -39,6 +39,7 @@ import logging
 import os
 import pathlib
 import signal
+import statistics
 import sys
 import threading
 import time
@@ -152,6 +153,10 @@ def build(selection: Selection, out: str | pathlib.Path, config: BuildConfig,
         store.write_build(out, record)
         echo(f'advocc dataset: {len(problems)} problems, {len(problems) - len(todo)} already '
              f'finished in {out}, {len(todo)} to build')
+        note = speed_note(out, [p.key for p in problems], entry['speed_checks_per_s'],
+                          config.time_s) if todo else None
+        if note:
+            echo(note)
         t0 = time.perf_counter()
         try:
             if todo:
@@ -204,6 +209,29 @@ def _checked(selection: Selection, out: pathlib.Path, config: BuildConfig, run: 
     return problems, todo, settings, given, hashes, scenes
 
 
+def speed_note(out: pathlib.Path, keys: list[str], here: float | None, time_s: float
+               ) -> str | None:
+    """A warning when this machine's speed (``provenance.speed``) and the median of the built
+    records of ``keys`` in ``out`` differ by more than ``provenance.SPEED_WARN``: their PSRs
+    at a budget of ``time_s`` seconds and this run's would not pool (the summary judges the
+    hosts' medians once the records are in). None when they are close or a speed is
+    unknown."""
+    from advocc_ros.dataset.summary import built_speeds
+
+    known = [v for _, v in built_speeds([r for r, _ in store.records(out, keys)]) if v]
+    if not here or not known:
+        return None
+    median = statistics.median(known)
+    ratio = max(here, median) / min(here, median)
+    if ratio <= provenance.SPEED_WARN:
+        return None
+    return (f'warning: this machine does {here:,.0f} validity checks/s, the {len(known)} built '
+            f'record(s) in {out} a median {median:,.0f}/s: {ratio:.2f}x '
+            f'{"slower" if here < median else "faster"}, so a {time_s:g} s budget buys that '
+            f'much {"less" if here < median else "more"} planning here, and the PSRs this run '
+            'measures may not pool with theirs (the summary judges it by each host\'s median)')
+
+
 def posable_in(config: BuildConfig):
     """Whether the goal form of ``config`` poses a problem: it loads and its task check passes
     (``job.posed``); the job of a problem that does not refuses it and says why."""
@@ -227,7 +255,8 @@ def _entry(selection: Selection, problems: list[Problem], todo: list[Problem],
                           'root': str(pathlib.Path(selection.root).resolve()),
                           'problems': [p.key for p in problems]},
             'run': dataclasses.asdict(run), 'provenance': provenance.record(),
-            'started': provenance.now(), 'status': 'running',
+            'speed_checks_per_s': provenance.speed(), 'started': provenance.now(),
+            'status': 'running',
             'resumed': len(problems) - len(todo), 'todo': len(todo),
             'timing': {'cpus_per_problem': run.cpus_per_problem,
                        'threads_per_problem': task_threads(run.cpus_per_problem),

@@ -243,7 +243,8 @@ def run_problem(problem: dict, heatmap, config: BuildConfig, log_to: dict | None
     files: dict[str, Any] = {}
     with task_log(log_to, key) as captured:
         node, cpus = _ray_context()
-        log.info('%s: started (%s CPUs)', key, cpus)
+        checks_per_s = _speed()
+        log.info('%s: started (%s CPUs, %s validity checks/s)', key, cpus, checks_per_s)
         try:
             outcome, reason, hardness = _run(problem, heatmap, config, files, record)
         except Exception as exc:  # any bug or backend failure becomes this problem's record
@@ -254,8 +255,21 @@ def run_problem(problem: dict, heatmap, config: BuildConfig, log_to: dict | None
     made = provenance(cpus, node)  # after the work: the threads numba did run with
     record.update(outcome=outcome, reason=reason, total_s=round(time.perf_counter() - t0, 3),
                   provenance=dict(made, load=load_start, load_end=made['load'],
-                                  started=started, finished=now()))
+                                  speed_checks_per_s=checks_per_s, started=started,
+                                  finished=now()))
     return {'record': record, 'hardness': hardness, 'files': files, 'log': captured['text']}
+
+
+def _speed() -> float | None:
+    """``evaluation.provenance.speed`` on the CPUs this task holds, before its work (None if
+    it cannot be measured: the record is still made)."""
+    from advocc_ros.evaluation.provenance import speed
+
+    try:
+        return speed()
+    except Exception:  # a record without a speed beats no record
+        log.exception('the speed probe failed')
+        return None
 
 
 def _load(problem: dict, goal_tol, goal_form: str):

@@ -26,6 +26,7 @@ import statistics
 
 from advocc_ros.dataset import store
 from advocc_ros.dataset.job import ALONE_CPUS, FINAL_OUTCOMES, OUTCOMES, PSR_HARD
+from advocc_ros.evaluation.provenance import SPEED_SPREAD, speed_spread
 
 SUMMARY_FORMAT = 'advocc_dataset_summary'
 FIGURE = 'summary.png'
@@ -34,9 +35,11 @@ GIVEN_GOALS_HARD = 0.5
 """The PSR at or below which a victim handed valid goals (no goal sampling: path search alone)
 counts as held."""
 PROVENANCE_COLUMNS = ('commit', 'dirty', 'host', 'cpu', 'cpus', 'threads', 'victims_cpus_alone',
-                      'load_start', 'load_end', 'started', 'finished', 'versions')
+                      'speed_checks_per_s', 'load_start', 'load_end', 'started', 'finished',
+                      'versions')
 """The columns of ``problems.csv`` that name a row's making (the problem's ``provenance``:
-``load_*`` the 1-minute load average, ``versions`` ``name=version`` pairs)."""
+``speed_checks_per_s`` the machine's speed before the work (``provenance.speed``), ``load_*``
+the 1-minute load average, ``versions`` ``name=version`` pairs)."""
 TABLE_COLUMNS = ('family', 'problem', 'split', 'goal_form', 'outcome', 'budget', 'certificate',
                  'boxes', 'witness_waypoints', 'direct_motion', 'witness_accepted_by_mplib',
                  'goal_escape_p', 'victim', 'trials', 'psr', 'psr_given_goals', 'no_goal_found',
@@ -160,9 +163,9 @@ def summarise(out: pathlib.Path, keys: list[str] | None = None) -> dict:
 
 
 def _made(found: list[dict]) -> dict:
-    """What made the records: their commits (a ``+dirty`` suffix for a changed checkout) and
-    how many problems evaluated their victims with the CPUs alone, shared or unknown (an
-    older record without provenance)."""
+    """What made the records: their commits (a ``+dirty`` suffix for a changed checkout), how
+    many problems evaluated their victims with the CPUs alone, shared or unknown (an older
+    record without provenance), and the speeds of the machines that built them."""
     commits: dict[str, int] = {}
     timing = {'victims_cpus_alone': 0, 'shared': 0, 'unknown': 0}
     for record in found:
@@ -173,7 +176,34 @@ def _made(found: list[dict]) -> dict:
             alone = made.get('victims_cpus_alone')
             timing['unknown' if alone is None else 'victims_cpus_alone' if alone
                    else 'shared'] += 1
-    return {'commits': commits, 'timing_of_built_problems': timing}
+    return {'commits': commits, 'timing_of_built_problems': timing,
+            'speed_of_built_problems': _speeds(built_speeds(found))}
+
+
+def built_speeds(found: list[dict]) -> list[tuple[str | None, float | None]]:
+    """(host, machine speed) of each built record (``provenance.speed``; None: unknown)."""
+    return [((r.get('provenance') or {}).get('host'),
+             (r.get('provenance') or {}).get('speed_checks_per_s'))
+            for r in found if r['outcome'] == 'built']
+
+
+def _speeds(speeds: list[tuple[str | None, float | None]]) -> dict:
+    """How many built records name their machine's speed, its range over them, each host's
+    median, and whether the hosts pool: fastest median over slowest at most
+    ``provenance.SPEED_SPREAD`` (one machine's probes spread too, so it is judged by its
+    median)."""
+    known = sorted(v for _, v in speeds if v)
+    groups: dict[str, list[float]] = {}
+    for host, value in speeds:
+        if value:
+            groups.setdefault(str(host), []).append(value)
+    hosts = {h: statistics.median(v) for h, v in sorted(groups.items())}
+    spread = speed_spread(list(hosts.values()))
+    return {'known': len(known), 'unknown': len(speeds) - len(known),
+            'min': known[0] if known else None,
+            'median': statistics.median(known) if known else None,
+            'max': known[-1] if known else None, 'hosts': hosts, 'spread': spread,
+            'pooled': spread is None or spread <= SPEED_SPREAD}
 
 
 def table_rows(out: pathlib.Path, keys: list[str] | None = None) -> list[dict]:
@@ -216,6 +246,7 @@ def _provenance_cells(made: dict) -> dict:
     return {'commit': made.get('commit'), 'dirty': made.get('dirty'), 'host': made.get('host'),
             'cpu': made.get('cpu'), 'cpus': made.get('cpus'), 'threads': made.get('threads'),
             'victims_cpus_alone': made.get('victims_cpus_alone'),
+            'speed_checks_per_s': made.get('speed_checks_per_s'),
             'load_start': first(made.get('load')), 'load_end': first(made.get('load_end')),
             'started': made.get('started'), 'finished': made.get('finished'),
             'versions': ' '.join(f'{k}={v}' for k, v in versions.items() if v) or None}
@@ -302,10 +333,20 @@ def _made_text(made: dict) -> str:
     timing = made['timing_of_built_problems']
     commits = ', '.join(f'`{c[:12]}{"+dirty" if c.endswith("+dirty") else ""}` ({n})'
                         for c, n in made['commits'].items()) or 'none'
-    return (f'Made by commit(s) {commits}. Victims timed with their CPUs alone (each problem '
+    speed = made.get('speed_of_built_problems') or _speeds([])
+    text = (f'Made by commit(s) {commits}. Victims timed with their CPUs alone (each problem '
             f'held >= {ALONE_CPUS} CPUs) on {timing["victims_cpus_alone"]} built problem(s), '
             f'with CPUs shared on {timing["shared"]}, unknown on {timing["unknown"]}: time '
             'figures (PT ratio, time to first solution) are faithful only for the first.')
+    if speed['known']:
+        text += (f' Machine speed (validity checks/s before the work) {speed["min"]:,.0f} to '
+                 f'{speed["max"]:,.0f} on {speed["known"]} built problem(s) of '
+                 f'{len(speed["hosts"])} host(s), unknown on {speed["unknown"]}')
+        text += '.' if speed['pooled'] else (
+            f': the hosts\' medians {speed["spread"]:.2f}x apart, more than {SPEED_SPREAD:g}x: '
+            'a budget of seconds bought that much more planning on the fastest, so their '
+            'PSRs do not pool.')
+    return text
 
 
 def figure(summary: dict, path: pathlib.Path) -> None:
@@ -375,5 +416,6 @@ def write_summary(out: pathlib.Path, keys: list[str] | None = None) -> dict:
     return summary
 
 
-__all__ = ['FIGURE', 'PROVENANCE_COLUMNS', 'SUMMARY_FORMAT', 'TABLE', 'TABLE_COLUMNS', 'csv_text',
-           'markdown', 'selected', 'summarise', 'table_rows', 'write_summary']
+__all__ = ['FIGURE', 'PROVENANCE_COLUMNS', 'SUMMARY_FORMAT', 'TABLE', 'TABLE_COLUMNS',
+           'built_speeds', 'csv_text', 'markdown', 'selected', 'summarise', 'table_rows',
+           'write_summary']

@@ -14,7 +14,7 @@ from advocc_ros.model.collision import CollisionWorld
 from advocc_ros.model.robot import load_robot
 from advocc_ros.model.scene import Scene
 from advocc_ros.planning.worker import Planner
-from advocc_ros.evaluation.provenance import cpu_model
+from advocc_ros.evaluation.provenance import cpu_model, validity_checks_per_s
 from advocc_ros.planning.types import PlanningConfig
 from advocc_ros.kinematics.ik import start_configuration
 
@@ -31,11 +31,7 @@ def benchmark_planning(scene: Scene, planner_ids=('rrtconnect', 'prmstar', 'bkpi
     robot = load_robot(scene.robot)
     world = CollisionWorld(robot, scene.shapes)
     rng = np.random.default_rng(seed)
-    Q = robot.sample_q(rng, 5000)
-    t = time.perf_counter()
-    for q in Q:
-        world.in_collision(q)
-    checks_per_s = len(Q) / (time.perf_counter() - t)
+    checks_per_s = validity_checks_per_s(world, robot.sample_q(rng, 5000))
     q0 = start_configuration(scene, robot)
     out: dict[str, Any] = {'scene': scene.name, 'objects': len(scene.shapes),
                            'validity_checks_per_s_python_loop': checks_per_s,

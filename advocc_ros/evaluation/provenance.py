@@ -1,5 +1,6 @@
 """What made a record: the code (its commit, and whether its files differ from it), the machine
-(host, CPU model, the cores this process may use, the load) and the libraries' versions.
+(host, CPU model, the cores this process may use, the load, and how fast it plans: ``speed``)
+and the libraries' versions.
 
 A figure is only as good as what it names of its making: every record of a data set carries
 this, so that a table can be traced to a commit and a machine, and a figure measured on a loaded
@@ -16,7 +17,11 @@ import os
 import pathlib
 import platform
 import socket
+import statistics
 import subprocess
+import time
+
+import numpy as np
 
 from advocc_ros.limits import available_cpus
 
@@ -111,6 +116,55 @@ def machine() -> dict:
             'machine_cores': os.cpu_count(), 'load': load()}
 
 
+SPEED_SCENE = 'table_pick'
+SPEED_CONFIGURATIONS = 1000
+SPEED_ROUNDS = 5
+SPEED_SPREAD = 1.5
+"""Machines whose speeds (``speed``, each host's median) differ by more than this factor do
+not pool time-bound figures: a 5 s budget buys that much more planning on the faster one. One
+virtual machine's probes drift by up to ~1.8x within a minute (a 2-core AMD EPYC: 28,800 to
+52,400/s; longer probes drift alike), so a host is judged by the median of its records."""
+SPEED_WARN = 2.0
+"""A build warns when its machine's one probe is this far from the median of the folder's
+records (one probe can be ~1.8x off its host's median)."""
+
+
+def validity_checks_per_s(world, Q: np.ndarray) -> float:
+    """Collision checks per second of ``world`` over the configurations ``Q``, one at a time
+    from Python, as a victim's validity checker is called."""
+    t0 = time.perf_counter()
+    for q in Q:
+        world.in_collision(q)
+    return len(Q) / (time.perf_counter() - t0)
+
+
+def speed() -> float:
+    """How fast this machine plans, now: validity checks per second of the default Panda on
+    the shipped ``SPEED_SCENE`` (the median of ``SPEED_ROUNDS`` rounds over the same
+    ``SPEED_CONFIGURATIONS`` random configurations, after one round of warm-up; ~0.2 s on a
+    2-core AMD EPYC doing ~34,000/s). The CPU model does not say it: two machines named AMD
+    EPYC differed 2.5x. Planners' wall-clock budgets buy planning in proportion to it, so a
+    data set's records are comparable in PSR only when their machines' speeds are close."""
+    from advocc_ros.model.collision import CollisionWorld
+    from advocc_ros.model.robot import load_robot
+    from advocc_ros.model.scene import load_scene
+    from advocc_ros.paths import scene_path
+
+    scene = load_scene(scene_path(SPEED_SCENE))
+    robot = load_robot(scene.robot)
+    world = CollisionWorld(robot, scene.shapes)
+    Q = robot.sample_q(np.random.default_rng(0), SPEED_CONFIGURATIONS)
+    validity_checks_per_s(world, Q)
+    return round(statistics.median(validity_checks_per_s(world, Q) for _ in range(SPEED_ROUNDS)),
+                 1)
+
+
+def speed_spread(speeds: list[float]) -> float | None:
+    """The fastest of ``speeds`` over the slowest (None for fewer than two)."""
+    known = [v for v in speeds if v]
+    return round(max(known) / min(known), 3) if len(known) > 1 else None
+
+
 def stamp() -> dict:
     """The few fields one trial's record names of its making (a bench's ``records.jsonl``):
     ``commit``, ``dirty``, ``host``, ``cpu`` and ``load_1min``, the machine's load when it was
@@ -125,5 +179,6 @@ def record() -> dict:
     return {**code(), **machine(), 'versions': versions()}
 
 
-__all__ = ['CODE_PATHS', 'DISTRIBUTIONS', 'REPO', 'code', 'cpu_model', 'load', 'machine', 'now',
-           'record', 'stamp', 'versions']
+__all__ = ['CODE_PATHS', 'DISTRIBUTIONS', 'REPO', 'SPEED_SCENE', 'SPEED_SPREAD', 'SPEED_WARN',
+           'code', 'cpu_model', 'load', 'machine', 'now', 'record', 'speed', 'speed_spread',
+           'stamp', 'validity_checks_per_s', 'versions']
