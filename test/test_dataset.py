@@ -317,6 +317,7 @@ def test_records_name_their_machines_speed_and_speeds_apart_do_not_pool(tmp_path
     assert main(['perf', 'speed', '--json']) == 0
     reported = json.loads(capsys.readouterr().out)
     assert reported['scene'] == 'table_pick' and reported['pools_within'] == SPEED_SPREAD
+    assert reported['made']['host'] and 'commit' in reported['made']
     assert 1 / 3 < reported['speed_checks_per_s'] / here < 3  # the same probe, moments apart
     keys = ['box_panda/0001', 'box_panda/0002', 'box_panda/0003']
     store.write_json(tmp_path / 'build.json', {

@@ -79,10 +79,10 @@ def _heatmap(args) -> int:
 
 
 def _speed(args) -> int:
-    from advocc_ros.evaluation.provenance import SPEED_SCENE, SPEED_SPREAD, speed
+    from advocc_ros.evaluation.provenance import SPEED_SCENE, SPEED_SPREAD, now, speed, stamp
 
     report = {'speed_checks_per_s': speed(), 'scene': SPEED_SCENE, 'pools_within': SPEED_SPREAD,
-              'machine': machine()}
+              'machine': machine(), 'made': dict(stamp(), at=now())}
     if args.json:
         print(json.dumps(report, indent=2))
     else:
