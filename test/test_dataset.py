@@ -305,8 +305,8 @@ def test_records_name_their_machines_speed_and_speeds_apart_do_not_pool(tmp_path
     """The machine speed probe (validity checks/s on the shipped table_pick scene, also
     ``advocc perf speed``) is a rate this machine reaches; built records 2x apart in speed are
     flagged as not pooling in the summary, and a run on a machine 2x off the folder's records
-    is warned; hosts within ``SPEED_SPREAD``, probes within ``SPEED_WARN``, or records without
-    a speed, are not."""
+    is warned; machines (Ray nodes) within ``SPEED_SPREAD``, probes within ``SPEED_WARN``, or
+    records without a speed, are not."""
     from advocc_ros.cli import main
     from advocc_ros.dataset import store, summary
     from advocc_ros.dataset.driver import speed_note
@@ -325,28 +325,28 @@ def test_records_name_their_machines_speed_and_speeds_apart_do_not_pool(tmp_path
         'settings': {'build': {'budgets': [10], 'victims': ['mplib'], 'goal_form': 'joint'}},
         'runs': [{'selection': {'problems': keys}}]})
 
-    def made(*speeds):  # (host, speed) per problem
-        for key, (host, value) in zip(keys, speeds):
+    def made(*speeds):  # (Ray node, speed) per problem
+        for key, (node, value) in zip(keys, speeds):
             family, number = key.split('/')
             (tmp_path / key).mkdir(parents=True, exist_ok=True)
             store.write_json(tmp_path / key / 'outcome.json', {
                 'family': family, 'problem': number, 'split': 'train', 'outcome': 'built',
-                'provenance': {'host': host, 'speed_checks_per_s': value}})
+                'provenance': {'host': 'vm', 'node': node, 'speed_checks_per_s': value}})
         return summary.summarise(tmp_path)['made']['speed_of_built_problems']
 
     assert made(('a', here), ('b', 2 * here), ('b', None)) == {
         'known': 2, 'unknown': 1, 'min': here, 'median': 1.5 * here, 'max': 2 * here,
-        'hosts': {'a': here, 'b': 2 * here}, 'spread': 2.0, 'pooled': False}
-    assert "the hosts' medians 2.00x apart" in summary.markdown(summary.summarise(tmp_path))
+        'machines': {'a': here, 'b': 2 * here}, 'spread': 2.0, 'pooled': False}
+    assert "the machines' medians 2.00x apart" in summary.markdown(summary.summarise(tmp_path))
     assert str(2 * here) in summary.csv_text(summary.table_rows(tmp_path))
     assert 'faster' in speed_note(tmp_path, keys[:1], 2.5 * here, 5)
     note = speed_note(tmp_path, keys, 0.5 * here, 5)  # median 1.5 x here: 3x slower
     assert '3.00x slower' in note and 'a 5 s budget buys that much less planning' in note
     assert speed_note(tmp_path, keys[:1], here * SPEED_WARN * 0.99, 5) is None
     assert speed_note(tmp_path, keys[2:], 10 * here, 5) is None  # no speed recorded
-    # One host's probes spread: it is judged by their median.
+    # One machine's probes drift: it is judged by their median.
     assert made(('a', here), ('a', 2 * here), ('b', 1.2 * here))['pooled'] is True
-    assert made(('a', here), ('a', 2 * here), ('a', here))['hosts'] == {'a': here}
+    assert made(('a', here), ('a', 2 * here), ('a', here))['machines'] == {'a': here}
 
 
 @pytest.mark.processes  # the child writes to the captured descriptors; git names the commit

@@ -214,7 +214,7 @@ def speed_note(out: pathlib.Path, keys: list[str], here: float | None, time_s: f
     """A warning when this machine's speed (``provenance.speed``) and the median of the built
     records of ``keys`` in ``out`` differ by more than ``provenance.SPEED_WARN``: their PSRs
     at a budget of ``time_s`` seconds and this run's would not pool (the summary judges the
-    hosts' medians once the records are in). None when they are close or a speed is
+    machines' medians once the records are in). None when they are close or a speed is
     unknown."""
     from advocc_ros.dataset.summary import built_speeds
 
@@ -229,7 +229,7 @@ def speed_note(out: pathlib.Path, keys: list[str], here: float | None, time_s: f
             f'record(s) in {out} a median {median:,.0f}/s: {ratio:.2f}x '
             f'{"slower" if here < median else "faster"}, so a {time_s:g} s budget buys that '
             f'much {"less" if here < median else "more"} planning here, and the PSRs this run '
-            'measures may not pool with theirs (the summary judges it by each host\'s median)')
+            'measures may not pool with theirs (the summary judges each machine by its median)')
 
 
 def posable_in(config: BuildConfig):

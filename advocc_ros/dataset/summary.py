@@ -181,28 +181,29 @@ def _made(found: list[dict]) -> dict:
 
 
 def built_speeds(found: list[dict]) -> list[tuple[str | None, float | None]]:
-    """(host, machine speed) of each built record (``provenance.speed``; None: unknown)."""
-    return [((r.get('provenance') or {}).get('host'),
-             (r.get('provenance') or {}).get('speed_checks_per_s'))
-            for r in found if r['outcome'] == 'built']
+    """(machine, speed) of each built record: the Ray node it ran on (one machine for one run;
+    host names repeat across virtual machines: every sandbox here is ``vm``), else its host;
+    and ``provenance.speed`` (None: unknown)."""
+    made = [r.get('provenance') or {} for r in found if r['outcome'] == 'built']
+    return [(m.get('node') or m.get('host'), m.get('speed_checks_per_s')) for m in made]
 
 
 def _speeds(speeds: list[tuple[str | None, float | None]]) -> dict:
-    """How many built records name their machine's speed, its range over them, each host's
-    median, and whether the hosts pool: fastest median over slowest at most
-    ``provenance.SPEED_SPREAD`` (one machine's probes spread too, so it is judged by its
+    """How many built records name their machine's speed, its range over them, each
+    machine's median, and whether the machines pool: fastest median over slowest at most
+    ``provenance.SPEED_SPREAD`` (one machine's probes drift, so it is judged by its
     median)."""
     known = sorted(v for _, v in speeds if v)
     groups: dict[str, list[float]] = {}
-    for host, value in speeds:
+    for where, value in speeds:
         if value:
-            groups.setdefault(str(host), []).append(value)
-    hosts = {h: statistics.median(v) for h, v in sorted(groups.items())}
-    spread = speed_spread(list(hosts.values()))
+            groups.setdefault(str(where), []).append(value)
+    machines = {m: statistics.median(v) for m, v in sorted(groups.items())}
+    spread = speed_spread(list(machines.values()))
     return {'known': len(known), 'unknown': len(speeds) - len(known),
             'min': known[0] if known else None,
             'median': statistics.median(known) if known else None,
-            'max': known[-1] if known else None, 'hosts': hosts, 'spread': spread,
+            'max': known[-1] if known else None, 'machines': machines, 'spread': spread,
             'pooled': spread is None or spread <= SPEED_SPREAD}
 
 
@@ -341,9 +342,9 @@ def _made_text(made: dict) -> str:
     if speed['known']:
         text += (f' Machine speed (validity checks/s before the work) {speed["min"]:,.0f} to '
                  f'{speed["max"]:,.0f} on {speed["known"]} built problem(s) of '
-                 f'{len(speed["hosts"])} host(s), unknown on {speed["unknown"]}')
+                 f'{len(speed["machines"])} machine(s), unknown on {speed["unknown"]}')
         text += '.' if speed['pooled'] else (
-            f': the hosts\' medians {speed["spread"]:.2f}x apart, more than {SPEED_SPREAD:g}x: '
+            f': the machines\' medians {speed["spread"]:.2f}x apart, more than {SPEED_SPREAD:g}x: '
             'a budget of seconds bought that much more planning on the fastest, so their '
             'PSRs do not pool.')
     return text

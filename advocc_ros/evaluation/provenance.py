@@ -120,13 +120,13 @@ SPEED_SCENE = 'table_pick'
 SPEED_CONFIGURATIONS = 1000
 SPEED_ROUNDS = 5
 SPEED_SPREAD = 1.5
-"""Machines whose speeds (``speed``, each host's median) differ by more than this factor do
+"""Machines whose speeds (``speed``, each one's median) differ by more than this factor do
 not pool time-bound figures: a 5 s budget buys that much more planning on the faster one. One
 virtual machine's probes drift by up to ~1.8x within a minute (a 2-core AMD EPYC: 28,800 to
-52,400/s; longer probes drift alike), so a host is judged by the median of its records."""
+52,400/s; longer probes drift alike), so a machine is judged by the median of its records."""
 SPEED_WARN = 2.0
 """A build warns when its machine's one probe is this far from the median of the folder's
-records (one probe can be ~1.8x off its host's median)."""
+records (one probe can be ~1.8x off its machine's median)."""
 
 
 def validity_checks_per_s(world, Q: np.ndarray) -> float:
