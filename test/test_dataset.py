@@ -309,7 +309,7 @@ def test_records_name_their_machines_speed_and_speeds_apart_do_not_pool(tmp_path
     records without a speed, are not."""
     from advocc_ros.cli import main
     from advocc_ros.dataset import store, summary
-    from advocc_ros.dataset.driver import speed_note
+    from advocc_ros.dataset.machines import speed_note
     from advocc_ros.evaluation.provenance import SPEED_SPREAD, SPEED_WARN, speed
 
     here = speed()

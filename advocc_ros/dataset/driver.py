@@ -39,12 +39,11 @@ import logging
 import os
 import pathlib
 import signal
-import statistics
 import sys
 import threading
 import time
 
-from advocc_ros.dataset import store
+from advocc_ros.dataset import machines, store
 from advocc_ros.dataset.heatmaps import (file_sha256, heatmap_path, heatmap_settings, load_given,
                                          robot_heatmaps)
 from advocc_ros.dataset.job import (ALONE_CPUS, OUTCOMES, BuildConfig, posed, problem_input,
@@ -153,8 +152,8 @@ def build(selection: Selection, out: str | pathlib.Path, config: BuildConfig,
         store.write_build(out, record)
         echo(f'advocc dataset: {len(problems)} problems, {len(problems) - len(todo)} already '
              f'finished in {out}, {len(todo)} to build')
-        note = speed_note(out, [p.key for p in problems], entry['speed_checks_per_s'],
-                          config.time_s) if todo else None
+        note = machines.speed_note(out, [p.key for p in problems],
+                                   entry['speed_checks_per_s'], config.time_s) if todo else None
         if note:
             echo(note)
         t0 = time.perf_counter()
@@ -207,29 +206,6 @@ def _checked(selection: Selection, out: pathlib.Path, config: BuildConfig, run: 
                            f'{given.meta.get("robot_hash")}, not the robot of {other[0]} '
                            f'({hashes[other[0]]}) and {len(other) - 1} more problem(s)')
     return problems, todo, settings, given, hashes, scenes
-
-
-def speed_note(out: pathlib.Path, keys: list[str], here: float | None, time_s: float
-               ) -> str | None:
-    """A warning when this machine's speed (``provenance.speed``) and the median of the built
-    records of ``keys`` in ``out`` differ by more than ``provenance.SPEED_WARN``: their PSRs
-    at a budget of ``time_s`` seconds and this run's would not pool (the summary judges the
-    machines' medians once the records are in). None when they are close or a speed is
-    unknown."""
-    from advocc_ros.dataset.summary import built_speeds
-
-    known = [v for _, v in built_speeds([r for r, _ in store.records(out, keys)]) if v]
-    if not here or not known:
-        return None
-    median = statistics.median(known)
-    ratio = max(here, median) / min(here, median)
-    if ratio <= provenance.SPEED_WARN:
-        return None
-    return (f'warning: this machine does {here:,.0f} validity checks/s, the {len(known)} built '
-            f'record(s) in {out} a median {median:,.0f}/s: {ratio:.2f}x '
-            f'{"slower" if here < median else "faster"}, so a {time_s:g} s budget buys that '
-            f'much {"less" if here < median else "more"} planning here, and the PSRs this run '
-            'measures may not pool with theirs (the summary judges each machine by its median)')
 
 
 def posable_in(config: BuildConfig):

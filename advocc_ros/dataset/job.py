@@ -233,6 +233,7 @@ def run_problem(problem: dict, heatmap, config: BuildConfig, log_to: dict | None
     ``provenance``), ``hardness`` (None unless evaluated), ``files`` (relative path -> YAML
     data) and ``log`` (the task's log text when ``task_log`` could not write it where the
     driver reads it, else None). Never raises."""
+    from advocc_ros.dataset.machines import probe
     from advocc_ros.evaluation.provenance import load, now
 
     t0 = time.perf_counter()
@@ -242,8 +243,7 @@ def run_problem(problem: dict, heatmap, config: BuildConfig, log_to: dict | None
     started, load_start = now(), load()
     files: dict[str, Any] = {}
     with task_log(log_to, key) as captured:
-        node, cpus = _ray_context()
-        checks_per_s = _speed()
+        (node, cpus), checks_per_s = _ray_context(), probe()  # the speed before the work
         log.info('%s: started (%s CPUs, %s validity checks/s)', key, cpus, checks_per_s)
         try:
             outcome, reason, hardness = _run(problem, heatmap, config, files, record)
@@ -258,18 +258,6 @@ def run_problem(problem: dict, heatmap, config: BuildConfig, log_to: dict | None
                                   speed_checks_per_s=checks_per_s, started=started,
                                   finished=now()))
     return {'record': record, 'hardness': hardness, 'files': files, 'log': captured['text']}
-
-
-def _speed() -> float | None:
-    """``evaluation.provenance.speed`` on the CPUs this task holds, before its work (None if
-    it cannot be measured: the record is still made)."""
-    from advocc_ros.evaluation.provenance import speed
-
-    try:
-        return speed()
-    except Exception:  # a record without a speed beats no record
-        log.exception('the speed probe failed')
-        return None
 
 
 def _load(problem: dict, goal_tol, goal_form: str):

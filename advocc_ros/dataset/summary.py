@@ -24,9 +24,9 @@ from __future__ import annotations
 import pathlib
 import statistics
 
-from advocc_ros.dataset import store
+from advocc_ros.dataset import machines, store
 from advocc_ros.dataset.job import ALONE_CPUS, FINAL_OUTCOMES, OUTCOMES, PSR_HARD
-from advocc_ros.evaluation.provenance import SPEED_SPREAD, speed_spread
+from advocc_ros.evaluation.provenance import SPEED_SPREAD
 
 SUMMARY_FORMAT = 'advocc_dataset_summary'
 FIGURE = 'summary.png'
@@ -177,34 +177,7 @@ def _made(found: list[dict]) -> dict:
             timing['unknown' if alone is None else 'victims_cpus_alone' if alone
                    else 'shared'] += 1
     return {'commits': commits, 'timing_of_built_problems': timing,
-            'speed_of_built_problems': _speeds(built_speeds(found))}
-
-
-def built_speeds(found: list[dict]) -> list[tuple[str | None, float | None]]:
-    """(machine, speed) of each built record: the Ray node it ran on (one machine for one run;
-    host names repeat across virtual machines: every sandbox here is ``vm``), else its host;
-    and ``provenance.speed`` (None: unknown)."""
-    made = [r.get('provenance') or {} for r in found if r['outcome'] == 'built']
-    return [(m.get('node') or m.get('host'), m.get('speed_checks_per_s')) for m in made]
-
-
-def _speeds(speeds: list[tuple[str | None, float | None]]) -> dict:
-    """How many built records name their machine's speed, its range over them, each
-    machine's median, and whether the machines pool: fastest median over slowest at most
-    ``provenance.SPEED_SPREAD`` (one machine's probes drift, so it is judged by its
-    median)."""
-    known = sorted(v for _, v in speeds if v)
-    groups: dict[str, list[float]] = {}
-    for where, value in speeds:
-        if value:
-            groups.setdefault(str(where), []).append(value)
-    machines = {m: statistics.median(v) for m, v in sorted(groups.items())}
-    spread = speed_spread(list(machines.values()))
-    return {'known': len(known), 'unknown': len(speeds) - len(known),
-            'min': known[0] if known else None,
-            'median': statistics.median(known) if known else None,
-            'max': known[-1] if known else None, 'machines': machines, 'spread': spread,
-            'pooled': spread is None or spread <= SPEED_SPREAD}
+            'speed_of_built_problems': machines.speeds(machines.built_speeds(found))}
 
 
 def table_rows(out: pathlib.Path, keys: list[str] | None = None) -> list[dict]:
@@ -334,7 +307,7 @@ def _made_text(made: dict) -> str:
     timing = made['timing_of_built_problems']
     commits = ', '.join(f'`{c[:12]}{"+dirty" if c.endswith("+dirty") else ""}` ({n})'
                         for c, n in made['commits'].items()) or 'none'
-    speed = made.get('speed_of_built_problems') or _speeds([])
+    speed = made.get('speed_of_built_problems') or machines.speeds([])
     text = (f'Made by commit(s) {commits}. Victims timed with their CPUs alone (each problem '
             f'held >= {ALONE_CPUS} CPUs) on {timing["victims_cpus_alone"]} built problem(s), '
             f'with CPUs shared on {timing["shared"]}, unknown on {timing["unknown"]}: time '
@@ -418,5 +391,5 @@ def write_summary(out: pathlib.Path, keys: list[str] | None = None) -> dict:
 
 
 __all__ = ['FIGURE', 'PROVENANCE_COLUMNS', 'SUMMARY_FORMAT', 'TABLE', 'TABLE_COLUMNS',
-           'built_speeds', 'csv_text', 'markdown', 'selected', 'summarise', 'table_rows',
+           'csv_text', 'markdown', 'selected', 'summarise', 'table_rows',
            'write_summary']
