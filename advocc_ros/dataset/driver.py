@@ -152,8 +152,8 @@ def build(selection: Selection, out: str | pathlib.Path, config: BuildConfig,
         store.write_build(out, record)
         echo(f'advocc dataset: {len(problems)} problems, {len(problems) - len(todo)} already '
              f'finished in {out}, {len(todo)} to build')
-        note = machines.speed_note(out, [p.key for p in problems],
-                                   entry['speed_checks_per_s'], config.time_s) if todo else None
+        found = [r for r, _ in store.records(out, [p.key for p in problems])] if todo else []
+        note = machines.speed_note(found, entry['speed_checks_per_s'], config.time_s)
         if note:
             echo(note)
         t0 = time.perf_counter()

@@ -11,10 +11,8 @@ its machine is far from the folder's.
 from __future__ import annotations
 
 import logging
-import pathlib
 import statistics
 
-from advocc_ros.dataset import store
 from advocc_ros.evaluation import provenance
 
 log = logging.getLogger(__name__)
@@ -57,13 +55,12 @@ def speeds(found: list[tuple[str | None, float | None]]) -> dict:
             'pooled': spread is None or spread <= provenance.SPEED_SPREAD}
 
 
-def speed_note(out: pathlib.Path, keys: list[str], here: float | None, time_s: float
-               ) -> str | None:
-    """A warning when this machine's speed and the median of the built records of ``keys`` in
-    ``out`` differ by more than ``provenance.SPEED_WARN``: their PSRs at a budget of
-    ``time_s`` seconds and this run's may not pool (the summary judges the machines' medians
-    once the records are in). None when they are close or a speed is unknown."""
-    known = [v for _, v in built_speeds([r for r, _ in store.records(out, keys)]) if v]
+def speed_note(found: list[dict], here: float | None, time_s: float) -> str | None:
+    """A warning when this machine's speed and the median of the built records ``found`` (a
+    folder's outcome records) differ by more than ``provenance.SPEED_WARN``: their PSRs at a
+    budget of ``time_s`` seconds and this run's may not pool (the summary judges the machines'
+    medians once the records are in). None when they are close or a speed is unknown."""
+    known = [v for _, v in built_speeds(found) if v]
     if not here or not known:
         return None
     median = statistics.median(known)
@@ -71,7 +68,7 @@ def speed_note(out: pathlib.Path, keys: list[str], here: float | None, time_s: f
     if ratio <= provenance.SPEED_WARN:
         return None
     return (f'warning: this machine does {here:,.0f} validity checks/s, the {len(known)} built '
-            f'record(s) in {out} a median {median:,.0f}/s: {ratio:.2f}x '
+            f'record(s) of the folder a median {median:,.0f}/s: {ratio:.2f}x '
             f'{"slower" if here < median else "faster"}, so a {time_s:g} s budget buys that '
             f'much {"less" if here < median else "more"} planning here, and the PSRs this run '
             'measures may not pool with theirs (the summary judges each machine by its median)')
