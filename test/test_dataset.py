@@ -348,6 +348,7 @@ def test_records_name_their_machines_speed_and_speeds_apart_do_not_pool(tmp_path
     # One machine's probes drift: it is judged by their median.
     assert made(('a', here), ('a', 2 * here), ('b', 1.2 * here))['pooled'] is True
     assert made(('a', here), ('a', 2 * here), ('a', here))['machines'] == {'a': here}
+    assert made(('a', None), ('b', None), ('a', None))['pooled'] is None  # older records
 
 
 @pytest.mark.processes  # the child writes to the captured descriptors; git names the commit

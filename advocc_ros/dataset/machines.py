@@ -40,7 +40,7 @@ def speeds(found: list[tuple[str | None, float | None]]) -> dict:
     """The summary's ``speed_of_built_problems``: how many built records name their machine's
     speed, its range over them, each machine's median, and whether the machines pool (fastest
     median over slowest at most ``provenance.SPEED_SPREAD``; one machine's probes drift, so it
-    is judged by its median)."""
+    is judged by its median; None when no record names a speed)."""
     known = sorted(v for _, v in found if v)
     groups: dict[str, list[float]] = {}
     for where, value in found:
@@ -48,11 +48,12 @@ def speeds(found: list[tuple[str | None, float | None]]) -> dict:
             groups.setdefault(str(where), []).append(value)
     machines = {m: statistics.median(v) for m, v in sorted(groups.items())}
     spread = provenance.speed_spread(list(machines.values()))
+    pooled = spread is None or spread <= provenance.SPEED_SPREAD
     return {'known': len(known), 'unknown': len(found) - len(known),
             'min': known[0] if known else None,
             'median': statistics.median(known) if known else None,
             'max': known[-1] if known else None, 'machines': machines, 'spread': spread,
-            'pooled': spread is None or spread <= provenance.SPEED_SPREAD}
+            'pooled': pooled if machines else None}
 
 
 def speed_note(found: list[dict], here: float | None, time_s: float) -> str | None:
