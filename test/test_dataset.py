@@ -563,8 +563,9 @@ def test_summary_rewrites_a_build_folders_summary(built, tmp_path, capsys):
 def test_check_asks_every_exported_witness_again_from_its_files(built, tmp_path, capsys):
     """``advocc dataset check``: each exported witness certified again on its exported scene
     and asked of MPlib's own collision check; a box put in one witness's way (in the scene
-    file) is caught by both; a damaged file is its problem's row, the others still checked
-    (exit 1); a folder without problems or an unknown checker is a clear error."""
+    file) is caught by both; an MPlib worker that dies and a damaged file are their rows' error,
+    the others still checked (exit 1); a folder without problems or an unknown checker is a
+    clear error."""
     import dataclasses
 
     from advocc_ros.cli import main
@@ -617,6 +618,15 @@ def test_check_asks_every_exported_witness_again_from_its_files(built, tmp_path,
     assert [r['certificate'] for r in coal] == [rows[k]['certificate'] for k in sorted(rows)]
     assert all(r['mplib_accepted'] == '' for r in coal)
     assert json.loads((tmp_path / 'coal.json').read_text())['mplib_accepted'] is None
+    # An MPlib worker that dies (an interpreter that exits at once) is each row's MPlib error.
+    with pytest.MonkeyPatch.context() as env:
+        env.setenv('ADVOCC_MPLIB_PYTHON', shutil.which('false'))
+        assert main(['dataset', 'check', str(out), '--csv', str(tmp_path / 'died.csv')]) == 1
+    assert '3 exported witnesses: 2 certified (coal), 3 MPlib could not answer' in \
+        capsys.readouterr().out
+    died = list(csv.DictReader((tmp_path / 'died.csv').open()))
+    assert [r['certificate'] for r in died] == [rows[k]['certificate'] for k in sorted(rows)]
+    assert all('exited' in r['mplib_error'] and r['mplib_accepted'] == '' for r in died), died
     # A damaged file is its problem's row, not the end of the check.
     first, second = sorted(rows)[:2]
     (out / first / 'm1' / f'trajectory{first[-4:]}.yaml').write_text('joint_trajectory: [\n')

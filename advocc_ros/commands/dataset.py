@@ -235,16 +235,20 @@ def _check(args: argparse.Namespace) -> int:
     line = f'{len(rows)} exported witnesses: {tally["certified"]} certified (coal)'
     if tally['unreadable']:
         line += f', {tally["unreadable"]} unreadable'
+    if tally['mplib_errors']:
+        line += f', {tally["mplib_errors"]} MPlib could not answer'
     if tally['mplib_accepted'] is not None:
         line += f', {tally["mplib_accepted"]} accepted by MPlib'
     print(f'{line} -> {target} (counts: {target.with_suffix(".json")})')
     for r in rows:
-        if r['certificate'] != 'certified' or r.get('mplib_accepted') is False:
+        if r['certificate'] != 'certified' or r.get('mplib_accepted') is False or \
+                r.get('mplib_error'):
             print(f'  {r["family"]}/{r["problem"]} M={r["budget"]}: {r["certificate"]}'
                   + (f', MPlib: {r["mplib_colliding"]} of {r["mplib_states"]} states collide'
                      if r.get('mplib_accepted') is False else '')
+                  + (f', MPlib: {r["mplib_error"]}' if r.get('mplib_error') else '')
                   + (f' ({r["message"]})' if r['message'] else ''))
-    return 1 if tally['unreadable'] else 0
+    return 1 if tally['unreadable'] or tally['mplib_errors'] else 0
 
 
 def _build(args: argparse.Namespace) -> int:

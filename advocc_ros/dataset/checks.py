@@ -17,12 +17,13 @@ from typing import Iterator
 CHECKS_FILE = 'witness_checks.csv'
 CHECKERS = ('coal', 'mplib')
 COLUMNS = ('family', 'problem', 'budget', 'goal_form', 'certificate', 'min_clearance_mm',
-           'mplib_states', 'mplib_colliding', 'mplib_accepted', 'message')
+           'mplib_states', 'mplib_colliding', 'mplib_accepted', 'mplib_error', 'message')
 """``witness_checks.csv``: one row per exported witness. ``certificate`` is ``certified``,
 ``refused`` or ``unreadable`` (a file of the problem is missing or damaged; ``message`` says why
 for both); ``min_clearance_mm`` is the smallest distance the certificate measured; the
-``mplib_`` columns are empty when MPlib was not asked. A problem whose ``hardness.json`` cannot
-be read is one ``unreadable`` row of budget 0."""
+``mplib_`` columns are empty when MPlib was not asked, and ``mplib_error`` says why when it
+could not answer (its worker died; the next problem starts another). A problem whose
+``hardness.json`` cannot be read is one ``unreadable`` row of budget 0."""
 
 
 def exported(out: pathlib.Path) -> Iterator[tuple[str, str, int, pathlib.Path | str]]:
@@ -48,6 +49,7 @@ def check_problem(folder: pathlib.Path, number: str, victim=None) -> dict:
     from advocc_ros.dataset.job import mplib_witness_check
     from advocc_ros.model.collision import CollisionWorld
     from advocc_ros.planning.witness import certify, object_shape_names
+    from advocc_ros.planning.worker import WorkerDied
 
     try:
         scene, robot, q_init, witness = _load(folder, number)
@@ -61,7 +63,10 @@ def check_problem(folder: pathlib.Path, number: str, victim=None) -> dict:
            'certificate': 'certified' if why is None else 'refused', 'message': why or '',
            'min_clearance_mm': '' if proof is None else round(proof.min_clearance_m * 1e3, 4)}
     if victim is not None:
-        check = mplib_witness_check(scene, robot, q_init, witness, victim)
+        try:
+            check = mplib_witness_check(scene, robot, q_init, witness, victim)
+        except WorkerDied as exc:
+            return dict(row, mplib_error=str(exc))
         row.update(mplib_states=check['states'], mplib_colliding=check['colliding'],
                    mplib_accepted=check['accepted'])
     return row
@@ -103,6 +108,7 @@ def counts(rows: list[dict]) -> dict:
         return {'witnesses': len(group),
                 'certified': sum(r['certificate'] == 'certified' for r in group),
                 'unreadable': sum(r['certificate'] == 'unreadable' for r in group),
+                'mplib_errors': sum(bool(r.get('mplib_error')) for r in group),
                 'mplib_accepted': sum(r['mplib_accepted'] for r in asked) if asked else None}
 
     keys = sorted({(r['family'], r['budget']) for r in rows})
