@@ -54,8 +54,7 @@ def check_problem(folder: pathlib.Path, number: str, victim=None) -> dict:
     try:
         scene, robot, q_init, witness = _load(folder, number)
     except (OSError, ValueError) as exc:  # a file missing or damaged (the loaders say which)
-        return dict(goal_form='', certificate='unreadable', message=str(exc),
-                    min_clearance_mm='')
+        return _unreadable(str(exc))
     world = CollisionWorld(robot, scene.shapes)
     why, proof = certify(robot, world, scene.goal, witness, q_init,
                          shape_names=object_shape_names(scene.objects))
@@ -70,6 +69,11 @@ def check_problem(folder: pathlib.Path, number: str, victim=None) -> dict:
         row.update(mplib_states=check['states'], mplib_colliding=check['colliding'],
                    mplib_accepted=check['accepted'])
     return row
+
+
+def _unreadable(why: str) -> dict:
+    """The row of a problem whose files cannot be read."""
+    return dict(goal_form='', certificate='unreadable', message=why, min_clearance_mm='')
 
 
 def _load(folder: pathlib.Path, number: str):
@@ -92,8 +96,8 @@ def check_folder(out: pathlib.Path, checkers: tuple[str, ...] = CHECKERS) -> Ite
     victim = make_victim('mplib', VictimConfig()) if 'mplib' in checkers else None
     try:
         for family, number, budget, folder in exported(out):
-            row = check_problem(folder, number, victim) if not isinstance(folder, str) else \
-                dict(goal_form='', certificate='unreadable', message=folder, min_clearance_mm='')
+            row = _unreadable(folder) if isinstance(folder, str) else \
+                check_problem(folder, number, victim)
             yield dict(family=family, problem=number, budget=budget, **row)
     finally:
         if victim is not None:

@@ -122,11 +122,11 @@ SPEED_ROUNDS = 5
 SPEED_SPREAD = 1.5
 """Machines whose speeds (``speed``, each one's median) differ by more than this factor do
 not pool time-bound figures: a 5 s budget buys that much more planning on the faster one. One
-virtual machine's probes drift by up to ~1.8x within a minute (a 2-core AMD EPYC: 28,800 to
-52,400/s; longer probes drift alike), so a machine is judged by the median of its records."""
+virtual machine's probes drift within a minute (twenty on a 2-core AMD EPYC: 32,187 to
+52,388/s, docs/results/machine_speed), so a machine is judged by the median of its records."""
 SPEED_WARN = 2.0
 """A build warns when its machine's one probe is this far from the median of the folder's
-records (one probe can be ~1.8x off its machine's median)."""
+records (one machine's probes were up to 1.63x apart)."""
 
 
 def validity_checks_per_s(world, Q: np.ndarray) -> float:
@@ -142,7 +142,7 @@ def speed() -> float:
     """How fast this machine plans, now: validity checks per second of the default Panda on
     the shipped ``SPEED_SCENE`` (the median of ``SPEED_ROUNDS`` rounds over the same
     ``SPEED_CONFIGURATIONS`` random configurations, after one round of warm-up; ~0.2 s on a
-    2-core AMD EPYC doing ~34,000/s). The CPU model does not say it: two machines named AMD
+    2-core AMD EPYC, median 36,715/s). The CPU model does not say it: two machines named AMD
     EPYC differed 2.5x. Planners' wall-clock budgets buy planning in proportion to it, so a
     data set's records are comparable in PSR only when their machines' speeds are close."""
     from advocc_ros.model.collision import CollisionWorld
