@@ -184,7 +184,7 @@ def test_threads_are_capped_by_the_environment_or_the_affinity(monkeypatch):
             worker_threads()
     monkeypatch.delenv(THREADS_ENV)
     assert worker_threads() == len(os.sched_getaffinity(0))
-    from advocc_ros.dataset.driver import task_threads
+    from advocc_ros.dataset.threads import task_threads
 
     assert [task_threads(c) for c in (0.5, 1, 2, 3.5)] == [1, 1, 2, 3]
 
@@ -856,6 +856,8 @@ def test_a_hung_problem_times_out_and_malformed_ones_are_refused(
     for key, words in [('box_panda/0002', 'primitives'), ('box_panda/0003', 'request0003'),
                        ('box_panda/0004', 'scene0004')]:
         assert records[key]['outcome'] == 'refused' and words in records[key]['reason']
+        made = records[key]['provenance']  # refused in a worker of the local Ray: 1 CPU, 1 thread
+        assert made['cpus'] == 1 and made['threads'] == made['numba_threads'] == 1, made
     summary = json.loads((out / 'summary.json').read_text())
     pooled = next(g for g in summary['groups'] if g['family'] == 'all')
     assert pooled['outcomes']['timeout'] == 1 and pooled['outcomes']['refused'] == 3
@@ -877,6 +879,20 @@ def _free_port() -> int:
     with socket.socket() as s:
         s.bind(('127.0.0.1', 0))
         return s.getsockname()[1]
+
+
+def _ray_node(args: list[str], env: dict, log: pathlib.Path, deadline: float) -> subprocess.Popen:
+    """``ray start ARGS --block``, once it says the node's processes are up (asked of its
+    output: ``ray status`` costs a process and ~2-4 CPU-s a call)."""
+    with open(log, 'w') as out:
+        proc = subprocess.Popen([RAY, 'start'] + args, env=env, stdout=out,
+                                stderr=subprocess.STDOUT, start_new_session=True)
+    while 'Ray runtime started' not in log.read_text(errors='replace'):
+        if proc.poll() is not None or time.monotonic() > deadline:
+            _stop(proc)
+            pytest.fail(f'ray start {args[0]}: not up\n{log.read_text(errors="replace")[-2000:]}')
+        time.sleep(0.2)
+    return proc
 
 
 def _stop(proc: subprocess.Popen) -> None:
@@ -908,21 +924,14 @@ def test_both_goal_forms_build_on_a_two_node_ray_cluster(tmp_path, robot_heatmap
     common = ['--num-cpus=1', '--node-ip-address=127.0.0.1', '--block', '--disable-usage-stats']
     nodes = []
     try:
-        nodes.append(subprocess.Popen(
-            [RAY, 'start', '--head', f'--port={port}', '--include-dashboard=false'] + common,
-            env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
-            start_new_session=True))
+        deadline = time.monotonic() + 90
+        for name, args in (('head', ['--head', f'--port={port}', '--include-dashboard=false']),
+                           ('worker', [f'--address=127.0.0.1:{port}'])):
+            nodes.append(_ray_node(args + common, env, tmp_path / f'ray_{name}.log', deadline))
         status = [RAY, 'status', f'--address=127.0.0.1:{port}']
-        deadline = time.monotonic() + 60
-        while subprocess.run(status, env=env, capture_output=True).returncode != 0:
-            assert nodes[0].poll() is None and time.monotonic() < deadline, 'no Ray head'
-            time.sleep(1)
-        nodes.append(subprocess.Popen(
-            [RAY, 'start', f'--address=127.0.0.1:{port}'] + common, env=env,
-            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True))
         while subprocess.run(status, env=env, capture_output=True,
-                             text=True).stdout.count(' node_') < 2:
-            assert nodes[1].poll() is None and time.monotonic() < deadline, 'no worker node'
+                             text=True).stdout.count(' node_') < 2:  # the worker registered
+            assert time.monotonic() < deadline, 'the worker node did not join'
             time.sleep(1)
         out = tmp_path / 'out'
         address = ['--ray-address', f'127.0.0.1:{port}']

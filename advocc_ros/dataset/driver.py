@@ -16,7 +16,7 @@ a ``ray start --head``) the build runs on that cluster, whose nodes must run thi
 installation.
 
 A task holds ``cpus_per_problem`` Ray CPUs and runs with its threads capped at them
-(``THREAD_ENV``, set in its worker before Python starts). Tasks are submitted as slots free up
+(``dataset.threads``). Tasks are submitted as slots free up
 (per node, its CPUs // ``cpus_per_problem``), so a task starts when it is submitted and its clock
 (``problem_timeout_s``) starts then; a task still running at its limit is cancelled (its worker
 killed) and recorded as ``timeout``. A task whose worker process dies is retried by Ray
@@ -49,6 +49,7 @@ from advocc_ros.dataset.heatmaps import (file_sha256, heatmap_path, heatmap_sett
 from advocc_ros.dataset.job import (ALONE_CPUS, OUTCOMES, BuildConfig, posed, problem_input,
                                     run_problem)
 from advocc_ros.dataset.problems import DatasetError, Problem, discover, select
+from advocc_ros.dataset.threads import inherited, task_threads, thread_caps
 from advocc_ros.evaluation import provenance
 from advocc_ros.limits import available_cpus
 
@@ -58,10 +59,6 @@ LOOPBACK_ENV = 'RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER'
 """0 before Ray is imported: a local Ray takes the loopback address as its node's and binds its
 servers to it; otherwise it listens on every interface."""
 LOOPBACK = '127.0.0.1'
-THREAD_ENV = ('ADVOCC_THREADS', 'OMP_NUM_THREADS', 'OPENBLAS_NUM_THREADS', 'MKL_NUM_THREADS',
-              'NUMBA_NUM_THREADS')
-"""Set to a task's CPUs in its worker's environment: this package's thread pools
-(``limits.worker_threads``), OpenMP, the BLAS libraries and numba's parallel loops."""
 HEARTBEAT_S = 30.0
 """Longest wait for a result before the progress shows again [s]."""
 _SIGINT_SEEN = threading.Event()
@@ -244,11 +241,6 @@ def _entry(selection: Selection, problems: list[Problem], todo: list[Problem],
                                 'other problems; time figures are not faithful')}}
 
 
-def task_threads(cpus: float) -> int:
-    """Threads of a task that holds ``cpus`` Ray CPUs (at least one)."""
-    return max(1, int(cpus))
-
-
 def interleaved(problems: list[Problem]) -> list[Problem]:
     """``problems`` taken one family at a time in turn (each family in its own order), so that
     a build stopped part-way has built about as many problems of every family."""
@@ -292,8 +284,9 @@ def _ray(run: RunConfig):
             raise DatasetError(f'--ray-address {run.ray_address}: cannot connect ({exc})') \
                 from None
         return ray
-    ray.init(address='local', num_cpus=available_cpus(), include_dashboard=False,
-             log_to_driver=False, namespace='advocc_dataset', _node_ip_address=LOOPBACK)
+    with inherited(thread_caps(run.cpus_per_problem)):  # by the local Ray and its workers
+        ray.init(address='local', num_cpus=available_cpus(), include_dashboard=False,
+                 log_to_driver=False, namespace='advocc_dataset', _node_ip_address=LOOPBACK)
     addresses = {n.get('NodeManagerAddress') for n in ray.nodes()}
     if addresses != {LOOPBACK}:
         ray.shutdown()
@@ -388,12 +381,12 @@ def _remember_and_raise(signum, frame):
 
 def _task(ray, run: RunConfig):
     """``run_problem`` as a Ray task: ``cpus_per_problem`` CPUs, its threads capped at them
-    (``THREAD_ENV`` in its worker's environment from the start, before numba or a BLAS reads
-    it), retried after a worker death, never after an exception (the job has none)."""
-    threads = str(task_threads(run.cpus_per_problem))
+    (``dataset.threads``: in its worker's environment from the start, before numba or a BLAS
+    reads it), retried after a worker death, never after an exception (the job has none)."""
+    caps = thread_caps(run.cpus_per_problem)
+    env = {} if run.ray_address is None else {'runtime_env': {'env_vars': caps}}
     return ray.remote(num_cpus=run.cpus_per_problem, max_retries=run.max_retries,
-                      retry_exceptions=False,
-                      runtime_env={'env_vars': dict.fromkeys(THREAD_ENV, threads)})(run_problem)
+                      retry_exceptions=False, **env)(run_problem)
 
 
 def _next_results(ray, pending: dict, run: RunConfig) -> list[dict]:
@@ -496,5 +489,5 @@ def _duration(seconds: float) -> str:
     return f'{seconds // 60}m{seconds % 60:02d}s'
 
 
-__all__ = ['HEARTBEAT_S', 'LOOPBACK_ENV', 'RunConfig', 'Selection', 'THREAD_ENV', 'build',
-           'classify', 'failed', 'interleaved', 'task_threads']
+__all__ = ['HEARTBEAT_S', 'LOOPBACK_ENV', 'RunConfig', 'Selection', 'build', 'classify', 'failed',
+           'interleaved']
