@@ -101,12 +101,43 @@ def _check_complete(out, trials):
     return [json.loads(line) for line in lines]
 
 
-def test_tiny_benchmark_end_to_end(tmp_path, heatmap_file, ros_env):
+def test_tiny_benchmark_killed_resumes_to_its_end(tmp_path, heatmap_file, ros_env):
+    """The tiny benchmark, kill -9 of the orchestrator after 5 records (its nodes die with
+    it), the same command again: the first run's records kept, the rest planned, every output
+    written; once more: nothing planned, no node started."""
     out = tmp_path / 'run'
-    proc = _start(out, heatmap_file, ros_env)
-    code, text = _finish(proc)
+    trials = 3
+    proc = _start(out, heatmap_file, ros_env, trials)
+    _wait_records(proc, out, 5)
+    children = _children(out)
+    proc.send_signal(signal.SIGKILL)
+    proc.communicate()
+    interrupted = len(_lines(out))
+    assert 5 <= interrupted < _planned(trials)
+    for name, child in children.items():  # PR_SET_PDEATHSIG: nodes die with the orchestrator
+        assert _gone(child['pid']), f'{name} outlived the orchestrator'
+    code, text = _finish(_start(out, heatmap_file, ros_env, trials))
     assert code == 0, text
-    records = _check_complete(out, 3)
+    records = _check_complete(out, trials)
+    # The resumed run kept the first run's records (same lines first) and reused the attacks.
+    assert _lines(out)[:interrupted - 1] == [json.dumps(r, sort_keys=True)
+                                             for r in records[:interrupted - 1]]
+    log = (out / 'logs' / 'advocc_shim_table_pick_0.log').read_text()
+    assert log.count('=== start #1') == 2  # one start per orchestrator session
+    # the last line the kill left may be torn (it is planned again)
+    _check_outputs(out, records, planned_now=(_planned(trials) - interrupted,
+                                              _planned(trials) - interrupted + 1))
+    for name, child in _children(out).items():
+        assert _gone(child['pid']), f'{name} still running'
+    # Re-running the finished command plans nothing and starts no node.
+    code, text = _finish(_start(out, heatmap_file, ros_env), timeout=60)
+    assert code == 0, text
+    _check_complete(out, trials)
+
+
+def _check_outputs(out, records, planned_now):
+    """A finished tiny benchmark's records, tables, figures and summary; ``planned_now``: the
+    trial counts its last session may have planned."""
     assert {(r['method'], r['budget']) for r in records} \
         == {('none', 0), ('ours', 1), ('random', 1)}
     assert {r['shim'] for r in records} \
@@ -147,39 +178,11 @@ def test_tiny_benchmark_end_to_end(tmp_path, heatmap_file, ros_env):
     assert f'"{out.resolve()}"' in server_log.split('allowed_dirs:=', 1)[1].splitlines()[0]
     assert 'task_detours:=1' in server_log.split('allowed_dirs:=', 1)[1].splitlines()[0]
     assert json.loads((out / 'config.json').read_text())['config']['task'] == {'detours': 1}
-    # Throughput: the trials this run planned over the time its trial loops took.
-    assert summary['trials_run'] == summary['done']
+    # Throughput: the trials this session planned over the time its trial loops took.
+    assert summary['trials_run'] in planned_now and summary['done'] == len(records)
     assert 0 < summary['trial_phase_s'] < summary['wall_s']
     assert summary['trials_per_s'] == pytest.approx(
         summary['trials_run'] / summary['trial_phase_s'], rel=0.01)
-    for name, child in _children(out).items():
-        assert _gone(child['pid']), f'{name} still running'
-    # Re-running the finished command plans nothing and starts no node.
-    code, text = _finish(_start(out, heatmap_file, ros_env), timeout=60)
-    assert code == 0, text
-    _check_complete(out, 3)
-
-
-def test_resume_after_sigkill(tmp_path, heatmap_file, ros_env):
-    out = tmp_path / 'run'
-    trials = 3
-    proc = _start(out, heatmap_file, ros_env, trials)
-    _wait_records(proc, out, 5)
-    children = _children(out)
-    proc.send_signal(signal.SIGKILL)
-    proc.communicate()
-    interrupted = len(_lines(out))
-    assert 5 <= interrupted < _planned(trials)
-    for name, child in children.items():  # PR_SET_PDEATHSIG: nodes die with the orchestrator
-        assert _gone(child['pid']), f'{name} outlived the orchestrator'
-    code, text = _finish(_start(out, heatmap_file, ros_env, trials))
-    assert code == 0, text
-    records = _check_complete(out, trials)
-    # The resumed run kept the first run's records (same lines first) and reused the attacks.
-    assert _lines(out)[:interrupted - 1] == [json.dumps(r, sort_keys=True)
-                                             for r in records[:interrupted - 1]]
-    log = (out / 'logs' / 'advocc_shim_table_pick_0.log').read_text()
-    assert log.count('=== start #1') == 2  # one start per orchestrator session
 
 
 def test_node_faults_are_survived(tmp_path, heatmap_file, ros_env):
