@@ -931,7 +931,7 @@ def test_both_goal_forms_build_on_a_two_node_ray_cluster(tmp_path, robot_heatmap
         status = [RAY, 'status', f'--address=127.0.0.1:{port}']
         while subprocess.run(status, env=env, capture_output=True,
                              text=True).stdout.count(' node_') < 2:  # the worker registered
-            assert time.monotonic() < deadline, 'the worker node did not join'
+            assert nodes[1].poll() is None and time.monotonic() < deadline, 'no worker node'
             time.sleep(1)
         out = tmp_path / 'out'
         address = ['--ray-address', f'127.0.0.1:{port}']

@@ -59,8 +59,8 @@ def workspace(tmp_path_factory):
 def _kernels_from_the_checkout(package: pathlib.Path) -> int:
     """Copy numba's cache of this checkout's kernels (``make install`` compiled them) beside
     the install space's copies of their modules, as ``python -m advocc_ros.attack.kernels`` in
-    the workspace would compile them (docs/ros.md), without its ~40 CPU-s: numba keys a cache by
-    its module's mtime and size, which colcon keeps. The files copied."""
+    the workspace would compile them (docs/ros.md), without compiling them again: numba keys a
+    cache by its module's mtime and size, which colcon keeps. The files copied."""
     copied = 0
     for cached in (REPO / 'advocc_ros').rglob('__pycache__/*.nb[ic]'):
         target = package / cached.relative_to(REPO / 'advocc_ros')

@@ -16,8 +16,8 @@ a ``ray start --head``) the build runs on that cluster, whose nodes must run thi
 installation.
 
 A task holds ``cpus_per_problem`` Ray CPUs and runs with its threads capped at them
-(``dataset.threads``). Tasks are submitted as slots free up
-(per node, its CPUs // ``cpus_per_problem``), so a task starts when it is submitted and its clock
+(``dataset.threads``). Tasks are submitted as slots free up (per node, its CPUs //
+``cpus_per_problem``), so a task starts when it is submitted and its clock
 (``problem_timeout_s``) starts then; a task still running at its limit is cancelled (its worker
 killed) and recorded as ``timeout``. A task whose worker process dies is retried by Ray
 (``max_retries``); what Ray reports after that is recorded as what it is (``classify``). Results
@@ -383,8 +383,8 @@ def _task(ray, run: RunConfig):
     """``run_problem`` as a Ray task: ``cpus_per_problem`` CPUs, its threads capped at them
     (``dataset.threads``: in its worker's environment from the start, before numba or a BLAS
     reads it), retried after a worker death, never after an exception (the job has none)."""
-    caps = thread_caps(run.cpus_per_problem)
-    env = {} if run.ray_address is None else {'runtime_env': {'env_vars': caps}}
+    env = {} if run.ray_address is None else \
+        {'runtime_env': {'env_vars': thread_caps(run.cpus_per_problem)}}
     return ray.remote(num_cpus=run.cpus_per_problem, max_retries=run.max_retries,
                       retry_exceptions=False, **env)(run_problem)
 
