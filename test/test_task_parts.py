@@ -1,13 +1,13 @@
-"""The parts of method ``task``: approach samples, the tier weights, the goal filter and the
-goal guard of the ``reachable`` policy."""
+"""The parts of method ``task``: approach samples, the tier weights, the goal filter, the
+goal guard of the ``reachable`` policy and the ``solvable`` policy's grown witness mask."""
 
 import numpy as np
 import pytest
-from scipy import sparse
+from scipy import ndimage, sparse
 
 from advocc_ros.attack.goals import GoalSamples
 from advocc_ros.attack.objective import WEIGHT_FLOOR, goal_filter, lexicographic_weights
-from advocc_ros.attack.policy import GoalGuard
+from advocc_ros.attack.policy import GoalGuard, grown_by_a_voxel
 from advocc_ros.attack.task import approach_samples
 from advocc_ros.model.collision import CollisionWorld
 from advocc_ros.kinematics.goal_batch import planner_goals
@@ -166,3 +166,15 @@ def test_exits_are_placed_for_after_a_draw_finds_some_and_counted_again_after_no
                      'goal_exit_draws_kept': [1, 2]}
     assert close_exits(Scripted(), 'a', np.ones((3, 2)), place, lambda p: p, 0)[1] == {
         'goal_exits_by_round': [3], 'goal_exits': 3, 'goal_exit_draws_kept': [0]}
+
+
+@pytest.mark.parametrize('shape', [(1, 1, 1), (3, 1, 4), (9, 10, 11)])
+def test_the_witness_mask_grows_by_the_face_neighbours_as_scipys_dilation(shape):
+    rng = np.random.default_rng(len(shape) + shape[0])
+    for density in (0.0, 0.02, 0.3, 1.0):
+        mask = rng.random(shape) < density
+        grown = grown_by_a_voxel(mask)
+        assert grown.dtype == bool and (grown == ndimage.binary_dilation(mask)).all()
+    one = np.zeros((3, 3, 3), bool)
+    one[1, 1, 1] = True
+    assert grown_by_a_voxel(one).sum() == 7 and one.sum() == 1  # its input is left as it was

@@ -28,7 +28,7 @@ from __future__ import annotations
 import dataclasses
 
 import numpy as np
-from scipy import ndimage, sparse
+from scipy import sparse
 
 from advocc_ros.attack.bodies import LinkBoxes
 from advocc_ros.attack.configurations import cover_matrix, touching_mask
@@ -208,13 +208,27 @@ def choose_witness(robot: RobotModel, world: CollisionWorld, region: SearchRegio
         cand = tuple(np.argwhere(region.candidates).T)
         for witness in witnesses:
             masks.append(witness_bodies(robot, world, witness).touching(region))
-            refused = ndimage.binary_dilation(masks[-1])[cand]
+            refused = grown_by_a_voxel(masks[-1])[cand]
             shielded.append(int((cols[:, ~refused].sum(axis=1) == 0).sum()))
     order = list(np.argsort(shielded, kind='stable')) if shielded else list(range(len(witnesses)))
     clearance = _clear_of_scene(robot, scene, witnesses, order, scene_margin_m)
     kept = int(order[0]) if not clearance else \
         int(max(order, key=lambda i: -1.0 if clearance[i] is None else clearance[i]))
     return WitnessChoice(kept, shielded, masks[kept] if masks else None, cover, clearance)
+
+
+def grown_by_a_voxel(mask: np.ndarray) -> np.ndarray:
+    """``mask`` with every voxel that shares a face with one of its voxels: the binary dilation
+    by the cross (``scipy.ndimage.binary_dilation``'s default). Six shifted ORs here: importing
+    ``scipy.ndimage`` costs a process ~0.4 s, a tenth of a warm CLI attack."""
+    grown = mask.copy()
+    for axis in range(mask.ndim):
+        ahead = [slice(None)] * mask.ndim
+        behind = [slice(None)] * mask.ndim
+        ahead[axis], behind[axis] = slice(1, None), slice(None, -1)
+        grown[tuple(ahead)] |= mask[tuple(behind)]
+        grown[tuple(behind)] |= mask[tuple(ahead)]
+    return grown
 
 
 def _clear_of_scene(robot: RobotModel, scene: CollisionWorld | None, witnesses, order,
