@@ -270,6 +270,12 @@ def _robots(problems: list[Problem], goal_tol) -> tuple[dict, list]:
     return hashes, list(scenes.values())
 
 
+LOCAL_RAY_CONFIG = {'enable_worker_prestart': False}
+"""A local Ray starts a worker when a task needs one, not one per CPU at start-up: a task holds
+``cpus_per_problem`` CPUs (2 by default), so most prestarted workers would only import Ray and
+idle (~5 CPU-s less a build on 2 cores, docs/performance.md)."""
+
+
 def _ray(run: RunConfig):
     """Ray, connected to ``run.ray_address`` or started here on the loopback address."""
     os.environ.setdefault('RAY_USAGE_STATS_ENABLED', '0')
@@ -286,7 +292,8 @@ def _ray(run: RunConfig):
         return ray
     with inherited(thread_caps(run.cpus_per_problem)):  # by the local Ray and its workers
         ray.init(address='local', num_cpus=available_cpus(), include_dashboard=False,
-                 log_to_driver=False, namespace='advocc_dataset', _node_ip_address=LOOPBACK)
+                 log_to_driver=False, namespace='advocc_dataset', _node_ip_address=LOOPBACK,
+                 _system_config=LOCAL_RAY_CONFIG)
     addresses = {n.get('NodeManagerAddress') for n in ray.nodes()}
     if addresses != {LOOPBACK}:
         ray.shutdown()
