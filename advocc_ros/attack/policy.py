@@ -219,8 +219,9 @@ def choose_witness(robot: RobotModel, world: CollisionWorld, region: SearchRegio
 
 def grown_by_a_voxel(mask: np.ndarray) -> np.ndarray:
     """``mask`` with every voxel that shares a face with one of its voxels: the binary dilation
-    by the cross (``scipy.ndimage.binary_dilation``'s default). Six shifted ORs here: importing
-    ``scipy.ndimage`` costs a process ~0.4 s, a tenth of a warm CLI attack."""
+    by the cross (``scipy.ndimage.binary_dilation``'s default), as six shifted ORs: importing
+    ``scipy.ndimage`` would cost every attacking process more than this whole step
+    (docs/performance.md)."""
     grown = mask.copy()
     for axis in range(mask.ndim):
         ahead = [slice(None)] * mask.ndim

@@ -8,8 +8,9 @@ entry appended to ``build.json``, the robot-only heatmaps built, and the problem
 run.
 
 Without an address a local Ray is started in this process (every CPU this process may use, no
-dashboard) on the loopback address: ``RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER=0`` before Ray is
-imported (the variable Ray's cluster docs name; off, Ray's node address is the loopback) and
+dashboard, a worker started when a task needs one) on the loopback address:
+``RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER=0`` before Ray is imported (the variable Ray's cluster docs
+name; off, Ray's node address is the loopback) and
 ``ray.init``'s documented ``_node_ip_address`` (which alone Ray turns into the machine's address
 on Linux); the node's address is checked after the start. With ``ray_address`` (``HOST:PORT`` of
 a ``ray start --head``) the build runs on that cluster, whose nodes must run this same
@@ -271,9 +272,8 @@ def _robots(problems: list[Problem], goal_tol) -> tuple[dict, list]:
 
 
 LOCAL_RAY_CONFIG = {'enable_worker_prestart': False}
-"""A local Ray starts a worker when a task needs one, not one per CPU at start-up: a task holds
-``cpus_per_problem`` CPUs (2 by default), so most prestarted workers would only import Ray and
-idle (~5 CPU-s less a build on 2 cores, docs/performance.md)."""
+"""No worker a CPU at start-up: a task holds ``cpus_per_problem`` CPUs (2 by default), so most
+prestarted workers would only idle (docs/performance.md)."""
 
 
 def _ray(run: RunConfig):
