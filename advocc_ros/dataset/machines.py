@@ -18,11 +18,17 @@ from advocc_ros.evaluation import provenance
 log = logging.getLogger(__name__)
 
 
-def probe() -> float | None:
-    """``provenance.speed`` on the CPUs this process holds (None if it cannot be measured: the
-    record is still made)."""
+RUN_PROBES = 5
+"""A run's driver probes its machine this many times and keeps the median: one probe drifts
+up to 1.63x within half a minute, medians of five consecutive ones 1.39x
+(docs/results/machine_speed), below the ``provenance.SPEED_SPREAD`` its warning is set at."""
+
+
+def probe(probes: int = 1) -> float | None:
+    """The median of ``probes`` ``provenance.speed`` probes on the CPUs this process holds
+    (None if it cannot be measured: the record is still made)."""
     try:
-        return provenance.speed()
+        return statistics.median(provenance.speed() for _ in range(probes))
     except Exception:  # a record without a speed beats no record
         log.exception('the speed probe failed')
         return None
@@ -58,7 +64,7 @@ def speeds(found: list[tuple[str | None, float | None]]) -> dict:
 
 def speed_note(found: list[dict], here: float | None, time_s: float) -> str | None:
     """A warning when this machine's speed and the median of the built records ``found`` (a
-    folder's outcome records) differ by more than ``provenance.SPEED_WARN``: their PSRs at a
+    folder's outcome records) differ by more than ``provenance.SPEED_SPREAD``: their PSRs at a
     budget of ``time_s`` seconds and this run's may not pool (the summary judges the machines'
     medians once the records are in). None when they are close or a speed is unknown."""
     known = [v for _, v in built_speeds(found) if v]
@@ -66,7 +72,7 @@ def speed_note(found: list[dict], here: float | None, time_s: float) -> str | No
         return None
     median = statistics.median(known)
     ratio = max(here, median) / min(here, median)
-    if ratio <= provenance.SPEED_WARN:
+    if ratio <= provenance.SPEED_SPREAD:
         return None
     return (f'warning: this machine does {here:,.0f} validity checks/s, the {len(known)} built '
             f'record(s) of the folder a median {median:,.0f}/s: {ratio:.2f}x '
@@ -75,4 +81,4 @@ def speed_note(found: list[dict], here: float | None, time_s: float) -> str | No
             'measures may not pool with theirs (the summary judges each machine by its median)')
 
 
-__all__ = ['built_speeds', 'probe', 'speed_note', 'speeds']
+__all__ = ['RUN_PROBES', 'built_speeds', 'probe', 'speed_note', 'speeds']

@@ -124,9 +124,6 @@ SPEED_SPREAD = 1.5
 not pool time-bound figures: a 5 s budget buys that much more planning on the faster one. One
 virtual machine's probes drift within a minute (twenty on a 2-core AMD EPYC: 32,187 to
 52,388/s, docs/results/machine_speed), so a machine is judged by the median of its records."""
-SPEED_WARN = 2.0
-"""A build warns when its machine's one probe is this far from the median of the folder's
-records (one machine's probes were up to 1.63x apart)."""
 
 
 def validity_checks_per_s(world, Q: np.ndarray) -> float:
@@ -179,6 +176,6 @@ def record() -> dict:
     return {**code(), **machine(), 'versions': versions()}
 
 
-__all__ = ['CODE_PATHS', 'DISTRIBUTIONS', 'REPO', 'SPEED_SCENE', 'SPEED_SPREAD', 'SPEED_WARN',
+__all__ = ['CODE_PATHS', 'DISTRIBUTIONS', 'REPO', 'SPEED_SCENE', 'SPEED_SPREAD',
            'code', 'cpu_model', 'load', 'machine', 'now', 'record', 'speed', 'speed_spread',
            'stamp', 'validity_checks_per_s', 'versions']
