@@ -94,13 +94,29 @@ def search(tmp_path, monkeypatch):
     return _CountedSearch(monkeypatch)
 
 
+def _counted_certificates(monkeypatch) -> list:
+    """The witness module's certificates from now on, one list entry each."""
+    calls, real = [], witness_mod.certify
+    monkeypatch.setattr(witness_mod, 'certify', lambda *a, **k: calls.append(1) or real(*a, **k))
+    return calls
+
+
 def test_the_disk_cache_spares_the_next_process_the_search(task, tmp_path, monkeypatch, search):
+    """And the certificate too: the file's digest is of the paths it proved."""
     scene, robot, q0, _ = task
     first = find_witnesses(robot, scene.objects, q0, scene.goal)[0]
     (cached,) = tmp_path.glob('*.yaml')  # beside it: the task's goal sample the search used
     _new_process(monkeypatch)
+    certified = _counted_certificates(monkeypatch)
     again = find_witnesses(robot, scene.objects, q0, scene.goal)[0]
-    assert search.calls == 1 and again is not first
+    assert search.calls == 1 and again is not first and certified == []
+    # A file without the digest (an earlier version's) is certified once and given it.
+    candidates = witness_mod.load_candidates(cached)
+    witness_mod.save_candidates(cached, candidates)
+    for _ in range(2):
+        _new_process(monkeypatch)
+        find_witnesses(robot, scene.objects, q0, scene.goal)
+    assert len(certified) == len(candidates) and 'proof_digest' in witness_mod.read_yaml(cached)
     np.testing.assert_array_equal(again.waypoints, first.waypoints)  # the same boxes follow
     # Another task (a box elsewhere) has a file of its own.
     box = make_box('elsewhere', (-0.5, 0.5, 0.2), (0.05,) * 3)
@@ -108,7 +124,8 @@ def test_the_disk_cache_spares_the_next_process_the_search(task, tmp_path, monke
     assert search.calls == 2 and len(list(tmp_path.glob('*.yaml'))) == 2 and cached.exists()
 
 
-@pytest.mark.parametrize('damage', ['garbage', 'other start', 'through a wall'])
+@pytest.mark.parametrize('damage', ['garbage', 'other start', 'through a wall',
+                                    'through a wall, digest kept'])
 def test_a_damaged_cache_file_costs_a_search_not_a_wrong_verdict(task, tmp_path, monkeypatch,
                                                                  search, damage, caplog):
     scene, robot, q0, _ = task
@@ -122,8 +139,9 @@ def test_a_damaged_cache_file_costs_a_search_not_a_wrong_verdict(task, tmp_path,
             waypoints[0, 0] += 0.1
         else:  # the middle waypoint pushed down through the table
             waypoints = np.insert(waypoints, 1, q0 + np.array([0, 1.2, 0, 0, 0, 1.5, 0]), 0)
+        digest = witness_mod.read_yaml(path)['proof_digest'] if 'kept' in damage else None
         witness_mod.save_candidates(path, (Witness(good.joint_names, waypoints, good.locked,
-                                                   good.source),))
+                                                   good.source),), digest)
     _new_process(monkeypatch)
     again = find_witnesses(robot, scene.objects, q0, scene.goal)[0]
     assert search.calls == 2 and 'witness cache' in caplog.text

@@ -27,10 +27,12 @@ around a cube on it (``planning.direct_motion``): no box may touch the witness, 
 that motion would keep it open to every planner that tries the direct connection first.
 
 The candidates are kept twice: in this process, and on disk (``model.cache.disk_cache_dir``)
-so that the next process (another ``advocc attack``, a restarted node) skips the search; a
-candidate read from disk is certified again on the unattacked scene, from the task's start,
-before it is used, so a stale or damaged file costs a search, never a wrong verdict. A failed
-search is not kept: the next call searches again.
+so that the next process (another ``advocc attack``, a restarted node) skips the search. The file
+carries the digest of what was proven (``proof_digest``: the task's key, the certificate's
+settings, each path's content); candidates read from disk whose digest differs are certified
+again on the unattacked scene, from the task's start, so a stale or damaged file costs a search,
+never a wrong verdict (a verdict is the certificate's on the attacked scene, made anew by every
+attack, ``attack.solvable.assess``). A failed search is not kept: the next call searches again.
 
 File (``<obstacles>.witness.yaml`` beside an obstacles file): ``joint_names`` (the planned
 joints), ``waypoints`` (rad; the path is the linear interpolation in joint space between them),
@@ -90,7 +92,7 @@ WITNESS_TIME_S = 30.0
 """Budget of the run into the region when no rare end was reached [s] (RRTConnect solves the
 shipped scenes in < 1 s); once an end was, the region run gets ``END_TIME_S``."""
 SET_FORMAT = 'advocc_witness_candidates'
-"""The disk cache's file: ``{format, witnesses: [witness data, ...]}``."""
+"""The disk cache's file: ``{format, witnesses: [witness data, ...], proof_digest}``."""
 WAYPOINT_DECIMALS = 12
 """Waypoints are rounded to 1e-12 rad, in memory as in files (YAML keeps them exactly)."""
 
@@ -280,7 +282,7 @@ def find_witnesses(robot: RobotModel, objects: tuple[SceneObject, ...] | list,
         return cached
     cache_dir = disk_cache_dir()
     disk = cache_dir / f'{key}.yaml' if cache_dir is not None else None
-    witnesses = _from_disk(disk, robot, world, q_init, goal) if disk is not None else ()
+    witnesses = _from_disk(disk, key, robot, world, q_init, goal) if disk is not None else ()
     searched = not witnesses
     for planned_among in _search_scenes(objects, clearance_m, blocker):
         if witnesses:
@@ -293,7 +295,7 @@ def find_witnesses(robot: RobotModel, objects: tuple[SceneObject, ...] | list,
     if not witnesses:  # not kept: a later call searches again
         return ()
     if disk is not None and searched:
-        _to_disk(disk, witnesses)
+        _to_disk(disk, key, witnesses)
     return WITNESSES.put(key, witnesses)
 
 
@@ -436,53 +438,75 @@ def plan_witness(planner, robot: RobotModel, q_init: np.ndarray, goal: GoalRegio
         'step_rad': WITNESS_STEP_RAD})
 
 
-def save_candidates(path: str | pathlib.Path, witnesses: tuple[Witness, ...]) -> None:
+def save_candidates(path: str | pathlib.Path, witnesses: tuple[Witness, ...],
+                    proof_digest: str | None = None) -> None:
     """Write candidate witnesses atomically (``{format: SET_FORMAT, witnesses: [...]}``, the
-    disk cache's file)."""
-    save_yaml_atomic(path, {'format': SET_FORMAT, 'witnesses': [w.to_data() for w in witnesses]})
+    disk cache's file), with ``proof_digest`` when they were certified (``proof_digest``)."""
+    data = {'format': SET_FORMAT, 'witnesses': [w.to_data() for w in witnesses]}
+    save_yaml_atomic(path, data if proof_digest is None else dict(data, proof_digest=proof_digest))
+
+
+def proof_digest(key: str, witnesses: tuple[Witness, ...]) -> str:
+    """What certifying ``witnesses`` for the task of ``key`` (``find_witnesses``'s cache key)
+    proved, as a digest: the key, the certificate's settings and each path's content."""
+    text = json.dumps([key, dataclasses.asdict(CertificateConfig()),
+                       [w.content_hash() for w in witnesses]], sort_keys=True)
+    return hashlib.sha256(text.encode()).hexdigest()
 
 
 def load_candidates(path: str | pathlib.Path) -> tuple[Witness, ...]:
     """The candidate witnesses of a file written by :func:`save_candidates`; ``SceneError``
     naming the file (and the field) when it is not one, ``OSError`` when it cannot be read."""
+    return _read_candidates(path)[0]
+
+
+def _read_candidates(path: str | pathlib.Path) -> tuple[tuple[Witness, ...], str | None]:
+    """``load_candidates``'s witnesses and the file's ``proof_digest`` (None without one)."""
     data = read_yaml(pathlib.Path(path))
     if not isinstance(data, dict) or data.get('format') != SET_FORMAT or \
             not isinstance(data.get('witnesses'), list) or not data['witnesses']:
         raise SceneError(f'{path}: not a {SET_FORMAT} file')
+    digest = data.get('proof_digest')
     return tuple(Witness.from_data(w, f'{path}: witnesses[{i}]')
-                 for i, w in enumerate(data['witnesses']))
+                 for i, w in enumerate(data['witnesses'])), \
+        digest if isinstance(digest, str) else None
 
 
-def _from_disk(path: pathlib.Path, robot: RobotModel, world: CollisionWorld,
+def _from_disk(path: pathlib.Path, key: str, robot: RobotModel, world: CollisionWorld,
                q_init: np.ndarray, goal: GoalRegion) -> tuple[Witness, ...]:
-    """The cached candidates of ``path`` if every one is a witness of this task (certified
-    again); else none."""
+    """The cached candidates of ``path`` (the task of ``key``) if every one is a witness of
+    this task (their ``proof_digest`` as written, or certified again, and then the file
+    written with it); else none."""
     if not path.is_file():
         return ()
     try:
-        witnesses = load_candidates(path)
+        witnesses, digest = _read_candidates(path)
     except (SceneError, OSError) as exc:
         log.warning('witness cache: %s (searching again)', exc)
         return ()
+    if digest == proof_digest(key, witnesses):
+        return witnesses
     for witness in witnesses:
         why = certify(robot, world, goal, witness, q_init).why
         if why is not None:
             log.warning('witness cache: %s is not a witness of this task: %s (searching '
                         'again)', path, why)
             return ()
+    _to_disk(path, key, witnesses)
     return witnesses
 
 
-def _to_disk(path: pathlib.Path, witnesses: tuple[Witness, ...]) -> None:
+def _to_disk(path: pathlib.Path, key: str, witnesses: tuple[Witness, ...]) -> None:
+    """Keep the certified candidates of the task of ``key`` in ``path``."""
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
-        save_candidates(path, witnesses)
+        save_candidates(path, witnesses, proof_digest(key, witnesses))
     except OSError as exc:  # a read-only home must not fail the attack
         log.warning('witness cache: cannot write %s (%s)', path, exc)
 
 
 __all__ = ['CACHE_ENV', 'SET_FORMAT', 'WITNESS_STEP_RAD', 'Certified', 'Witness', 'certify',
            'find_witnesses', 'grown_objects', 'load_candidates', 'load_witness',
-           'object_shape_names', 'plan_witness',
+           'object_shape_names', 'plan_witness', 'proof_digest',
            'rare_clear_ends', 'save_candidates', 'save_witness', 'search_witnesses',
            'witness_file', 'witness_states']
