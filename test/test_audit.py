@@ -87,13 +87,13 @@ def _own_caches(tmp_path, monkeypatch):
     process's caches or in the session's disk cache (a scripted witness, a sample of a task with
     the same key) reaches it, and it leaves nothing behind."""
     from advocc_ros.model.cache import CACHE_ENV, clear_task_caches
-    from advocc_ros.planning import witness
+    from advocc_ros.planning import witness_cache
 
     monkeypatch.setenv(CACHE_ENV, str(tmp_path / 'cache'))
-    witness.WITNESSES.clear()
+    witness_cache.WITNESSES.clear()
     clear_task_caches()
     yield
-    witness.WITNESSES.clear()
+    witness_cache.WITNESSES.clear()
     clear_task_caches()
 
 

@@ -16,8 +16,10 @@ from advocc_ros.model.collision import CollisionWorld
 from advocc_ros.model.robot import load_robot
 from advocc_ros.model.scene import make_box
 from advocc_ros.planning import witness as witness_mod
+from advocc_ros.planning import witness_cache
 from advocc_ros.planning.certificate import CertificateConfig, certify_path
-from advocc_ros.planning.witness import Witness, certify, find_witnesses, witness_states
+from advocc_ros.planning.witness import Witness, certify, witness_states
+from advocc_ros.planning.witness_cache import find_witnesses
 
 OLD_STEP_RAD = 0.005
 """The step of the old per-state check."""
@@ -28,7 +30,7 @@ def _no_scripted_witness_kept():
     """Tests here put scripted witnesses in the process's witness cache: none outlives its
     test, so later tests search for the real one."""
     yield
-    witness_mod.WITNESSES.clear()
+    witness_cache.WITNESSES.clear()
 
 
 @pytest.fixture(scope='module')
@@ -168,9 +170,9 @@ def test_the_start_is_required_and_checked(task):
 def test_a_failed_search_is_not_kept(task, monkeypatch, tmp_path):
     scene, robot, q0, witness = task
     monkeypatch.setenv(witness_mod.CACHE_ENV, str(tmp_path))
-    witness_mod.WITNESSES.clear()
+    witness_cache.WITNESSES.clear()
     calls, answers = [], [(), (witness,)]
-    monkeypatch.setattr(witness_mod, 'search_witnesses',
+    monkeypatch.setattr(witness_cache, 'search_witnesses',
                         lambda *a: calls.append(a) or answers.pop(0))
     assert find_witnesses(robot, scene.objects, q0, scene.goal) == ()
     assert len(calls) == 1 and not list(tmp_path.iterdir())  # no path: no other seed either
@@ -198,7 +200,7 @@ def test_an_unproven_path_is_dropped_for_the_next_seed(task, monkeypatch):
     witness; the next seed's is."""
     scene, robot, q0, witness = task
     monkeypatch.setenv(witness_mod.CACHE_ENV, 'off')
-    witness_mod.WITNESSES.clear()
+    witness_cache.WITNESSES.clear()
     down = np.insert(witness.waypoints, 1, q0 + np.array([0, 1.2, 0, 0, 0, 1.5, 0]), 0)
     bad = Witness(witness.joint_names, down, witness.locked)
     runs = _scripted_runs(monkeypatch, robot, [bad, witness])
@@ -212,7 +214,7 @@ def test_unproven_simplified_paths_are_searched_again_unsimplified(task, monkeyp
     searched again without simplification."""
     scene, robot, q0, witness = task
     monkeypatch.setenv(witness_mod.CACHE_ENV, 'off')
-    witness_mod.WITNESSES.clear()
+    witness_cache.WITNESSES.clear()
     down = np.insert(witness.waypoints, 1, q0 + np.array([0, 1.2, 0, 0, 0, 1.5, 0]), 0)
     bad = Witness(witness.joint_names, down, witness.locked)
     tries = witness_mod.WITNESS_TRIES

@@ -68,7 +68,7 @@ def test_attack_under_paper_and_reachable_starts_no_process(table, no_process, m
 def witness(table):
     """The task's witness, found as the edges find it (a planning worker), before any test
     forbids processes."""
-    from advocc_ros.planning.witness import find_witnesses
+    from advocc_ros.planning.witness_cache import find_witnesses
 
     heatmap, robot, scene, q = table
     found = find_witnesses(robot, scene.objects, q, scene.goal)
@@ -161,7 +161,7 @@ def test_cli_attack_under_paper_starts_no_planner(tmp_path, heatmap_file):
 
 @pytest.mark.processes  # the witness search (a planning worker)
 def test_edge_attack_task_finds_the_witness_only_when_needed(table, monkeypatch):
-    import advocc_ros.planning.witness as witness_module
+    import advocc_ros.planning.witness_cache as witness_module
     from advocc_ros.attack import AttackConfig
     from advocc_ros.attack.edges import attack_task
 

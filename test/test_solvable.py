@@ -25,8 +25,10 @@ from advocc_ros.model.robot import load_robot
 from advocc_ros.model.pose import SceneError
 from advocc_ros.model.scene import make_box
 from advocc_ros.planning import witness as witness_mod
-from advocc_ros.planning.witness import (Witness, certify, find_witnesses, load_witness,
-                                         save_witness, witness_file, witness_states)
+from advocc_ros.planning import witness_cache
+from advocc_ros.planning.witness import (Witness, certify, load_witness, save_witness,
+                                         witness_file, witness_states)
+from advocc_ros.planning.witness_cache import find_witnesses
 
 pytestmark = pytest.mark.processes  # nodes, workers or CLI runs
 
@@ -62,7 +64,7 @@ def test_witness_search_is_deterministic_for_a_seed(task, monkeypatch):
     scene, robot, q0, _ = task
     monkeypatch.setenv(witness_mod.CACHE_ENV, 'off')  # two searches, not one and a file
     first = find_witnesses(robot, scene.objects, q0, scene.goal)[0]
-    witness_mod.WITNESSES.clear()
+    witness_cache.WITNESSES.clear()
     again = find_witnesses(robot, scene.objects, q0, scene.goal)[0]
     assert first is not None and again is not first
     assert np.array_equal(first.waypoints, again.waypoints)
@@ -73,8 +75,8 @@ class _CountedSearch:
     """Calls the real witness search and counts the calls."""
 
     def __init__(self, monkeypatch):
-        self.calls, self._search = 0, witness_mod.search_witnesses
-        monkeypatch.setattr(witness_mod, 'search_witnesses', self)
+        self.calls, self._search = 0, witness_cache.search_witnesses
+        monkeypatch.setattr(witness_cache, 'search_witnesses', self)
 
     def __call__(self, *args):
         self.calls += 1
@@ -83,7 +85,7 @@ class _CountedSearch:
 
 def _new_process(monkeypatch):
     """What a new process sees: an empty in-process cache (the disk cache stays)."""
-    witness_mod.WITNESSES.clear()
+    witness_cache.WITNESSES.clear()
 
 
 @pytest.fixture
@@ -95,9 +97,9 @@ def search(tmp_path, monkeypatch):
 
 
 def _counted_certificates(monkeypatch) -> list:
-    """The witness module's certificates from now on, one list entry each."""
-    calls, real = [], witness_mod.certify
-    monkeypatch.setattr(witness_mod, 'certify', lambda *a, **k: calls.append(1) or real(*a, **k))
+    """The disk cache's certificates from now on, one list entry each."""
+    calls, real = [], witness_cache.certify
+    monkeypatch.setattr(witness_cache, 'certify', lambda *a, **k: calls.append(1) or real(*a, **k))
     return calls
 
 
@@ -111,12 +113,12 @@ def test_the_disk_cache_spares_the_next_process_the_search(task, tmp_path, monke
     again = find_witnesses(robot, scene.objects, q0, scene.goal)[0]
     assert search.calls == 1 and again is not first and certified == []
     # A file without the digest (an earlier version's) is certified once and given it.
-    candidates = witness_mod.load_candidates(cached)
-    witness_mod.save_candidates(cached, candidates)
+    candidates = witness_cache.load_candidates(cached)
+    witness_cache.save_candidates(cached, candidates)
     for _ in range(2):
         _new_process(monkeypatch)
         find_witnesses(robot, scene.objects, q0, scene.goal)
-    assert len(certified) == len(candidates) and 'proof_digest' in witness_mod.read_yaml(cached)
+    assert len(certified) == len(candidates) and 'proof_digest' in witness_cache.read_yaml(cached)
     np.testing.assert_array_equal(again.waypoints, first.waypoints)  # the same boxes follow
     # Another task (a box elsewhere) has a file of its own.
     box = make_box('elsewhere', (-0.5, 0.5, 0.2), (0.05,) * 3)
@@ -139,14 +141,14 @@ def test_a_damaged_cache_file_costs_a_search_not_a_wrong_verdict(task, tmp_path,
             waypoints[0, 0] += 0.1
         else:  # the middle waypoint pushed down through the table
             waypoints = np.insert(waypoints, 1, q0 + np.array([0, 1.2, 0, 0, 0, 1.5, 0]), 0)
-        digest = witness_mod.read_yaml(path)['proof_digest'] if 'kept' in damage else None
-        witness_mod.save_candidates(path, (Witness(good.joint_names, waypoints, good.locked,
-                                                   good.source),), digest)
+        digest = witness_cache.read_yaml(path)['proof_digest'] if 'kept' in damage else None
+        witness_cache.save_candidates(
+            path, (Witness(good.joint_names, waypoints, good.locked, good.source),), digest)
     _new_process(monkeypatch)
     again = find_witnesses(robot, scene.objects, q0, scene.goal)[0]
     assert search.calls == 2 and 'witness cache' in caplog.text
     np.testing.assert_allclose(again.waypoints, good.waypoints, atol=1e-12)
-    assert witness_mod.load_candidates(path)[0].waypoints.shape == good.waypoints.shape
+    assert witness_cache.load_candidates(path)[0].waypoints.shape == good.waypoints.shape
 
 
 def test_attack_cli_reuses_the_witness_of_an_earlier_run(task, tmp_path):

@@ -7,7 +7,7 @@ once per task, by the tool and never by the victim, and reported apart from the 
 1. the request is checked first (``attack.request.validate_request``, the task check of
    ``model.task_check`` included): a refused task starts nothing;
 2. the witness, when the ``solvable`` policy needs it or ``AttackConfig.search_witness`` asks for
-   a verdict that can say ``certified``: ``planning.witness.find_witnesses``, one search in a
+   a verdict that can say ``certified``: ``planning.witness_cache.find_witnesses``, one search in a
    fresh planning worker for the task's candidate witnesses, cached per task in the process and
    on disk; its wall time is ``stats['witness_search_ms']``, never part of ``compute_s``;
 3. the core attack, with the candidates as data (under ``solvable`` it keeps one of them:
@@ -50,7 +50,8 @@ def task_witness(robot: RobotModel, objects, q_init, goal: GoalRegion,
     """The candidate witnesses of the task (module docstring), planned ``clearance_m`` (the
     victim margin) clear of the scene when they can be; starts a planning worker unless they
     are cached."""
-    from advocc_ros.planning.witness import WITNESS_TIME_S, find_witnesses
+    from advocc_ros.planning.witness import WITNESS_TIME_S
+    from advocc_ros.planning.witness_cache import find_witnesses
 
     t0 = time.perf_counter()
     witnesses = find_witnesses(robot, tuple(objects), np.asarray(q_init, dtype=float), goal,

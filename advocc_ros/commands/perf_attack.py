@@ -61,7 +61,7 @@ def _core(heatmap, robot, scene, q, budgets, method, repeats, policy='paper',
     call."""
     from advocc_ros.attack.edges import attack_task
     from advocc_ros.model.cache import clear_task_caches, disk_cache_at
-    from advocc_ros.planning.witness import WITNESSES
+    from advocc_ros.planning.witness_cache import WITNESSES
 
     def run(budget: int, seed: int):
         t0 = time.perf_counter()

@@ -3,7 +3,7 @@
 Where the scene leaves it free, it solves the task: PRM*, VAMP and any planner that tries the
 direct connection first take it. A witness on it would keep it free (no box may touch the
 witness), so the witness search first plans around a cube on it (``direct_blocker``, used by
-``planning.witness.find_witnesses``), and the attack covers it as the objective's first row
+``planning.witness_cache.find_witnesses``), and the attack covers it as the objective's first row
 (``attack.task.direct_motion``). docs/goal_forms.md, "The direct motion".
 """
 

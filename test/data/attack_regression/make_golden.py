@@ -6,8 +6,8 @@ refactoring) proves it does not.
 Inputs, kept beside this script:
 
 - ``witnesses/<task>.yaml``: each task's candidate witnesses (the witness search's candidate file,
-  ``planning.witness`` format ``advocc_witness_candidates``). The search is a timed planner run and
-  not reproducible, so its result is data here, handed to ``attack(..., witness=...)``.
+  ``planning.witness_cache`` format ``advocc_witness_candidates``). The search is a timed planner
+  run and not reproducible, so its result is data here, handed to ``attack(..., witness=...)``.
 - the heatmaps are built by the test itself: robot-only, ``HEATMAP_SAMPLES`` samples from
   ``HEATMAP_SEED`` (seeded and deterministic), one per robot (the shipped Panda and the
   MotionBenchMaker Panda differ in their locked finger values).
@@ -149,7 +149,7 @@ def cases() -> list[dict]:
 
 def read_witnesses(path: pathlib.Path) -> tuple:
     """The candidate witnesses of a file written by :func:`search_witnesses` (none without)."""
-    from advocc_ros.planning.witness import load_candidates
+    from advocc_ros.planning.witness_cache import load_candidates
 
     return load_candidates(path) if path.is_file() else ()
 
@@ -157,7 +157,7 @@ def read_witnesses(path: pathlib.Path) -> tuple:
 def search_witnesses() -> None:
     """Search the candidate witnesses, on the unattacked scene, of every task without a file,
     and write them."""
-    from advocc_ros.planning.witness import find_witnesses, save_candidates
+    from advocc_ros.planning.witness_cache import find_witnesses, save_candidates
 
     for name, (scene_path, request) in tasks().items():
         if witness_path(name).is_file():
