@@ -26,9 +26,10 @@ When the straight motion from the start to a ``joint`` goal is free, the search 
 around a cube on it (``planning.direct_motion``): no box may touch the witness, so a witness on
 that motion would keep it open to every planner that tries the direct connection first.
 
-``planning.witness_cache.find_witnesses`` runs the search once per task and keeps its candidates
-in this process and on disk, so that the next process (another ``advocc attack``, a restarted
-node) skips it.
+``planning.witness_cache.find_witnesses`` runs the search once per task (it chooses the scenes
+the search plans among: grown by the clearance, with the direct motion's cube) and keeps its
+candidates in this process and on disk, so that the next process (another ``advocc attack``, a
+restarted node) skips it.
 
 File (``<obstacles>.witness.yaml`` beside an obstacles file): ``joint_names`` (the planned
 joints), ``waypoints`` (rad; the path is the linear interpolation in joint space between them),

@@ -98,11 +98,11 @@ def _search_scenes(objects: tuple[SceneObject, ...], clearance_m: float,
 
 
 def save_candidates(path: str | pathlib.Path, witnesses: tuple[Witness, ...],
-                    proof_digest: str | None = None) -> None:
+                    digest: str | None = None) -> None:
     """Write candidate witnesses atomically (``{format: SET_FORMAT, witnesses: [...]}``, the
-    disk cache's file), with ``proof_digest`` when they were certified (``proof_digest``)."""
+    disk cache's file), with ``digest`` (``proof_digest``) when they were certified."""
     data = {'format': SET_FORMAT, 'witnesses': [w.to_data() for w in witnesses]}
-    save_yaml_atomic(path, data if proof_digest is None else dict(data, proof_digest=proof_digest))
+    save_yaml_atomic(path, data if digest is None else dict(data, proof_digest=digest))
 
 
 def proof_digest(key: str, witnesses: tuple[Witness, ...]) -> str:
