@@ -51,8 +51,8 @@ $(PY):
 	$(PYTHON) -m venv $(VENV)
 
 # One stamp for the whole environment: pinned wheels, OMPL fix-up, interfaces, our package, and
-# its numba kernels compiled into numba's cache (~30 s of one CPU once, not in a user's first
-# attack; it needs only the wheels, so it runs beside the interfaces' build).
+# its C kernels built into the user's cache (~2 s, not in a user's first attack; it needs only
+# the wheels, so it runs beside the interfaces' build).
 # ompl 1.7.0's wheel ships a stray second libompl next to the one its extensions link; loading
 # both destroys OMPL's statics twice and every interpreter segfaults at exit: remove the stray.
 $(WHEELS_STAMP): $(PY) setup.py setup.cfg package.xml Makefile | $(UV)
@@ -65,7 +65,7 @@ $(MSGS_STAMP): $(WHEELS_STAMP) $(MSGS)
 	touch $@
 
 $(KERNELS_STAMP): $(WHEELS_STAMP)
-	$(PY) -m advocc_ros.attack.kernels
+	$(PY) -m advocc_ros.kernels
 	touch $@
 
 $(STAMP): $(WHEELS_STAMP) $(MSGS_STAMP) $(KERNELS_STAMP)

@@ -21,7 +21,6 @@ RUNTIME = [
     'matplotlib==3.11.2',
     'tqdm==4.70.1',
     'cmaes==0.13.1',
-    'numba==0.68.1',
     'meshcat==0.3.2',  # its bundled browser viewer makes the offline 3D pages
     'mcap==1.6.0',  # ROS 2 bags in rosbag2's MCAP storage
     'pypcd4==1.5.1',  # PCD point-cloud files (cloud scene objects)
@@ -71,6 +70,7 @@ setup(
     name=PACKAGE,
     version='0.1.0',
     packages=find_packages(exclude=['test']),
+    package_data={f'{PACKAGE}.kernels': ['*.c', '*.h']},  # built on first use (kernels/)
     data_files=[
         ('share/ament_index/resource_index/packages', [f'resource/{PACKAGE}']),
         (f'share/{PACKAGE}', ['package.xml']),

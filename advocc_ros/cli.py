@@ -23,7 +23,7 @@ class UserError(Exception):
 def build_parser(argv: list[str] | None = None) -> argparse.ArgumentParser:
     """The parser of every command, or only of the command ``argv`` names.
 
-    Command modules import what their handlers need (numba kernels, trimesh, ROS); loading only
+    Command modules import what their handlers need (compiled kernels, trimesh, ROS); loading only
     the named one saves a warm ``advocc attack`` about 0.4 s.
     """
     parser = argparse.ArgumentParser(

@@ -52,9 +52,9 @@ MAX_PLANNER_QUERIES = 10_000
 
 
 THREADS_ENV = 'ADVOCC_THREADS'
-"""Threads one process may run at once (its C++ thread pools, numba's parallel loops): set by the
-data set build to the CPUs each of its Ray tasks holds, so that a task does not take the CPUs of
-another (whose victims are being timed)."""
+"""Threads one process may run at once (its C++ thread pools, the kernels' parallel loops): set
+by the data set build to the CPUs each of its Ray tasks holds, so that a task does not take the
+CPUs of another (whose victims are being timed)."""
 
 
 def available_cpus() -> int:

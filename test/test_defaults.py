@@ -182,12 +182,12 @@ def test_a_named_command_loads_only_its_own_module():
 @pytest.mark.processes
 def test_the_message_only_nodes_load_no_compiler():
     """The planner shim and the attacker only convert messages and plan or ask: they start
-    without numba or scipy (``attack/`` and ``heatmap/`` load a name's module on first use), and
-    the attack package still hands out every name it lists."""
+    without the compiled kernels or scipy (``attack/`` and ``heatmap/`` load a name's module on
+    first use), and the attack package still hands out every name it lists."""
     import subprocess
     import sys
     code = ('import sys, advocc_ros.nodes.planner_shim, advocc_ros.nodes.attacker; '
-            "print(sorted(m for m in ('numba', 'scipy') if m in sys.modules))")
+            "print(sorted(m for m in ('advocc_ros.kernels', 'scipy') if m in sys.modules))")
     out = subprocess.run([sys.executable, '-c', code], capture_output=True, text=True,
                          check=True).stdout.strip()
     assert out == '[]'

@@ -284,33 +284,43 @@ def test_lut_pitch_comes_from_the_file(small_table_heatmap, table_scene, tmp_pat
         load_heatmap(tmp_path / 'bad.npz')
 
 
-def test_a_links_column_span_holds_every_voxel_centre_inside_its_table(panda):
-    """``link_column`` may shorten a column only where no centre is inside the link's table:
-    at random placements (and at axis-aligned ones, whose column direction has exact zeros),
-    every voxel of the link's rotated bounding box that ``in_link`` accepts lies in the span."""
-    from advocc_ros.heatmap.build import in_link, link_column, link_tables, link_voxel_box
+def test_a_links_rasterization_is_every_voxel_centre_inside_its_table(panda):
+    """The kernel visits a link's voxels only inside its rotated bounding box and, in each
+    column, the span where its table can be (``link_column``, kernels/voxels.c): at random
+    placements (and axis-aligned ones, whose column direction has exact zeros) it marks exactly
+    the voxel centres of that box inside the link's table, as testing every centre of the grid
+    with numpy (the same arithmetic) does: the column spans drop none."""
+    from advocc_ros.heatmap.build import link_tables
 
     tables = link_tables(panda, 0.005)
+    n_links = len(tables.shape)
     rng = np.random.default_rng(5)
-    voxel, origin = 0.02, np.array([-0.41, -0.37, -0.29])
-    limits = (np.zeros(3, np.int64), np.full(3, 60, np.int64))
+    voxel, origin, shape = 0.02, np.array([-0.41, -0.37, -0.29]), (61, 61, 61)
+    centres = origin + (np.indices(shape).reshape(3, -1).T + 0.5) * voxel
     rotations = [pin.exp3(rng.normal(size=3) * 2.0) for _ in range(60)] + [np.eye(3)] * 4
     inside = 0
     for n, r in enumerate(rotations):
-        li = n % len(tables.shape)
+        li = n % n_links
         t = rng.uniform(0.1, 1.0, size=3)
-        lo, hi = link_voxel_box(r, t, tables.box_lo[li], tables.box_hi[li], origin, voxel,
-                                *limits)
-        for i in range(lo[0], hi[0] + 1):
-            px = origin[0] + (i + 0.5) * voxel - t[0]
-            for j in range(lo[1], hi[1] + 1):
-                py = origin[1] + (j + 0.5) * voxel - t[1]
-                a, b = link_column(r, px, py, tables.origin[li], tables.shape[li],
-                                   tables.pitch, origin[2] - t[2], voxel, lo[2], hi[2])
-                for kk in range(lo[2], hi[2] + 1):
-                    pz = origin[2] + (kk + 0.5) * voxel - t[2]
-                    if in_link(r, px, py, pz, tables.data, tables.offset[li], tables.shape[li],
-                               tables.origin[li], 1.0 / tables.pitch):
-                        inside += 1
-                        assert a <= kk <= b, (n, li, i, j, kk, a, b)
+        mask = tables.rasterize(np.zeros(shape, bool), origin, voxel,
+                                np.repeat(r[None], n_links, 0), np.repeat(t[None], n_links, 0),
+                                links=[li])
+        p = centres - t
+        cell = [np.floor((r[0, m] * p[:, 0] + r[1, m] * p[:, 1] + r[2, m] * p[:, 2]
+                          - tables.origin[li, m]) * (1.0 / tables.pitch)) for m in range(3)]
+        ok = np.all([(c >= 0) & (c < tables.shape[li, m]) for m, c in enumerate(cell)], axis=0)
+        gx, gy, gz = (np.where(ok, c, 0).astype(np.int64) for c in cell)
+        sy, sz = tables.shape[li, 1], tables.shape[li, 2]
+        expected = ok & (tables.data[tables.offset[li] + (gx * sy + gy) * sz + gz] != 0)
+        index = np.indices(shape).reshape(3, -1)
+        for a in range(3):  # the link's rotated bounding box, as the kernel bounds it
+            c, e = t[a], 0.0
+            for b in range(3):
+                c += r[a, b] * 0.5 * (tables.box_lo[li, b] + tables.box_hi[li, b])
+                e += abs(r[a, b]) * 0.5 * (tables.box_hi[li, b] - tables.box_lo[li, b])
+            lo = np.ceil((c - e - origin[a]) / voxel - 0.5)
+            hi = np.floor((c + e - origin[a]) / voxel - 0.5)
+            expected &= (index[a] >= lo) & (index[a] <= hi)
+        assert np.array_equal(mask.ravel(), expected), (n, li)
+        inside += int(expected.sum())
     assert inside > 1000  # the links were in the window

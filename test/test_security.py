@@ -115,7 +115,7 @@ def test_nodes_refuse_files_outside_allowed_dirs(tmp_path, ros_env):
 # uses the CLI as a library.
 
 _PACKAGE = REPO / 'advocc_ros'
-_STAGES = ('model', 'kinematics', 'formats', 'scenes', 'heatmap', 'attack', 'planning',
+_STAGES = ('kernels', 'model', 'kinematics', 'formats', 'scenes', 'heatmap', 'attack', 'planning',
            'evaluation', 'audit', 'view', 'bench')
 _LOOSE = ('__init__', 'cli', 'fileio', 'limits', 'paths')  # top-level modules, also ROS-free
 _ROS_EDGE = ('advocc_ros.ros', 'advocc_ros.nodes', 'advocc_ros.orchestrator')

@@ -8,80 +8,15 @@ candidate is near, so a configuration costs ~0.1 ms.
 
 from __future__ import annotations
 
-import numba
 import numpy as np
 from scipy import sparse
 
+from advocc_ros import kernels
 from advocc_ros.attack.coverage import box_sum
 from advocc_ros.attack.region import SearchRegion
 from advocc_ros.heatmap import link_tables, placement_arrays
-from advocc_ros.heatmap.build import in_link, link_column, link_voxel_box
 from advocc_ros.model.collision import CollisionWorld
 from advocc_ros.model.robot import RobotModel
-
-
-@numba.njit(cache=True, nogil=True, parallel=True)
-def _cover(cover, starts, cand_id, near, near_z, stamp, union, win_origin, voxel, k, R, t,
-           lut_data, lut_offset, lut_shape, lut_origin, lut_pitch, box_lo, box_hi):
-    """``cover[r, cand_id[c]] = True`` for every candidate c whose cube U(c) (half-width k
-    voxels) holds a voxel centre inside a link of a configuration s of row r (window grid; the
-    configurations ``starts[r]`` to ``starts[r + 1]``). ``near`` and ``stamp`` are padded by k:
-    voxels with no candidate around them are skipped (those beyond a column's first and last
-    such voxel, ``near_z``, or beyond the link table's span of the column, ``link_column``, are
-    not even visited), and so are voxels another link or configuration of the same row already
-    did (the states of a ray overlap). With ``union``,
-    ``cover`` is not written: ``stamp >= 0`` marks the voxels inside a link at some
-    configuration (the union of the bodies), and a voxel one row filled is not tested again.
-    Rows run in parallel (they are independent; a voxel's stamp only ever skips work its row
-    has claimed, so a race costs a repeated, idempotent write, never a missed one)."""
-    nx, ny, nz = cand_id.shape
-    lo_limit = np.full(3, -k, np.int64)
-    hi_limit = np.array([nx - 1 + k, ny - 1 + k, nz - 1 + k], np.int64)
-    inv = 1.0 / lut_pitch
-    for row in numba.prange(len(starts) - 1):
-        for s in range(starts[row], starts[row + 1]):
-            _cover_one(cover, row, s, cand_id, near, near_z, stamp, union, win_origin, voxel,
-                       k, R, t, lut_data, lut_offset, lut_shape, lut_origin, lut_pitch, inv,
-                       box_lo, box_hi, lo_limit, hi_limit)
-    return cover
-
-
-@numba.njit(cache=True, nogil=True)
-def _cover_one(cover, row, s, cand_id, near, near_z, stamp, union, win_origin, voxel, k, R, t,
-               lut_data, lut_offset, lut_shape, lut_origin, lut_pitch, inv, box_lo, box_hi,
-               lo_limit, hi_limit):
-    """``_cover`` for configuration s, written to row ``row``."""
-    nx, ny, nz = cand_id.shape
-    for li in range(R.shape[1]):
-        r, tl = R[s, li], t[s, li]
-        shape_l, origin_l, offset_l = lut_shape[li], lut_origin[li], lut_offset[li]
-        lo, hi = link_voxel_box(r, tl, box_lo[li], box_hi[li], win_origin, voxel,
-                                lo_limit, hi_limit)
-        for i in range(lo[0], hi[0] + 1):
-            px = win_origin[0] + (i + 0.5) * voxel - tl[0]
-            for j in range(lo[1], hi[1] + 1):
-                py = win_origin[1] + (j + 0.5) * voxel - tl[1]
-                ka, kb = link_column(r, px, py, origin_l, shape_l, lut_pitch,
-                                     win_origin[2] - tl[2], voxel,
-                                     max(lo[2], near_z[i + k, j + k, 0] - k),
-                                     min(hi[2], near_z[i + k, j + k, 1] - k))
-                for kk in range(ka, kb + 1):
-                    done = stamp[i + k, j + k, kk + k]
-                    if not near[i + k, j + k, kk + k] or done == row or (union and done >= 0):
-                        continue
-                    pz = win_origin[2] + (kk + 0.5) * voxel - tl[2]
-                    if not in_link(r, px, py, pz, lut_data, offset_l, shape_l, origin_l,
-                                   inv):
-                        continue
-                    stamp[i + k, j + k, kk + k] = row
-                    if union:
-                        continue
-                    for a0 in range(max(i - k, 0), min(i + k, nx - 1) + 1):
-                        for a1 in range(max(j - k, 0), min(j + k, ny - 1) + 1):
-                            for a2 in range(max(kk - k, 0), min(kk + k, nz - 1) + 1):
-                                cid = cand_id[a0, a1, a2]
-                                if cid >= 0:
-                                    cover[row, cid] = True
 
 
 class _Lattice:
@@ -104,16 +39,25 @@ class _Lattice:
         self.cand_id = np.full(region.candidates.shape, -1, dtype=np.int64)
         self.cand_id[tuple(cand.T)] = np.arange(len(cand))
         self.stamp = np.full(self.near.shape, -1, dtype=np.int64)
+        self.packed = self.tables.kernel_tables()
 
     def scan(self, cover: np.ndarray, union: bool, starts: np.ndarray | None = None) -> None:
-        """Run ``_cover`` (its docstring) into ``cover`` and ``self.stamp``; ``starts``: the
-        rows' first configurations and the end (default: one row a configuration)."""
-        tb = self.tables
+        """The kernel (``kernels.cover``) into ``cover`` and ``self.stamp``: ``cover[r,
+        cand_id[c]] = True`` for every candidate c whose cube U(c) (half-width k voxels)
+        holds a voxel centre inside a link of a configuration s of row r (the
+        configurations ``starts[r]`` to ``starts[r + 1]``; default one row a configuration).
+        Voxels with no candidate around them are skipped (those beyond a column's first and
+        last such voxel, ``near_z``, or beyond the link table's span of the column are not
+        even visited), and so are voxels another link or configuration of the same row
+        already did (the states of a ray overlap). With ``union``, ``cover`` is not written:
+        ``stamp >= 0`` marks the voxels inside a link at some configuration (the union of
+        the bodies), and a voxel one row filled is not tested again. Rows run in parallel (a
+        voxel's stamp only ever skips work its row has claimed, so a race costs a repeated,
+        idempotent write, never a missed one)."""
         if starts is None:
             starts = np.arange(len(self.R) + 1)
-        _cover(cover, starts, self.cand_id, self.near, self.near_z, self.stamp, union,
-               self.origin_m, self.voxel_m, self.k, self.R, self.t, tb.data, tb.offset,
-               tb.shape, tb.origin, tb.pitch, tb.box_lo, tb.box_hi)
+        kernels.cover(cover, starts, self.cand_id, self.near, self.near_z, self.stamp, union,
+                      self.origin_m, self.voxel_m, self.k, self.R, self.t, self.packed)
 
 
 def cover_matrix(robot: RobotModel, world: CollisionWorld, Q: np.ndarray,
@@ -133,7 +77,7 @@ def cover_matrix(robot: RobotModel, world: CollisionWorld, Q: np.ndarray,
         return sparse.csr_matrix((n_rows, n_cand))
     dense = np.zeros((n_rows, n_cand), dtype=np.bool_)
     _Lattice(robot, world, Q, region, shrink, placements).scan(dense, False, starts)
-    indptr, indices = _dense_to_csr(dense)
+    indptr, indices = kernels.dense_to_csr(dense)
     return sparse.csr_matrix((np.ones(len(indices)), indices, indptr), shape=dense.shape)
 
 
@@ -166,29 +110,6 @@ def touching_mask(robot: RobotModel, world: CollisionWorld, Q: np.ndarray,
     reach = box_sum((lattice.stamp >= 0).astype(np.float64), k) > 0
     inner = reach[k:reach.shape[0] - k, k:reach.shape[1] - k, k:reach.shape[2] - k]
     return inner & region.candidates
-
-
-@numba.njit(cache=True, nogil=True, parallel=True)
-def _dense_to_csr(dense):
-    """CSR ``indptr`` and (sorted) ``indices`` of a bool matrix, rows in parallel, without
-    ``np.nonzero``'s index arrays and scipy's COO -> CSR sort."""
-    n, m = dense.shape
-    counts = np.zeros(n + 1, np.int64)
-    for i in numba.prange(n):
-        c = 0
-        for j in range(m):
-            if dense[i, j]:
-                c += 1
-        counts[i + 1] = c
-    indptr = np.cumsum(counts)
-    indices = np.empty(indptr[-1], np.int64)
-    for i in numba.prange(n):
-        p = indptr[i]
-        for j in range(m):
-            if dense[i, j]:
-                indices[p] = j
-                p += 1
-    return indptr, indices
 
 
 __all__ = ['cover_matrix', 'touching_mask']

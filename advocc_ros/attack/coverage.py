@@ -3,7 +3,8 @@
 Greedy: box sums of the uncovered mass by separable shift-adds over a window around the
 corridor; after each pick only the sums within 2k voxels of it change and are recomputed
 locally. Random baseline: candidates in a seeded random order under the same constraints.
-Numpy, and one compiled kernel for box distances; tested against brute force.
+Numpy, and compiled kernels (``advocc_ros.kernels``) for the line sums and box distances;
+tested against brute force.
 """
 
 from __future__ import annotations
@@ -13,9 +14,9 @@ import logging
 import math
 from typing import Callable
 
-import numba
 import numpy as np
 
+from advocc_ros import kernels
 from advocc_ros.attack.types import AttackConfig
 
 log = logging.getLogger(__name__)
@@ -29,25 +30,6 @@ def box_half_voxels(box_size_m: float, voxel_m: float) -> int:
     return int(math.floor(box_size_m / 2 / voxel_m + 1e-9))
 
 
-@numba.njit(cache=True, nogil=True)
-def _line_sums(src, k):
-    """``out[a, b, i] = src[a, b, i] + src[a, b, i - 1] + src[a, b, i + 1] + ... (+- k)``,
-    terms outside the line skipped, always added in this order."""
-    n0, n1, n = src.shape
-    out = np.empty((n0, n1, n))
-    for a in range(n0):
-        for b in range(n1):
-            for i in range(n):
-                acc = src[a, b, i]
-                for o in range(1, k + 1):
-                    if i - o >= 0:
-                        acc += src[a, b, i - o]
-                    if i + o < n:
-                        acc += src[a, b, i + o]
-                out[a, b, i] = acc
-    return out
-
-
 def box_sum(values: np.ndarray, k: int) -> np.ndarray:
     """Sum of ``values`` over the (2k+1)^3 cube around each voxel (zero outside the array).
 
@@ -57,9 +39,7 @@ def box_sum(values: np.ndarray, k: int) -> np.ndarray:
     """
     out = np.asarray(values, dtype=np.float64)
     for axis in range(3):
-        # contiguous lines: one compiled signature (each loads from the cache in ~30 ms)
-        out = np.moveaxis(_line_sums(np.ascontiguousarray(np.moveaxis(out, axis, -1)), k),
-                          -1, axis)
+        out = np.moveaxis(kernels.line_sums(np.moveaxis(out, axis, -1), k), -1, axis)
     return np.ascontiguousarray(out)
 
 
@@ -111,45 +91,10 @@ def box_distance(mask: np.ndarray, voxel_m: float, half_m: float, max_m: float,
         dst.append(slice(start - rows[a][0], stop - rows[a][0]))
     out = np.where(mask[block], np.float32(0), np.float32(np.inf))
     for axis in range(3):
-        line = _min_plus(np.ascontiguousarray(np.moveaxis(out, axis, -1)), costs,
-                         *out_rows[axis])
+        line = kernels.min_plus(np.moveaxis(out, axis, -1), costs, *out_rows[axis])
         out = np.moveaxis(line, -1, axis)
     result[tuple(dst)] = np.sqrt(out, dtype=np.float64)
     return result
-
-
-@numba.njit(cache=True, nogil=True)
-def _min_plus(src, costs, start, stop):
-    """``out[a, b, i - start] = min_o src[a, b, i + o] + costs[|o|]`` for i in [start, stop),
-    over the offsets o with |o| < len(costs) that stay inside the line (``costs`` must not
-    decrease). Lines with no finite value (most of them: the masks are sparse) are skipped."""
-    n0, n1, n = src.shape
-    out = np.full((n0, n1, stop - start), np.inf, dtype=np.float32)
-    m = len(costs)
-    for a in range(n0):
-        for b in range(n1):
-            empty = True
-            for i in range(n):
-                if src[a, b, i] < np.inf:
-                    empty = False
-                    break
-            if empty:
-                continue
-            for i in range(start, stop):
-                best = src[a, b, i]
-                for o in range(1, m):
-                    if costs[o] >= best:
-                        break  # costs grow with |o|: no farther voxel can do better
-                    if i - o >= 0:
-                        v = src[a, b, i - o] + costs[o]
-                        if v < best:
-                            best = v
-                    if i + o < n:
-                        v = src[a, b, i + o] + costs[o]
-                        if v < best:
-                            best = v
-                out[a, b, i - start] = best
-    return out
 
 
 def _ball_offsets(radius_vox: float) -> np.ndarray:

@@ -9,10 +9,10 @@ import math
 from typing import Any, Protocol
 
 import coal
-import numba
 import numpy as np
 import pinocchio as pin
 
+from advocc_ros import kernels
 from advocc_ros.attack.coverage import box_distance, box_half_voxels
 from advocc_ros.attack.types import AttackConfig
 from advocc_ros.heatmap import Heatmap, link_tables
@@ -110,29 +110,6 @@ class SearchRegion:
         return what is None
 
 
-@numba.njit(cache=True, nogil=True)
-def _corridor_candidates(weights, lo, hi, origin, voxel, a, b, radius):
-    """Voxels of ``weights[lo:hi]`` with positive mass whose centre lies within ``radius`` of
-    the segment ``a``-``b``; and how many had positive mass. One pass, no index arrays."""
-    cand = np.zeros(weights.shape, dtype=np.bool_)
-    ab = b - a
-    inv = 1.0 / max(ab[0] * ab[0] + ab[1] * ab[1] + ab[2] * ab[2], 1e-12)
-    positive = 0
-    for i in range(lo[0], hi[0]):
-        px = origin[0] + (i + 0.5) * voxel - a[0]
-        for j in range(lo[1], hi[1]):
-            py = origin[1] + (j + 0.5) * voxel - a[1]
-            for k in range(lo[2], hi[2]):
-                if weights[i, j, k] <= 0.0:
-                    continue
-                positive += 1
-                pz = origin[2] + (k + 0.5) * voxel - a[2]
-                t = min(max((px * ab[0] + py * ab[1] + pz * ab[2]) * inv, 0.0), 1.0)
-                dx, dy, dz = px - t * ab[0], py - t * ab[1], pz - t * ab[2]
-                cand[i, j, k] = dx * dx + dy * dy + dz * dz <= radius * radius
-    return cand, positive
-
-
 @dataclasses.dataclass(frozen=True)
 class _Window:
     """The part of the heatmap grid one task's region looks at: ``[lo, hi)``, the corridor's
@@ -218,7 +195,8 @@ def _corridor(heatmap: Heatmap, robot: RobotModel, objects, window: _Window,
     win = window.slices
     free = heatmap.free[win] & ~shared_world(robot, shapes).occupied(grid)[win]
     weights = np.where(free, heatmap.values[win], 0.0)
-    cand, stats['free_positive'] = _corridor_candidates(
+    # voxels with H > 0 within r_corr of the segment; how many had H > 0
+    cand, stats['free_positive'] = kernels.corridor_candidates(
         weights, window.crop_lo, np.minimum(window.crop_hi, window.hi - window.lo),
         np.asarray(window.grid.origin_m), grid.voxel_m, x_start, x_goal, cfg.corridor_radius_m)
     stats['corridor'] = int(cand.sum())

@@ -49,7 +49,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 def _heatmap(args) -> int:
     scene = scene_from_args(args)
     cfg = HeatmapConfig(samples=args.samples)
-    # First build includes one-time costs (numba kernel compile or cache load, link tables).
+    # First build includes one-time costs (the kernels' library loaded, link tables).
     t0 = time.perf_counter()
     build_heatmap(scene, HeatmapConfig(samples=200), seed=12345)
     warmup_s = time.perf_counter() - t0

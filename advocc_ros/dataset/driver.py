@@ -388,7 +388,7 @@ def _remember_and_raise(signum, frame):
 
 def _task(ray, run: RunConfig):
     """``run_problem`` as a Ray task: ``cpus_per_problem`` CPUs, its threads capped at them
-    (``dataset.threads``: in its worker's environment from the start, before numba or a BLAS
+    (``dataset.threads``: in its worker's environment from the start, before a BLAS
     reads it), retried after a worker death, never after an exception (the job has none)."""
     env = {} if run.ray_address is None else \
         {'runtime_env': {'env_vars': thread_caps(run.cpus_per_problem)}}

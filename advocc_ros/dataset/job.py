@@ -134,14 +134,12 @@ def _ray_context() -> tuple[str | None, float | None]:
 def provenance(cpus: float | None, node: str | None) -> dict:
     """What makes this record (``evaluation.provenance.record``: commit, dirty flag, host,
     CPU, cores, load, versions), with the Ray CPUs the task holds (``cpus``), the threads its
-    process may run (``limits.worker_threads``; numba's pool too, once numba is loaded),
+    process may run (``limits.worker_threads``: its C++ pools and the kernels' parallel loops),
     whether its victims had their CPUs alone (``ALONE_CPUS``), its node and process."""
     from advocc_ros.limits import worker_threads
     from advocc_ros.evaluation.provenance import record
 
-    numba = sys.modules.get('numba')
     return dict(record(), cpus=cpus, threads=worker_threads(),
-                numba_threads=numba.get_num_threads() if numba is not None else None,
                 victims_cpus_alone=None if cpus is None else cpus >= ALONE_CPUS,
                 node=node, pid=os.getpid())
 
@@ -252,7 +250,7 @@ def run_problem(problem: dict, heatmap, config: BuildConfig, log_to: dict | None
             outcome, reason, hardness, files = 'error', f'{type(exc).__name__}: {exc}', None, {}
             record['traceback'] = traceback.format_exc(limit=8)
         log.info('%s: %s %s', key, outcome, reason)
-    made = provenance(cpus, node)  # after the work: the threads numba did run with
+    made = provenance(cpus, node)  # after the work: the threads it did run with
     record.update(outcome=outcome, reason=reason, total_s=round(time.perf_counter() - t0, 3),
                   provenance=dict(made, load=load_start, load_end=made['load'],
                                   speed_checks_per_s=checks_per_s, started=started,

@@ -11,10 +11,10 @@ import contextlib
 import os
 from typing import Iterator
 
-THREAD_ENV = ('ADVOCC_THREADS', 'OMP_NUM_THREADS', 'OPENBLAS_NUM_THREADS', 'MKL_NUM_THREADS',
-              'NUMBA_NUM_THREADS')
+THREAD_ENV = ('ADVOCC_THREADS', 'OMP_NUM_THREADS', 'OPENBLAS_NUM_THREADS', 'MKL_NUM_THREADS')
 """Set to a task's CPUs in its worker's environment: this package's thread pools
-(``limits.worker_threads``), OpenMP, the BLAS libraries and numba's parallel loops."""
+(``limits.worker_threads``: its C++ pools and the kernels' parallel loops), OpenMP and the
+BLAS libraries."""
 
 
 def task_threads(cpus: float) -> int:

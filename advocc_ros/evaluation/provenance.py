@@ -30,8 +30,8 @@ REPO = pathlib.Path(__file__).resolve().parents[2]
 CODE_PATHS = ('advocc_ros', 'config', 'setup.py')
 """What ``dirty`` looks at: the code and the robot and scene files it loads, not docs or
 results (a results README edited before a build does not change a figure)."""
-DISTRIBUTIONS = ('advocc_ros', 'ray', 'numpy', 'scipy', 'numba', 'ompl', 'pin', 'coal',
-                 'trimesh', 'matplotlib', 'tesseract-robotics')
+DISTRIBUTIONS = ('advocc_ros', 'ray', 'numpy', 'scipy', 'ompl', 'pin', 'coal', 'trimesh',
+                 'matplotlib', 'tesseract-robotics')
 """Libraries whose versions every record names (None: not installed)."""
 
 
@@ -90,11 +90,14 @@ def _git(cmd: list[str]) -> str | None:
 
 @functools.lru_cache(maxsize=1)
 def versions() -> dict:
-    """Python's, the platform's and ``DISTRIBUTIONS``' versions, and MPlib's in the venv the
+    """Python's, the platform's and ``DISTRIBUTIONS``' versions, the compiled kernels' (the
+    digest of their sources and flags, and the compiler's version), and MPlib's in the venv the
     MPlib victim runs in (``$ADVOCC_MPLIB_PYTHON``'s, else the checkout's ``.venv-mplib``)."""
+    from advocc_ros.kernels.loader import compiler_version, digest
     from advocc_ros.planning.victims.mplib import PYTHON_ENV
 
-    out = {'python': platform.python_version(), 'platform': platform.platform()}
+    out = {'python': platform.python_version(), 'platform': platform.platform(),
+           'kernels': digest(), 'kernels_compiler': compiler_version()}
     for dist in DISTRIBUTIONS:
         try:
             out[dist] = importlib.metadata.version(dist)

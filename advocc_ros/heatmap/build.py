@@ -30,9 +30,9 @@ import time
 import zipfile
 from typing import Callable
 
-import numba
 import numpy as np
 
+from advocc_ros import kernels
 from advocc_ros.heatmap.config import HeatmapConfig
 from advocc_ros.heatmap.store import Heatmap
 from advocc_ros.fileio import atomic_open
@@ -70,104 +70,6 @@ def workspace_grid(robot: RobotModel, voxel_m: float, margin_m: float) -> VoxelG
     hi = np.ceil((hi + margin_m) / voxel_m) * voxel_m
     shape = tuple(int(round(v)) for v in (hi - lo) / voxel_m)
     return VoxelGrid(tuple(float(v) for v in lo), float(voxel_m), shape)
-
-
-@numba.njit(cache=True, nogil=True)
-def link_voxel_box(r, t, box_lo, box_hi, origin, voxel, lo_limit, hi_limit):
-    """Per axis, the index range [lo, hi] of the voxel centres ``origin + (i + 0.5) voxel``
-    inside the rotated bounding box (``box_lo``, ``box_hi`` in the link frame) of a link at
-    ``T_base_link = (r, t)``, clipped to [``lo_limit``, ``hi_limit``]."""
-    lo = np.empty(3, np.int64)
-    hi = np.empty(3, np.int64)
-    for a in range(3):
-        c = t[a]
-        e = 0.0
-        for b in range(3):
-            c += r[a, b] * 0.5 * (box_lo[b] + box_hi[b])
-            e += abs(r[a, b]) * 0.5 * (box_hi[b] - box_lo[b])
-        lo[a] = max(lo_limit[a], int(np.ceil((c - e - origin[a]) / voxel - 0.5)))
-        hi[a] = min(hi_limit[a], int(np.floor((c + e - origin[a]) / voxel - 0.5)))
-    return lo, hi
-
-
-@numba.njit(cache=True, nogil=True)
-def link_column(r, px, py, lut_origin, lut_shape, lut_pitch, z0, voxel, lo, hi):
-    """Of the voxel centres ``z0 + (kk + 0.5) voxel`` (base-frame z offsets from the link
-    origin) of the column at offsets (``px``, ``py``), the index range [a, b] within [``lo``,
-    ``hi``] outside of which every centre misses the link's look-up table, so ``in_link`` is
-    False there: the z interval where all three link-frame coordinates lie inside the table,
-    widened by a voxel each way (rounding never drops a centre). Empty when a > b."""
-    z_lo, z_hi = -np.inf, np.inf
-    for m in range(3):
-        c = r[2, m]
-        a = r[0, m] * px + r[1, m] * py - lut_origin[m]
-        extent = lut_shape[m] * lut_pitch
-        if abs(c) < 1e-12:
-            if a < -1e-9 or a > extent + 1e-9:
-                return 1, 0
-            continue
-        u, v = -a / c, (extent - a) / c
-        z_lo = max(z_lo, min(u, v))
-        z_hi = min(z_hi, max(u, v))
-    if z_lo > z_hi:
-        return 1, 0
-    a = int(np.floor((z_lo - z0) / voxel - 0.5)) - 1
-    b = int(np.ceil((z_hi - z0) / voxel - 0.5)) + 1
-    return max(a, lo), min(b, hi)
-
-
-@numba.njit(cache=True, nogil=True)
-def in_link(r, px, py, pz, lut_data, offset, lut_shape, lut_origin, inv_pitch):
-    """Whether the point ``p - t`` (base-frame offset from the link origin) is inside the link's
-    look-up table: local = R^T p, then the table cell."""
-    gx = int(np.floor((r[0, 0] * px + r[1, 0] * py + r[2, 0] * pz - lut_origin[0]) * inv_pitch))
-    if gx < 0 or gx >= lut_shape[0]:
-        return False
-    gy = int(np.floor((r[0, 1] * px + r[1, 1] * py + r[2, 1] * pz - lut_origin[1]) * inv_pitch))
-    if gy < 0 or gy >= lut_shape[1]:
-        return False
-    gz = int(np.floor((r[0, 2] * px + r[1, 2] * py + r[2, 2] * pz - lut_origin[2]) * inv_pitch))
-    if gz < 0 or gz >= lut_shape[2]:
-        return False
-    return lut_data[offset + (gx * lut_shape[1] + gy) * lut_shape[2] + gz] != 0
-
-
-@numba.njit(cache=True, nogil=True)
-def _accumulate(H, stamp, free, grid_origin, voxel, grid_shape, R, t, weights, sample0,
-                lut_data, lut_offset, lut_shape, lut_origin, lut_pitch, box_lo, box_hi):
-    """Add ``weights[s]`` to every free voxel whose centre is inside a link at sample ``s``.
-
-    R (n, L, 3, 3), t (n, L, 3): ``T_base_link`` per sample and link. Each link is scanned
-    over the voxels of its rotated bounding box only, in each column where it meets the link's
-    table (``link_column``); a voxel is counted once per sample even where links overlap
-    (``stamp`` remembers the last sample that added to it).
-    """
-    ny, nz = grid_shape[1], grid_shape[2]
-    zero = np.zeros(3, np.int64)
-    top = np.asarray(grid_shape, np.int64) - 1
-    inv = 1.0 / lut_pitch
-    for s in range(R.shape[0]):
-        sid = sample0 + s
-        w = weights[s]
-        for li in range(R.shape[1]):
-            r, tl = R[s, li], t[s, li]
-            lo, hi = link_voxel_box(r, tl, box_lo[li], box_hi[li], grid_origin, voxel, zero,
-                                    top)
-            for i in range(lo[0], hi[0] + 1):
-                px = grid_origin[0] + (i + 0.5) * voxel - tl[0]
-                for j in range(lo[1], hi[1] + 1):
-                    py = grid_origin[1] + (j + 0.5) * voxel - tl[1]
-                    ka, kb = link_column(r, px, py, lut_origin[li], lut_shape[li], lut_pitch,
-                                         grid_origin[2] - tl[2], voxel, lo[2], hi[2])
-                    for k in range(ka, kb + 1):
-                        pz = grid_origin[2] + (k + 0.5) * voxel - tl[2]
-                        if in_link(r, px, py, pz, lut_data, lut_offset[li], lut_shape[li],
-                                   lut_origin[li], inv):
-                            v = (i * ny + j) * nz + k
-                            if free[v] and stamp[v] != sid:
-                                stamp[v] = sid
-                                H[v] += w
-    return H
 
 
 class LinkTables:
@@ -228,14 +130,16 @@ class LinkTables:
         R, t = (R[None], t[None]) if np.ndim(R) == 3 else (R, t)
         # The heatmap kernel: samples 1..n (so zeroed stamps never match) of weight 1.
         hits = np.zeros(mask.size)
-        _accumulate(hits, np.zeros(mask.size, np.int64), np.ones(mask.size, np.bool_),
-                    np.asarray(origin_m, float), float(voxel_m),
-                    np.asarray(mask.shape, np.int64), np.ascontiguousarray(R[:, links]),
-                    np.ascontiguousarray(t[:, links]), np.ones(len(R)), 1, self.data,
-                    self.offset[links], self.shape[links], self.origin[links], self.pitch,
-                    self.box_lo[links], self.box_hi[links])
+        kernels.accumulate(hits, np.zeros(mask.size, np.int64), np.ones(mask.size, np.bool_),
+                           origin_m, voxel_m, mask.shape, R[:, links], t[:, links],
+                           np.ones(len(R)), 1, self.kernel_tables(links))
         mask |= hits.reshape(mask.shape) > 0
         return mask
+
+    def kernel_tables(self, links: np.ndarray | None = None) -> kernels.Tables:
+        """The tables of ``links`` (default all) as the kernels read them."""
+        return kernels.Tables(self.data, self.offset, self.shape, self.origin, self.pitch,
+                              self.box_lo, self.box_hi, links)
 
 
 LINK_TABLES: BoundedCache = BoundedCache('link look-up tables', 8)
@@ -323,6 +227,7 @@ def _build_chunk(args) -> tuple[np.ndarray, int, int]:
     rng = np.random.default_rng(seed_seq)
     H = np.zeros(grid.size)
     stamp = np.full(grid.size, -1, dtype=np.int64)
+    packed = tables.kernel_tables()
     done = drawn = 0
     while done < n_valid:
         Q = robot.sample_q(rng, 512)
@@ -332,10 +237,8 @@ def _build_chunk(args) -> tuple[np.ndarray, int, int]:
             raise RuntimeError('no valid configuration in 50,000 draws: is the robot inside '
                                'the scene?')
         R, t = placement_arrays(world, Q)
-        _accumulate(H, stamp, free_flat, np.asarray(grid.origin_m), grid.voxel_m,
-                    np.asarray(grid.shape, dtype=np.int64), R, t,
-                    sample_weights(robot, world, Q, cfg), done, tables.data, tables.offset,
-                    tables.shape, tables.origin, tables.pitch, tables.box_lo, tables.box_hi)
+        kernels.accumulate(H, stamp, free_flat, grid.origin_m, grid.voxel_m, grid.shape, R, t,
+                           sample_weights(robot, world, Q, cfg), done, packed)
         done += len(Q)
     return H, done, drawn
 

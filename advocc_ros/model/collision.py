@@ -311,26 +311,28 @@ class CollisionWorld:
 
     def link_transforms(self, Q: np.ndarray) -> np.ndarray:
         """``T_base_geom`` of each robot collision geometry for each q of ``Q``, as
-        (N, n_links, 4, 4) homogeneous matrices: the joints' frames of every q in one compiled
-        pass (``kinematics.batch.JointFrames``; pinocchio's forward kinematics q by q for a
-        joint it does not model), composed with the geometries' fixed placements in numpy."""
+        (N, n_links, 4, 4) homogeneous matrices: the joints' frames of every q composed with
+        the geometries' fixed placements in one compiled pass (``kinematics.batch.JointFrames``;
+        pinocchio's forward kinematics q by q, and numpy, for a joint it does not model)."""
         geoms = self.geom_model.geometryObjects[:self.n_links]
         kinematics = self._kinematics
-        T_joint = kinematics.frames(Q) if kinematics.supports else self._joint_frames_pin(Q)
+        placements = np.array([g.placement.homogeneous for g in geoms])
+        if kinematics.supports:
+            return kinematics.placed(Q, [g.parentJoint for g in geoms], placements)
         column = [kinematics.column[g.parentJoint] for g in geoms]
-        return np.einsum('nlij,ljk->nlik', T_joint[:, column],
-                         np.array([g.placement.homogeneous for g in geoms]))
+        return np.einsum('nlij,ljk->nlik', self._joint_frames_pin(Q)[:, column], placements)
 
     @functools.cached_property
     def _kinematics(self):
-        """The links' joints as ``JointFrames`` (imported here: numba only when asked)."""
+        """The links' joints as ``JointFrames`` (imported here: the kernels only when asked)."""
         from advocc_ros.kinematics.batch import JointFrames
 
         return JointFrames(self.model, [g.parentJoint for g in
                                         self.geom_model.geometryObjects[:self.n_links]])
 
     def _joint_frames_pin(self, Q: np.ndarray) -> np.ndarray:
-        """``JointFrames.frames`` by pinocchio, one forward kinematics per q."""
+        """T_base_joint (N, joints + 1, 4, 4) of ``JointFrames``' joints in its ``column`` order,
+        by pinocchio, one forward kinematics per q."""
         joints = sorted(self._kinematics.column, key=self._kinematics.column.get)
         data = self.model.createData()  # oMi[0], the base, stays the identity
         T_joint = np.empty((len(Q), len(joints), 4, 4))

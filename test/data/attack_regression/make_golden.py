@@ -15,8 +15,9 @@ Inputs, kept beside this script:
 Output: ``golden.json``, the cases (task, method, policy, seed, budget) and for each the status,
 the box centres (JSON floats: ``repr``, exact) and the marginal masses.
 
-Bit for bit holds on one kind of CPU. numpy, OpenBLAS, glibc's libm and numba pick code paths
-by the CPU's vector instructions, and their last bits differ, so a borderline decision (an IK
+Bit for bit holds on one kind of CPU. numpy, OpenBLAS and glibc's libm (which the kernels, built
+for the architecture's baseline, call) pick code paths by the CPU's vector instructions, and
+their last bits differ, so a borderline decision (an IK
 attempt's convergence, a goal sample's contact with a box) can go the other way: MotionBenchMaker
 table_pick's ``reachable`` case at seed 1 places boxes 8 and 10 of 10 one voxel apart on the
 Intel Xeon the reference was made on and on an AVX2 AMD EPYC, with equal masses (higher-scored
@@ -98,8 +99,8 @@ def robot_heatmap(scene):
 
 
 def fp_platform() -> str:
-    """The widest x86 vector extension of this CPU (``/proc/cpuinfo``): what numpy, OpenBLAS,
-    libm and numba choose their floating-point code paths by; another machine's ISA name, or
+    """The widest x86 vector extension of this CPU (``/proc/cpuinfo``): what numpy, OpenBLAS
+    and libm choose their floating-point code paths by; another machine's ISA name, or
     ``unknown``."""
     try:
         flags = set(pathlib.Path('/proc/cpuinfo').read_text().split('flags', 1)[1]
