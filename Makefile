@@ -68,8 +68,11 @@ $(KERNELS_STAMP): $(WHEELS_STAMP)
 	$(PY) -m advocc_ros.kernels
 	touch $@
 
+# Importing the CLI's attack also writes the bytecode of the modules an attack loads (make
+# unexports PYTHONDONTWRITEBYTECODE), so a shell or image that sets it does not compile them in
+# every attack (0.4 s of a 1.2 s warm attack, docs/performance.md).
 $(STAMP): $(WHEELS_STAMP) $(MSGS_STAMP) $(KERNELS_STAMP)
-	$(PY) -c 'import advocc_msgs.srv, rclpy, pinocchio, coal, ompl.geometric'
+	$(PY) -c 'import advocc_msgs.srv, rclpy, pinocchio, coal, ompl.geometric, advocc_ros.commands.attack'
 	@echo "advocc_ros installed in $(VENV)"
 	touch $@
 
