@@ -68,7 +68,7 @@ $(KERNELS_STAMP): $(WHEELS_STAMP)
 	$(PY) -m advocc_ros.kernels
 	touch $@
 
-# Importing the CLI's attack also writes the bytecode of the modules an attack loads (make
+# Importing the CLI's attack also writes the bytecode of nearly every module an attack loads (make
 # unexports PYTHONDONTWRITEBYTECODE), so a shell or image that sets it does not compile them in
 # every attack (0.4 s of a 1.2 s warm attack, docs/performance.md).
 $(STAMP): $(WHEELS_STAMP) $(MSGS_STAMP) $(KERNELS_STAMP)
